@@ -1,0 +1,52 @@
+"""Gate: navigate the swarm through an opening narrower than itself."""
+
+import numpy as np
+
+from dpr.envs.particle_env import ParticleSwarmEnv
+from dpr.sim.objects import gate_polygons
+
+
+class GateEnv(ParticleSwarmEnv):
+    """
+    ## Description
+    Navigation (see ``NavigationEnv``) with two static walls, 100 thick and 500 long, halfway between the
+    swarm's start and the goal, across the line joining them, leaving an opening of ``gate_width`` (150 by
+    default): wider than one expanded robot, narrower than the swarm, which must squeeze through.
+
+    ## Action Space
+    As Navigation.
+
+    ## Observation Space
+    As Navigation (the walls are fixed relative to the start and goal and not part of the state).
+
+    ## Rewards
+    As Navigation.
+
+    ## Starting State
+    As Navigation; the walls are placed once the start is drawn.
+
+    ## Episode End
+    As Navigation.
+
+    ## Arguments
+    Navigation's, plus ``gate_width=150.0``, which must exceed one expanded robot's diameter
+    (77.5 for the paddle model, 105 for the disk model).
+
+    ## Version History
+    * v0: first version; walls collide with every robot (robot 0 used to pass through them).
+    """
+
+    task = "gate"
+
+    def __init__(self, gate_width: float = 150.0, **kwargs):
+        super().__init__(**kwargs)
+        diameter = 2 * self.swarm_class.expanded_radius
+        if not gate_width > diameter:
+            raise ValueError(
+                f"gate_width must be wider than one expanded robot ({diameter:g} for robot_model="
+                f"{self.robot_model!r}), got {gate_width!r}"
+            )
+        self.gate_width = float(gate_width)
+
+    def _walls(self, start: np.ndarray) -> list[np.ndarray]:
+        return gate_polygons(start, self.goal, self.gate_width)

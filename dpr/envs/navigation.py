@@ -1,0 +1,62 @@
+"""Navigation: bring the swarm's centre of mass to the goal."""
+
+from dpr.envs.particle_env import ParticleSwarmEnv
+
+
+class NavigationEnv(ParticleSwarmEnv):
+    """
+    ## Description
+    A swarm of N particle robots (disks that can only expand and contract, coupled by magnets) must move
+    its centre of mass to a goal at the origin. No robot can move alone: the swarm moves when expansions
+    travel through it as a wave (see ``dpr.policies.wave``). This is the first task of Shen et al.,
+    "A Deep Reinforcement Learning Environment for Particle Robot Navigation and Object Manipulation".
+
+    ## Action Space
+    ``action_type="multibinary"`` (default, the paper's): ``MultiBinary(N)``, 1 = expand robot i, 0 = contract.
+    ``"discrete"``: ``Discrete(2^N)`` (N <= 16), the binary number whose most significant bit is robot 0.
+    ``"continuous"``: ``Box(0, 1, (N,))``, a target expansion per robot (0 contracted, 1 expanded).
+    A robot accepts a new target only once it has reached its previous one (within 10 degrees of stroke); a
+    full stroke takes about 3 steps. Actions of the wrong shape, dtype or range raise ``ValueError``.
+
+    ## Observation Space
+    ``obs_type="state"`` (default): ``Box(6N,)`` float32, robot-major: for each robot x, y (goal frame), vx,
+    vy (all / 1000), angular velocity (rad/s) and expansion in [0, 1]. It is the state after the step.
+    ``"pixels"``: ``Box(0, 255, (image_size, image_size, 3), uint8)``, a fixed top-down camera on the goal.
+    ``"pixels_state"``: ``Dict(pixels=..., state=...)``.
+
+    ## Rewards
+    ``reward="piecewise"`` (default, the paper's eq. 2): the centre's displacement in this step projected on
+    the direction from its previous position to the goal, multiplied by ``d / distance`` once within
+    ``d = reward_threshold_d`` (450) of the goal. ``"projected"``: the same without the multiplier.
+    ``"inverse_distance"``: ``1 / distance`` to the goal.
+
+    ## Starting State
+    The goal is at (0, 0). The swarm's centre is drawn at a polar radius in ``start_radius`` (450-550) and
+    any angle around it; robots stand contracted on a square grid of pitch 77.5 (one expanded diameter).
+    All randomness comes from ``reset(seed=...)``.
+
+    ## Episode End
+    Terminated when the agent comes within 10 units of the goal (``info["is_success"]``). Truncated at 2500
+    steps (``max_episode_steps`` of the registered id), or at once if the physics blows up (non-finite
+    state), with ``info["physics_error"]`` set.
+
+    ## Info
+    ``is_success``, ``centre_of_mass``, ``projected_displacement``, ``net_displacement``, ``total_distance``
+    (the metrics so far), ``object_position`` in Manipulation; after reset also ``dead_robots``.
+
+    ## Arguments
+    ``gymnasium.make("dpr/Navigation-v0", n_robots=9, robot_model="paddle", action_type="multibinary",
+    obs_type="state", reward="piecewise", reward_threshold_d=450.0, start_radius=(450, 550),
+    image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"`` (the paper's robot,
+    16 motor-driven paddles) or ``"disk"`` (one body whose radius changes; tens of times faster).
+    ``render_mode="rgb_array"`` draws robots, paddles, magnets, walls, object and goal, headless.
+    ``env.unwrapped.world.space`` is the pymunk Space.
+
+    ## Version History
+    * v0: rebuild of the 2021 gym/pymunk-5 environment on Gymnasium 1.x and pymunk 7. Observation and
+      reward now describe the state after the step (they lagged one step); the goal is a drawn marker that
+      collides with nothing; every random choice goes through the env's seeded generator; ``Discrete``
+      covers all 2^N actions; walls collide with every robot.
+    """
+
+    task = "navigation"

@@ -1,0 +1,268 @@
+"""Shared machinery of the four particle-robot tasks (see each task's module for its docstring)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from dpr.metrics import SUCCESS_RADIUS, MetricTracker
+from dpr.sim import ROBOT_MODELS, World, swarm_class
+from dpr.sim import constants as C
+from dpr.sim.world import ObjectSpec, grid_centres
+
+ACTION_TYPES = ("multibinary", "discrete", "continuous")
+OBS_TYPES = ("state", "pixels", "pixels_state")
+REWARDS = ("piecewise", "projected", "inverse_distance")
+MAX_DISCRETE_ROBOTS = 16  # Discrete(2^N) beyond 65536 actions is of no use to a learner
+ROBOT_FEATURES = 6  # x, y, vx, vy, angular velocity, expansion
+OBJECT_FEATURES = 4  # x, y, vx, vy
+LENGTH_SCALE = 1.0 / 1000.0
+GOAL = np.zeros(2)
+
+
+def _choice(name: str, value: Any, allowed: tuple) -> None:
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+
+
+class ParticleSwarmEnv(gym.Env):
+    """Base class of the particle-robot tasks: a swarm of N robots must bring an agent (its centre of mass,
+    or an object) to the goal at the origin. Subclasses set up walls, dead robots or an object."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    task = ""
+    has_object = False
+
+    def __init__(
+        self,
+        n_robots: int = 9,
+        robot_model: str = "paddle",
+        action_type: str = "multibinary",
+        obs_type: str = "state",
+        reward: str = "piecewise",
+        reward_threshold_d: float = 450.0,
+        start_radius: tuple[float, float] = (450.0, 550.0),
+        image_size: int = 96,
+        render_size: int = 512,
+        render_mode: str | None = None,
+    ):
+        if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)) or n_robots < 1:
+            raise ValueError(f"n_robots must be an integer >= 1, got {n_robots!r}")
+        _choice("robot_model", robot_model, ROBOT_MODELS)
+        _choice("action_type", action_type, ACTION_TYPES)
+        _choice("obs_type", obs_type, OBS_TYPES)
+        _choice("reward", reward, REWARDS)
+        _choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        if action_type == "discrete" and n_robots > MAX_DISCRETE_ROBOTS:
+            raise ValueError(
+                f"action_type='discrete' needs Discrete(2^N) actions; n_robots must be <= {MAX_DISCRETE_ROBOTS}"
+                f" for it, got {n_robots} (use 'multibinary' or 'continuous')"
+            )
+        if not reward_threshold_d > 0:
+            raise ValueError(f"reward_threshold_d must be > 0, got {reward_threshold_d!r}")
+        low, high = start_radius
+        if not 0 < low <= high:
+            raise ValueError(f"start_radius must be (low, high) with 0 < low <= high, got {start_radius!r}")
+        for name, size in (("image_size", image_size), ("render_size", render_size)):
+            if not isinstance(size, (int, np.integer)) or size < 16:
+                raise ValueError(f"{name} must be an integer >= 16, got {size!r}")
+
+        self.n_robots = int(n_robots)
+        self.robot_model = robot_model
+        self.action_type = action_type
+        self.obs_type = obs_type
+        self.reward_type = reward
+        self.reward_threshold_d = float(reward_threshold_d)
+        self.start_radius = (float(low), float(high))
+        self.image_size = int(image_size)
+        self.render_size = int(render_size)
+        self.render_mode = render_mode
+        self.swarm_class = swarm_class(robot_model)
+
+        n = self.n_robots
+        if action_type == "multibinary":
+            self.action_space = spaces.MultiBinary(n)
+        elif action_type == "discrete":
+            self.action_space = spaces.Discrete(2**n)
+        else:
+            self.action_space = spaces.Box(0.0, 1.0, (n,), dtype=np.float32)
+
+        self.state_size = ROBOT_FEATURES * n + (OBJECT_FEATURES if self.has_object else 0)
+        low_state = np.full(self.state_size, -np.inf, dtype=np.float32)
+        high_state = np.full(self.state_size, np.inf, dtype=np.float32)
+        low_state[5 : 6 * n : 6], high_state[5 : 6 * n : 6] = 0.0, 1.0  # expansion
+        state_space = spaces.Box(low_state, high_state, dtype=np.float32)
+        pixel_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
+        self.observation_space = {
+            "state": state_space,
+            "pixels": pixel_space,
+            "pixels_state": spaces.Dict({"pixels": pixel_space, "state": state_space}),
+        }[obs_type]
+
+        # A fixed camera centred on the goal that always holds the start circle and the swarm.
+        swarm_half = (math.ceil(math.sqrt(n)) / 2) * C.GRID_PITCH
+        self.view_half_extent = self.start_radius[1] + swarm_half + 2 * self.swarm_class.expanded_radius
+
+        self.world: World | None = None
+        self.goal = GOAL.copy()
+        self.start = np.zeros(2)
+        self._tracker: MetricTracker | None = None
+        self._renderer = None
+        self._image_renderer = None
+
+    # -- task hooks ---------------------------------------------------------------------------------------
+    def _dead_robots(self) -> np.ndarray:
+        return np.zeros(0, dtype=np.int64)
+
+    def _walls(self, start: np.ndarray) -> list[np.ndarray]:
+        return []
+
+    def _object(self, start: np.ndarray, centres: np.ndarray) -> ObjectSpec | None:
+        return None
+
+    # -- gymnasium API ------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        radius = self.np_random.uniform(*self.start_radius)
+        angle = self.np_random.uniform(0.0, 2 * math.pi)
+        self.start = self.goal + radius * np.array([math.cos(angle), math.sin(angle)])
+        dead = self._dead_robots()
+        centres = grid_centres(self.n_robots, self.start)
+        self.world = World(
+            self.n_robots,
+            self.robot_model,
+            centre=self.start,
+            dead=dead,
+            walls=self._walls(self.start),
+            obj=self._object(self.start, centres),
+        )
+        self._tracker = MetricTracker(self._agent_position(), self.goal)
+        self._last_obs = self._observation()
+        info = self._info()
+        info["dead_robots"] = np.flatnonzero(self.world.dead)
+        return self._last_obs, info
+
+    def step(self, action):
+        if self.world is None:
+            raise RuntimeError("call reset() before step()")
+        targets = self._targets(action)
+        previous = self._agent_position()
+        self.world.step(targets)
+        if not self.world.is_sane():
+            info = self._info()
+            info["physics_error"] = "non-finite or exploding body state; episode truncated"
+            return self._last_obs, 0.0, False, True, info
+        position = self._agent_position()
+        self._tracker.update(position)
+        reward = self._reward(previous, position)
+        distance = float(np.linalg.norm(position - self.goal))
+        terminated = distance < SUCCESS_RADIUS
+        self._last_obs = self._observation()
+        return self._last_obs, reward, terminated, False, self._info()
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = self._make_renderer(self.render_size)
+        return self._renderer.draw(self.world, self.goal)
+
+    def close(self):
+        self._renderer = None
+        self._image_renderer = None
+
+    # -- pieces -------------------------------------------------------------------------------------------
+    def _agent_position(self) -> np.ndarray:
+        """What the task moves: the swarm's centre, or the object."""
+        if self.has_object:
+            return self.world.object_pose[0:2].copy()
+        return self.world.centre_of_mass
+
+    def _targets(self, action) -> np.ndarray:
+        """Validate ``action`` against the action space and turn it into expansion targets in [0, 1]."""
+        n = self.n_robots
+        if self.action_type == "discrete":
+            value = action
+            if isinstance(value, np.ndarray) and value.size == 1:
+                value = value.reshape(())[()]
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                raise ValueError(f"action must be an integer in [0, {2**n}) for action_type='discrete', got {action!r}")
+            if not 0 <= value < 2**n:
+                raise ValueError(f"action must be in [0, {2**n}) for action_type='discrete', got {value}")
+            # robot 0 is the most significant bit
+            return ((int(value) >> np.arange(n - 1, -1, -1)) & 1).astype(float)
+        array = np.asarray(action)
+        if array.shape != (n,):
+            raise ValueError(f"action must have shape ({n},) for action_type={self.action_type!r}, got {array.shape}")
+        if array.dtype.kind not in "buif":
+            raise ValueError(f"action must be numeric, got dtype {array.dtype}")
+        targets = array.astype(float)
+        if self.action_type == "multibinary":
+            if not np.all((targets == 0.0) | (targets == 1.0)):
+                raise ValueError(f"action must hold only 0 and 1 for action_type='multibinary', got {action!r}")
+        elif not (np.all(np.isfinite(targets)) and targets.min() >= 0.0 and targets.max() <= 1.0):
+            raise ValueError(f"action must lie in [0, 1] for action_type='continuous', got {action!r}")
+        return targets
+
+    def _reward(self, previous: np.ndarray, position: np.ndarray) -> float:
+        if self.reward_type == "inverse_distance":
+            return float(1.0 / max(np.linalg.norm(position - self.goal), 1e-6))
+        to_goal = self.goal - previous
+        norm = np.linalg.norm(to_goal)
+        progress = float((position - previous) @ to_goal / norm) if norm > 0 else 0.0
+        if self.reward_type == "projected":
+            return progress
+        distance = float(np.linalg.norm(position - self.goal))
+        d = self.reward_threshold_d
+        return progress * (d / max(distance, 1e-6)) if distance < d else progress
+
+    def _state(self) -> np.ndarray:
+        swarm = self.world.swarm
+        robots = np.empty((self.n_robots, ROBOT_FEATURES))
+        robots[:, 0:2] = (swarm.position - self.goal) * LENGTH_SCALE
+        robots[:, 2:4] = swarm.velocity * LENGTH_SCALE
+        robots[:, 4] = swarm.angular_velocity
+        robots[:, 5] = swarm.expansion
+        parts = [robots.ravel()]
+        if self.has_object:
+            parts.append(np.concatenate([self.world.object_pose[0:2] - self.goal, self.world.object_velocity]) * LENGTH_SCALE)
+        return np.concatenate(parts).astype(np.float32)
+
+    def _observation(self):
+        if self.obs_type == "state":
+            return self._state()
+        if self._image_renderer is None:
+            self._image_renderer = self._make_renderer(self.image_size)
+        pixels = self._image_renderer.draw(self.world, self.goal)
+        if self.obs_type == "pixels":
+            return pixels
+        return {"pixels": pixels, "state": self._state()}
+
+    def _info(self) -> dict:
+        tracker = self._tracker
+        info = {
+            "is_success": tracker.success,
+            "centre_of_mass": self.world.centre_of_mass,
+            "projected_displacement": tracker.projected_displacement,
+            "net_displacement": tracker.net_displacement,
+            "total_distance": tracker.total_distance,
+        }
+        if self.has_object:
+            info["object_position"] = self.world.object_pose[0:2].copy()
+        return info
+
+    def _make_renderer(self, size: int):
+        from dpr.envs.rendering import SceneRenderer
+
+        return SceneRenderer(size, self.goal, self.view_half_extent)
+
+    # pygame surfaces do not pickle; renderers are rebuilt on demand.
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        state["_image_renderer"] = None
+        return state

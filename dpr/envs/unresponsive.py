@@ -1,0 +1,48 @@
+"""Unresponsive: navigation with robots that ignore every command."""
+
+import numpy as np
+
+from dpr.envs.particle_env import ParticleSwarmEnv
+
+
+class UnresponsiveEnv(ParticleSwarmEnv):
+    """
+    ## Description
+    Navigation (see ``NavigationEnv``) where ``n_dead`` robots are unresponsive: they ignore every command,
+    stay contracted and keep their magnets, so the others must drag them along.
+
+    ## Action Space
+    As Navigation; the entries of dead robots are accepted and ignored.
+
+    ## Observation Space
+    As Navigation; a dead robot's expansion stays 0. Which robots are dead is not observed (it is in
+    ``info["dead_robots"]`` after reset).
+
+    ## Rewards
+    As Navigation.
+
+    ## Starting State
+    As Navigation; the dead robots are drawn with the env's seeded generator at each reset.
+
+    ## Episode End
+    As Navigation.
+
+    ## Arguments
+    Navigation's, plus ``n_dead`` (default ``round(0.2 * n_robots)``, 2 of 9), with ``0 <= n_dead < n_robots``.
+
+    ## Version History
+    * v0: first version; dead robots come from the env's generator (they came from the unseeded global RNG).
+    """
+
+    task = "unresponsive"
+
+    def __init__(self, n_dead: int | None = None, **kwargs):
+        super().__init__(**kwargs)
+        if n_dead is None:
+            n_dead = int(round(0.2 * self.n_robots))
+        if isinstance(n_dead, bool) or not isinstance(n_dead, (int, np.integer)) or not 0 <= n_dead < self.n_robots:
+            raise ValueError(f"n_dead must be an integer in [0, n_robots={self.n_robots}), got {n_dead!r}")
+        self.n_dead = int(n_dead)
+
+    def _dead_robots(self) -> np.ndarray:
+        return np.sort(self.np_random.choice(self.n_robots, size=self.n_dead, replace=False))

@@ -1,0 +1,53 @@
+"""Physical constants of the particle-robot world.
+
+Units are pymunk length units and seconds. The paddle robot's values are the paper's (Shen et al., 2021);
+the disk robot's are this project's, chosen so that it moves under the same wave policy.
+"""
+
+import math
+
+# Time: one control step is SUBSTEPS pymunk steps of DT (10 Hz control).
+DT = 1.0 / 60.0
+SUBSTEPS = 6
+CONTROL_PERIOD = DT * SUBSTEPS
+
+# Paddle robot (robot_model="paddle").
+BODY_MASS = 10.0
+BODY_RADIUS = 25.0
+BODY_ELASTICITY = 0.1
+BODY_FRICTION = 1.0
+N_PADDLES = 16
+PADDLE_LENGTH = BODY_RADIUS  # paddle1; paddle2 is half as long
+PADDLE_WIDTH = BODY_RADIUS / 10.0
+PADDLE_MASS = 1.0  # paddle1; paddle2 weighs half
+PADDLE_ELASTICITY = 0.0
+PADDLE_FRICTION = 1.0
+PADDLE_SPEED = 5.0  # rad/s
+MOTOR_MAX_FORCE = 1000.0
+STROKE = math.pi / 2  # paddle1 turns from tangent (contracted) to perpendicular (expanded)
+REACHED_TOLERANCE = math.pi / 18  # within 10 degrees of its target a robot accepts a new command
+
+# Magnets: force-limited rods between robots whose centres are closer than MAGNET_RANGE.
+MAGNET_MAX_FORCE = 750.0
+MAGNET_RANGE = 4 * BODY_RADIUS
+
+# Ground friction: a pivot and a gear joint to the static body, with no position correction.
+GROUND_LINEAR_FRICTION = 500.0
+GROUND_ANGULAR_FRICTION = 500.0
+
+# Start grid pitch: one expanded diameter of the paddle robot.
+GRID_PITCH = 2 * BODY_RADIUS + PADDLE_WIDTH + PADDLE_LENGTH  # 77.5
+
+# Disk robot (robot_model="disk"): one body per robot, its radius moves between these sizes at the speed a
+# paddle takes for a full stroke; same total mass as a paddle robot.
+DISK_MASS = BODY_MASS + N_PADDLES * 1.5 * PADDLE_MASS
+DISK_CONTRACTED_RADIUS = BODY_RADIUS + PADDLE_WIDTH  # 27.5
+DISK_EXPANDED_RADIUS = BODY_RADIUS + PADDLE_LENGTH + PADDLE_WIDTH  # 52.5
+DISK_RADIUS_SPEED = (DISK_EXPANDED_RADIUS - DISK_CONTRACTED_RADIUS) * PADDLE_SPEED / STROKE
+DISK_MAGNET_RANGE = 4 * DISK_CONTRACTED_RADIUS  # 110: pairs stay linked when both are expanded (105)
+
+# Objects and walls.
+OBJECT_ELASTICITY = 0.0
+OBJECT_FRICTION = 1.0
+WALL_ELASTICITY = 0.0
+WALL_FRICTION = 1.0

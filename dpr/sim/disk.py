@@ -1,0 +1,110 @@
+"""A fast robot model: one disk per robot whose radius grows and shrinks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pymunk
+
+from dpr.sim import constants as C
+from dpr.sim.neighbours import pairs_within
+from dpr.sim.objects import add_ground_friction
+from dpr.sim.swarm import Swarm
+
+
+class DiskSwarm(Swarm):
+    """One body and one circle per robot, radius between 27.5 (contracted) and 52.5 (expanded), moving at
+    the speed of a full paddle stroke (90 degrees at 5 rad/s, about 0.31 s).
+
+    Magnets are force-limited rods (max force 750) between the centres of robots closer than
+    ``DISK_MAGNET_RANGE``, whose length follows the sum of the two radii: expanding pushes the pair apart,
+    contracting pulls it back together. Same ground friction, mass, command rule and dead-robot convention
+    as the paddle model. About 33x fewer bodies and 100x fewer joints than the paddle model.
+    """
+
+    model = "disk"
+    contracted_radius = C.DISK_CONTRACTED_RADIUS
+    expanded_radius = C.DISK_EXPANDED_RADIUS
+    magnet_range = C.DISK_MAGNET_RANGE
+
+    def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
+        super().__init__(space, centres, dead)
+        bodies, shapes = [], []
+        for r, centre in enumerate(np.asarray(centres, dtype=float)):
+            body = pymunk.Body(C.DISK_MASS, pymunk.moment_for_circle(C.DISK_MASS, 0, C.DISK_CONTRACTED_RADIUS))
+            body.position = tuple(centre)
+            shape = pymunk.Circle(body, C.DISK_CONTRACTED_RADIUS)
+            shape.elasticity, shape.friction = C.BODY_ELASTICITY, C.BODY_FRICTION
+            shape.filter = pymunk.ShapeFilter(group=r + 1)
+            bodies.append(body)
+            shapes.append(shape)
+        space.add(*bodies, *shapes)
+        for body in bodies:
+            add_ground_friction(space, body)
+        self.robot_bodies = self.bodies = bodies
+        self._shapes = shapes
+        self.radius = np.full(self.n, C.DISK_CONTRACTED_RADIUS)
+        self._radius_target = self.radius.copy()
+        self._magnets: dict[tuple[int, int], pymunk.PinJoint] = {}
+        self._active = np.empty((0, 2), dtype=np.int64)
+
+    def update_state(self, rows: np.ndarray) -> None:
+        super().update_state(rows)
+        span = C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS
+        self.expansion = (self.radius - C.DISK_CONTRACTED_RADIUS) / span
+
+    def _drive(self) -> None:
+        target = np.where(self.alive, self.target, 0.0)
+        self._radius_target = C.DISK_CONTRACTED_RADIUS + target * (
+            C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS
+        )
+
+    def before_substep(self, dt: float) -> None:
+        gap = self._radius_target - self.radius
+        changing = np.flatnonzero(gap != 0.0)
+        if len(changing) == 0:
+            return
+        step = np.clip(gap[changing], -C.DISK_RADIUS_SPEED * dt, C.DISK_RADIUS_SPEED * dt)
+        self.radius[changing] += step
+        for r in changing.tolist():
+            self._shapes[r].unsafe_set_radius(float(self.radius[r]))
+        self._set_magnet_lengths(changing)
+
+    def update_magnets(self) -> None:
+        """Rods between the centres of every pair closer than the magnet range; kept between steps."""
+        pairs = pairs_within(self.position, self.magnet_range)
+        old = {tuple(p) for p in self._active.tolist()}
+        new = {tuple(p) for p in pairs.tolist()}
+        if old != new:
+            gone, added = old - new, new - old
+            if gone:
+                self.space.remove(*(self._magnets[key] for key in gone))
+            fresh = []
+            for key in added:
+                joint = self._magnets.get(key)
+                if joint is None:
+                    joint = pymunk.PinJoint(self.bodies[key[0]], self.bodies[key[1]])
+                    joint.max_force = C.MAGNET_MAX_FORCE
+                    self._magnets[key] = joint
+                fresh.append(joint)
+            if fresh:
+                self.space.add(*fresh)
+            self._active = pairs
+            self._set_magnet_lengths(None)
+
+    def _set_magnet_lengths(self, changed: np.ndarray | None) -> None:
+        """Rod length = sum of the two radii, for rods touching a robot in ``changed`` (None: all)."""
+        pairs = self._active
+        if len(pairs) == 0:
+            return
+        if changed is not None:
+            mask = np.zeros(self.n, dtype=bool)
+            mask[changed] = True
+            pairs = pairs[mask[pairs[:, 0]] | mask[pairs[:, 1]]]
+        lengths = self.radius[pairs[:, 0]] + self.radius[pairs[:, 1]]
+        for (a, b), length in zip(pairs.tolist(), lengths.tolist()):
+            self._magnets[(a, b)].distance = length
+
+    def magnet_segments(self) -> np.ndarray:
+        if len(self._active) == 0:
+            return np.zeros((0, 2, 2))
+        return np.stack([self.position[self._active[:, 0]], self.position[self._active[:, 1]]], axis=1)

@@ -1,0 +1,204 @@
+"""The paper's particle robot: a central disk with 16 two-part paddles driven by motors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pymunk
+
+from dpr.sim import constants as C
+from dpr.sim.neighbours import pairs_within
+from dpr.sim.objects import add_ground_friction
+from dpr.sim.swarm import Swarm
+
+_PADDLE_ANGLES = 2 * math.pi * np.arange(C.N_PADDLES) / C.N_PADDLES
+_TIP_OFFSET = C.PADDLE_LENGTH / 2  # paddle1 turns about its centre, pinned to the rim
+
+
+class PaddleSwarm(Swarm):
+    """Robots as built by the paper: per robot one central body and 2 x 16 paddle bodies.
+
+    Paddle ``i`` sits at rim angle ``theta_i``. Paddle1 (25 x 2.5) is pinned at its centre to the rim and
+    turns, driven by a motor, between tangent (contracted) and perpendicular to the rim (expanded); a rotary
+    limit joint bounds it to that 90 degree range. Paddle2 (12.5 x 2.5) is pinned at its centre to paddle1's
+    tip and held parallel to the rim by a rotary joint to the central body. A robot's own parts never
+    collide (one shape-filter group per robot).
+
+    Bodies are added to the space as all central bodies, then all paddle1s, then all paddle2s, so the
+    world's batch read slices cleanly.
+    """
+
+    model = "paddle"
+    # paddle1 and paddle2 lie end to end along the tangent when contracted
+    contracted_radius = math.hypot(C.BODY_RADIUS + C.PADDLE_WIDTH / 2, _TIP_OFFSET + C.PADDLE_LENGTH / 4)  # 32.3
+    expanded_radius = C.GRID_PITCH / 2  # 38.75
+    magnet_range = C.MAGNET_RANGE
+
+    def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
+        super().__init__(space, centres, dead)
+        n, k = self.n, C.N_PADDLES
+        bodies, paddles1, paddles2 = [], [], []
+        motors1, motors2 = [], []
+        shapes, joints = [], []
+        for r, centre in enumerate(np.asarray(centres, dtype=float)):
+            group = pymunk.ShapeFilter(group=r + 1)
+            body = pymunk.Body(C.BODY_MASS, pymunk.moment_for_circle(C.BODY_MASS, 0, C.BODY_RADIUS))
+            body.position = tuple(centre)
+            disk = pymunk.Circle(body, C.BODY_RADIUS)
+            disk.elasticity, disk.friction, disk.filter = C.BODY_ELASTICITY, C.BODY_FRICTION, group
+            bodies.append(body)
+            shapes.append(disk)
+            for theta in _PADDLE_ANGLES:
+                radial = np.array([math.cos(theta), math.sin(theta)])
+                tangent = np.array([math.sin(theta), -math.cos(theta)])  # direction of angle theta - pi/2
+                rim = C.BODY_RADIUS * radial
+
+                p1 = pymunk.Body(
+                    C.PADDLE_MASS, pymunk.moment_for_box(C.PADDLE_MASS, (C.PADDLE_LENGTH, C.PADDLE_WIDTH))
+                )
+                p1.position = tuple(centre + rim)
+                p1.angle = theta - math.pi / 2
+                s1 = pymunk.Poly.create_box(p1, (C.PADDLE_LENGTH, C.PADDLE_WIDTH))
+
+                m2 = C.PADDLE_MASS / 2
+                p2 = pymunk.Body(m2, pymunk.moment_for_box(m2, (C.PADDLE_LENGTH / 2, C.PADDLE_WIDTH)))
+                p2.position = tuple(centre + rim + _TIP_OFFSET * tangent)
+                p2.angle = theta + math.pi / 2  # parallel to the rim, as its rotary joint holds it
+                s2 = pymunk.Poly.create_box(p2, (C.PADDLE_LENGTH / 2, C.PADDLE_WIDTH))
+                for s in (s1, s2):
+                    s.elasticity, s.friction, s.filter = C.PADDLE_ELASTICITY, C.PADDLE_FRICTION, group
+
+                # paddle1 on the rim: a zero-length pin, limited to [tangent, perpendicular], motor-driven
+                pin1 = pymunk.PinJoint(body, p1, tuple(rim), (0, 0))
+                limit1 = pymunk.RotaryLimitJoint(body, p1, theta - math.pi / 2, theta)
+                motor1 = pymunk.SimpleMotor(body, p1, 0.0)
+                # paddle2 on paddle1's tip, kept parallel to the rim
+                pin2 = pymunk.PinJoint(p1, p2, (_TIP_OFFSET, 0), (0, 0))
+                limit2 = pymunk.RotaryLimitJoint(body, p2, theta + math.pi / 2, theta + math.pi / 2)
+                motor2 = pymunk.SimpleMotor(p1, p2, 0.0)
+                for m in (motor1, motor2):
+                    m.max_force = C.MOTOR_MAX_FORCE
+                for j in (pin1, limit1, pin2, limit2):
+                    j.collide_bodies = False
+                paddles1.append(p1)
+                paddles2.append(p2)
+                shapes += [s1, s2]
+                joints += [pin1, limit1, motor1, pin2, limit2, motor2]
+                motors1.append(motor1)
+                motors2.append(motor2)
+        space.add(*bodies, *paddles1, *paddles2, *shapes, *joints)
+        for body in bodies:
+            add_ground_friction(space, body)
+
+        self.robot_bodies = bodies
+        self.bodies = bodies + paddles1 + paddles2
+        self.paddle2_bodies = paddles2
+        self._motors1 = [motors1[r * k : (r + 1) * k] for r in range(n)]
+        self._motors2 = [motors2[r * k : (r + 1) * k] for r in range(n)]
+        self._rate = np.zeros(n)  # expansion rate (rad/s) applied to each robot's paddles
+        self.paddle_angle = np.zeros((n, k))  # paddle1 angle relative to its body, 0 contracted
+        self.paddle1_pose = np.zeros((n, k, 3))
+        self.paddle2_pose = np.zeros((n, k, 3))
+        self._magnets: dict[tuple[int, int], pymunk.PinJoint] = {}
+        self._active: list[tuple[int, int]] = []
+        self._drive()
+
+    # -- state ------------------------------------------------------------------------------------------
+    def update_state(self, rows: np.ndarray) -> None:
+        super().update_state(rows)
+        n, k = self.n, C.N_PADDLES
+        self.paddle1_pose = rows[n : n + n * k, 0:3].reshape(n, k, 3)
+        self.paddle2_pose = rows[n + n * k : n + 2 * n * k, 0:3].reshape(n, k, 3)
+        relative = self.paddle1_pose[:, :, 2] - self.angle[:, None] - (_PADDLE_ANGLES - math.pi / 2)
+        self.paddle_angle = relative
+        self.expansion = np.clip(relative.mean(axis=1) / C.STROKE, 0.0, 1.0)
+
+    # -- control ----------------------------------------------------------------------------------------
+    def _drive(self) -> None:
+        error = (self.target - self.expansion) * C.STROKE
+        at_end = (self.target <= 0.0) | (self.target >= 1.0)
+        # Targets at an end drive into the mechanical stop at full speed (the paper's binary robot);
+        # partial targets slow down so that they arrive within one control period.
+        rate = np.where(
+            at_end,
+            np.where(self.target >= 1.0, C.PADDLE_SPEED, -C.PADDLE_SPEED),
+            np.clip(error / C.CONTROL_PERIOD, -C.PADDLE_SPEED, C.PADDLE_SPEED),
+        )
+        rate[~self.alive] = -C.PADDLE_SPEED
+        for r in np.flatnonzero(np.abs(rate - self._rate) > 1e-12):
+            value = float(rate[r])
+            # SimpleMotor drives b.w - a.w toward -rate: paddle1 turns outward at +value relative to the
+            # body, and paddle2 turns back by the same amount so it stays parallel to the rim.
+            for m in self._motors1[r]:
+                m.rate = -value
+            for m in self._motors2[r]:
+                m.rate = value
+            self._rate[r] = value
+
+    # -- magnets ----------------------------------------------------------------------------------------
+    def update_magnets(self) -> None:
+        """Link each pair of robots closer than 4 radii by a rod (max force 750) between the paddle2 of
+        each that is nearest to the other's centre, at the rods' current length, for this step.
+
+        Each paddle2 holds at most one magnet (pairs are served in index order). Rods are kept between
+        steps and re-used; only their membership in the space and their length change.
+        """
+        centres = self.position
+        pairs = pairs_within(centres, self.magnet_range)
+        k = C.N_PADDLES
+        tips = self.paddle2_pose[:, :, 0:2]
+        if len(pairs):
+            a, b = pairs[:, 0], pairs[:, 1]
+            tip_a = np.argmin(((tips[a] - centres[b][:, None]) ** 2).sum(-1), axis=1)
+            tip_b = np.argmin(((tips[b] - centres[a][:, None]) ** 2).sum(-1), axis=1)
+            ga, gb = a * k + tip_a, b * k + tip_b
+            wanted = _one_magnet_per_tip(ga, gb)
+        else:
+            wanted = []
+        wanted_set = set(wanted)
+        stale = [key for key in self._active if key not in wanted_set]
+        if stale:
+            self.space.remove(*(self._magnets[key] for key in stale))
+        active_set = set(self._active)
+        fresh = []
+        for key in wanted:
+            if key not in active_set:
+                joint = self._magnets.get(key)
+                if joint is None:
+                    joint = pymunk.PinJoint(self.paddle2_bodies[key[0]], self.paddle2_bodies[key[1]])
+                    joint.max_force = C.MAGNET_MAX_FORCE
+                    self._magnets[key] = joint
+                fresh.append(joint)
+        if fresh:
+            self.space.add(*fresh)
+        if wanted:
+            flat = tips.reshape(-1, 2)
+            idx = np.array(wanted)
+            lengths = np.linalg.norm(flat[idx[:, 0]] - flat[idx[:, 1]], axis=1)
+            for key, length in zip(wanted, lengths.tolist()):
+                self._magnets[key].distance = length
+        self._active = wanted
+
+    def magnet_segments(self) -> np.ndarray:
+        if not self._active:
+            return np.zeros((0, 2, 2))
+        flat = self.paddle2_pose[:, :, 0:2].reshape(-1, 2)
+        idx = np.array(self._active)
+        return np.stack([flat[idx[:, 0]], flat[idx[:, 1]]], axis=1)
+
+
+def _one_magnet_per_tip(ga: np.ndarray, gb: np.ndarray) -> list[tuple[int, int]]:
+    """Keep pairs in order, dropping any whose tip already holds a magnet."""
+    pairs = list(zip(ga.tolist(), gb.tolist()))
+    ends = np.concatenate([ga, gb])
+    if len(np.unique(ends)) == len(ends):  # the usual case: no tip is shared
+        return pairs
+    used: set[int] = set()
+    kept = []
+    for x, y in pairs:
+        if x in used or y in used:
+            continue
+        used.update((x, y))
+        kept.append((x, y))
+    return kept

@@ -1,0 +1,94 @@
+"""The command rule shared by both robot models, and the robot-model registry.
+
+A swarm owns its pymunk bodies, shapes and joints inside a :class:`pymunk.Space`. The world reads every
+body's state in one batch call and hands each swarm its slice; the swarm turns commanded expansion targets
+into motor rates (paddle model) or radius velocities (disk model) and keeps the magnets up to date.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pymunk
+
+from dpr.sim import constants as C
+
+# A robot within this fraction of a full stroke of its target has reached it (10 degrees of 90).
+REACHED_FRACTION = C.REACHED_TOLERANCE / C.STROKE
+
+
+class Swarm:
+    """Base class: N robots, their expansion targets and the paper's command rule.
+
+    Command rule (the paper's robot): a robot accepts a new target only once it has reached its previous
+    one (within 10 degrees of stroke); until then it keeps moving toward the old target. Unresponsive
+    ("dead") robots ignore commands and stay contracted.
+    """
+
+    model: str = ""
+    contracted_radius: float = 0.0  # outer radius of a contracted robot
+    expanded_radius: float = 0.0  # outer radius of an expanded robot
+    magnet_range: float = C.MAGNET_RANGE
+
+    def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
+        self.space = space
+        self.n = len(centres)
+        self.alive = ~np.asarray(dead, dtype=bool)
+        self.target = np.zeros(self.n)  # in [0, 1]: 0 contracted, 1 expanded
+        self.moving = np.zeros(self.n, dtype=bool)
+        self.bodies: list[pymunk.Body] = []  # in the order they were added to the space
+        self.robot_bodies: list[pymunk.Body] = []
+        # views filled by update_state()
+        self.position = np.zeros((self.n, 2))
+        self.angle = np.zeros(self.n)
+        self.velocity = np.zeros((self.n, 2))
+        self.angular_velocity = np.zeros(self.n)
+        self.expansion = np.zeros(self.n)
+
+    # -- state ------------------------------------------------------------------------------------------
+    def update_state(self, rows: np.ndarray) -> None:
+        """``rows``: (len(self.bodies), 6) array of x, y, angle, vx, vy, angular velocity."""
+        robots = rows[: self.n]
+        self.position = robots[:, 0:2]
+        self.angle = robots[:, 2]
+        self.velocity = robots[:, 3:5]
+        self.angular_velocity = robots[:, 5]
+
+    # -- control ----------------------------------------------------------------------------------------
+    def command(self, targets: np.ndarray) -> None:
+        """Apply the command rule to ``targets`` (N values in [0, 1]) and drive the actuators."""
+        reached = np.abs(self.target - self.expansion) < REACHED_FRACTION
+        self.moving &= ~reached
+        accept = ~self.moving & self.alive
+        self.target[accept] = targets[accept]
+        self.moving |= accept & (np.abs(self.target - self.expansion) >= REACHED_FRACTION)
+        self._drive()
+
+    def _drive(self) -> None:
+        raise NotImplementedError
+
+    # -- per step hooks ---------------------------------------------------------------------------------
+    def update_magnets(self) -> None:
+        raise NotImplementedError
+
+    def before_substep(self, dt: float) -> None:
+        """Called before each pymunk step (the disk model grows and shrinks its shapes here)."""
+
+    def magnet_segments(self) -> np.ndarray:
+        """(M, 2, 2) end points of the magnets active in this step, for drawing."""
+        raise NotImplementedError
+
+
+ROBOT_MODELS = ("paddle", "disk")
+
+
+def swarm_class(model: str) -> type[Swarm]:
+    """The Swarm subclass of a robot model name; ValueError names the allowed ones."""
+    if model not in ROBOT_MODELS:
+        raise ValueError(f"robot_model must be one of {ROBOT_MODELS}, got {model!r}")
+    if model == "paddle":
+        from dpr.sim.paddle import PaddleSwarm
+
+        return PaddleSwarm
+    from dpr.sim.disk import DiskSwarm
+
+    return DiskSwarm
