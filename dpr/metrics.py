@@ -6,6 +6,7 @@ positions from the start of the episode, and the goal position.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -81,15 +82,15 @@ class MetricTracker:
         self.steps = 0
 
     def update(self, position) -> None:
-        position = np.asarray(position, dtype=float)
-        self.total_distance += float(np.linalg.norm(position - self.last))
-        self.last = position.copy()
-        self.success |= bool(np.linalg.norm(position - self.goal) < SUCCESS_RADIUS)
+        position = np.array(position, dtype=float)
+        self.total_distance += math.hypot(*(position - self.last))
+        self.last = position
+        self.success |= math.hypot(*(position - self.goal)) < SUCCESS_RADIUS
         self.steps += 1
 
     @property
     def net_displacement(self) -> float:
-        return float(np.linalg.norm(self.last - self.start))
+        return math.hypot(*(self.last - self.start))
 
     @property
     def projected_displacement(self) -> float:

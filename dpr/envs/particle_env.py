@@ -24,6 +24,12 @@ LENGTH_SCALE = 1.0 / 1000.0
 GOAL = np.zeros(2)
 
 
+def _copy(observation):
+    if isinstance(observation, dict):
+        return {key: value.copy() for key, value in observation.items()}
+    return observation.copy()
+
+
 def _choice(name: str, value: Any, allowed: tuple) -> None:
     if value not in allowed:
         raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
@@ -155,12 +161,11 @@ class ParticleSwarmEnv(gym.Env):
         if not self.world.is_sane():
             info = self._info()
             info["physics_error"] = "non-finite or exploding body state; episode truncated"
-            return self._last_obs, 0.0, False, True, info
+            return _copy(self._last_obs), 0.0, False, True, info
         position = self._agent_position()
         self._tracker.update(position)
         reward = self._reward(previous, position)
-        distance = float(np.linalg.norm(position - self.goal))
-        terminated = distance < SUCCESS_RADIUS
+        terminated = math.hypot(*(position - self.goal)) < SUCCESS_RADIUS
         self._last_obs = self._observation()
         return self._last_obs, reward, terminated, False, self._info()
 
@@ -209,16 +214,16 @@ class ParticleSwarmEnv(gym.Env):
         return targets
 
     def _reward(self, previous: np.ndarray, position: np.ndarray) -> float:
+        distance = math.hypot(*(position - self.goal))
         if self.reward_type == "inverse_distance":
-            return float(1.0 / max(np.linalg.norm(position - self.goal), 1e-6))
+            return 1.0 / max(distance, 1e-6)
         to_goal = self.goal - previous
-        norm = np.linalg.norm(to_goal)
-        progress = float((position - previous) @ to_goal / norm) if norm > 0 else 0.0
-        if self.reward_type == "projected":
-            return progress
-        distance = float(np.linalg.norm(position - self.goal))
+        norm = math.hypot(*to_goal)
+        progress = float((position - previous) @ to_goal) / norm if norm > 0 else 0.0
         d = self.reward_threshold_d
-        return progress * (d / max(distance, 1e-6)) if distance < d else progress
+        if self.reward_type == "piecewise" and distance < d:
+            return progress * d / max(distance, 1e-6)
+        return progress
 
     def _state(self) -> np.ndarray:
         swarm = self.world.swarm

@@ -12,7 +12,7 @@ START_SIDES = ("near", "far")
 # Per robot model: the hold and wave direction that move the swarm toward the goal (tools/wave_sweep.py).
 MODEL_DEFAULTS = {
     "paddle": {"hold_steps": 10, "start_side": "near"},
-    "disk": {"hold_steps": 10, "start_side": "near"},
+    "disk": {"hold_steps": 4, "start_side": "far"},
 }
 
 

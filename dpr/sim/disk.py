@@ -25,6 +25,7 @@ class DiskSwarm(Swarm):
     contracted_radius = C.DISK_CONTRACTED_RADIUS
     expanded_radius = C.DISK_EXPANDED_RADIUS
     magnet_range = C.DISK_MAGNET_RANGE
+    substeps = 2
 
     def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
         super().__init__(space, centres, dead)
@@ -58,12 +59,15 @@ class DiskSwarm(Swarm):
             C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS
         )
 
-    def before_substep(self, dt: float) -> None:
+    def before_physics(self) -> None:
+        """Grow or shrink each moving robot by one control period's worth (the shapes and the rods change
+        once per control step: per-substep updates cost more Python than the physics itself)."""
         gap = self._radius_target - self.radius
         changing = np.flatnonzero(gap != 0.0)
         if len(changing) == 0:
             return
-        step = np.clip(gap[changing], -C.DISK_RADIUS_SPEED * dt, C.DISK_RADIUS_SPEED * dt)
+        reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
+        step = np.clip(gap[changing], -reach, reach)
         self.radius[changing] += step
         for r in changing.tolist():
             self._shapes[r].unsafe_set_radius(float(self.radius[r]))
@@ -72,9 +76,9 @@ class DiskSwarm(Swarm):
     def update_magnets(self) -> None:
         """Rods between the centres of every pair closer than the magnet range; kept between steps."""
         pairs = pairs_within(self.position, self.magnet_range)
-        old = {tuple(p) for p in self._active.tolist()}
-        new = {tuple(p) for p in pairs.tolist()}
-        if old != new:
+        if not np.array_equal(pairs, self._active):
+            old = {tuple(p) for p in self._active.tolist()}
+            new = {tuple(p) for p in pairs.tolist()}
             gone, added = old - new, new - old
             if gone:
                 self.space.remove(*(self._magnets[key] for key in gone))

@@ -1,5 +1,7 @@
 """Pairs of points closer than a radius, in O(N) numpy work (uniform cell grid, no Python loop over pairs)."""
 
+import functools
+
 import numpy as np
 
 # Half of the 3x3 cell neighbourhood: each pair of neighbouring cells is visited once.
@@ -8,6 +10,12 @@ _HALF_STENCIL = np.array([(0, 0), (1, -1), (1, 0), (1, 1), (0, 1)], dtype=np.int
 
 # Below this many points a dense distance matrix is cheaper than the cell grid's fixed cost.
 _DENSE_LIMIT = 64
+
+
+@functools.lru_cache(maxsize=64)
+def _upper_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    first, second = np.triu_indices(n, 1)
+    return first.astype(np.int64), second.astype(np.int64)
 
 
 def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
@@ -19,9 +27,10 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
     if n < 2:
         return np.empty((0, 2), dtype=np.int64)
     if n <= _DENSE_LIMIT:
-        delta = points[:, None, :] - points[None, :, :]
-        close = np.triu(np.einsum("ijk,ijk->ij", delta, delta) < radius * radius, 1)
-        return np.argwhere(close)
+        first, second = _upper_triangle(n)
+        delta = points[first] - points[second]
+        close = np.einsum("ij,ij->i", delta, delta) < radius * radius
+        return np.stack([first[close], second[close]], axis=1)
     cells = np.floor((points - points.min(axis=0)) / radius).astype(np.int64)
     width = int(cells[:, 1].max()) + 3  # +3 leaves room for the -1/+1 stencil offsets
     keys = cells[:, 0] * width + cells[:, 1] + 1

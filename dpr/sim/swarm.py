@@ -28,6 +28,7 @@ class Swarm:
     contracted_radius: float = 0.0  # outer radius of a contracted robot
     expanded_radius: float = 0.0  # outer radius of an expanded robot
     magnet_range: float = C.MAGNET_RANGE
+    substeps: int = C.SUBSTEPS  # pymunk steps per control step, of CONTROL_PERIOD / substeps each
 
     def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
         self.space = space
@@ -70,8 +71,8 @@ class Swarm:
     def update_magnets(self) -> None:
         raise NotImplementedError
 
-    def before_substep(self, dt: float) -> None:
-        """Called before each pymunk step (the disk model grows and shrinks its shapes here)."""
+    def before_physics(self) -> None:
+        """Called once per control step before the pymunk steps (the disk model resizes its shapes here)."""
 
     def magnet_segments(self) -> np.ndarray:
         """(M, 2, 2) end points of the magnets active in this step, for drawing."""

@@ -1,0 +1,109 @@
+"""Environment throughput: env steps per second against the physics-only rate of the same world.
+
+For each robot model and swarm size, one run steps ``gymnasium.make("dpr/Navigation-v0", ...)`` with
+uniformly random actions and times, in the same run:
+
+* ``env``: whole ``env.step`` calls (wrappers, command rule, magnets, observation, reward, info);
+* ``physics``: the pymunk part of those same steps (``World.step_physics``: ``space.step`` called
+  ``substeps`` times per env step on the same space), timed inside the env steps, so both figures come
+  from the same trajectory;
+* ``physics_replay``: ``step_physics`` called again on the same space after the run, with no commands in
+  between (a quieter state: paddles rest against their stops, so it runs faster than under commands).
+
+``env / physics`` is the fraction of an env step spent in pymunk; ``1 - env / physics`` is Python overhead.
+Each figure is the median over ``repeats`` blocks.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gymnasium as gym
+import numpy as np
+
+# The 2021 implementation on this machine's kind, env steps/s (paddle model, random actions).
+REFERENCE_2021 = {9: 130.0, 25: 41.0, 49: 18.6, 100: 7.3}
+
+
+def bench_env(robot_model: str, n_robots: int, steps: int = 200, repeats: int = 5, seed: int = 0) -> dict:
+    import dpr  # noqa: F401  (registers the ids)
+
+    env = gym.make("dpr/Navigation-v0", n_robots=n_robots, robot_model=robot_model)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    world = env.unwrapped.world
+    physics_time = [0.0]
+    plain_step_physics = world.step_physics
+
+    def timed_step_physics():
+        t0 = time.perf_counter()
+        plain_step_physics()
+        physics_time[0] += time.perf_counter() - t0
+
+    world.step_physics = timed_step_physics
+    actions = [env.action_space.sample() for _ in range(steps * (repeats + 1))]
+    for action in actions[:steps]:  # warm-up
+        env.step(action)
+    env_rates, physics_rates, replay_rates = [], [], []
+    for r in range(repeats):
+        block = actions[(r + 1) * steps : (r + 2) * steps]
+        physics_time[0] = 0.0
+        t0 = time.perf_counter()
+        for action in block:
+            env.step(action)
+        env_rates.append(steps / (time.perf_counter() - t0))
+        physics_rates.append(steps / physics_time[0])
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            plain_step_physics()
+        replay_rates.append(steps / (time.perf_counter() - t0))
+    env.close()
+    env_rate, physics_rate = float(np.median(env_rates)), float(np.median(physics_rates))
+    return {
+        "robot_model": robot_model,
+        "n_robots": n_robots,
+        "substeps": world.swarm.substeps,
+        "env_steps_per_s": env_rate,
+        "physics_steps_per_s": physics_rate,
+        "physics_replay_steps_per_s": float(np.median(replay_rates)),
+        "env_over_physics": env_rate / physics_rate,
+        "us_per_robot_step": 1e6 / env_rate / n_robots,
+    }
+
+
+def run_benchmarks(models=("paddle", "disk"), sizes=(9, 25, 49, 100), steps: int = 200, repeats: int = 5, progress=None):
+    rows = []
+    for model in models:
+        for n in sizes:
+            # fewer steps for the slow big paddle swarms keep the whole run to a few minutes
+            k = max(20, int(steps * 9 / n)) if model == "paddle" else steps * 5
+            rows.append(bench_env(model, n, steps=k, repeats=repeats))
+            if progress is not None:
+                progress(rows[-1])
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    lines = [
+        "| model | N | substeps | env steps/s | physics-only steps/s | env / physics | replay physics steps/s | µs per robot-step | 2021 env steps/s |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        ref = REFERENCE_2021.get(r["n_robots"]) if r["robot_model"] == "paddle" else None
+        lines.append(
+            f"| {r['robot_model']} | {r['n_robots']} | {r['substeps']} | {r['env_steps_per_s']:.0f} | "
+            f"{r['physics_steps_per_s']:.0f} | {r['env_over_physics']:.0%} | {r['physics_replay_steps_per_s']:.0f} | "
+            f"{r['us_per_robot_step']:.1f} | {ref if ref is not None else '-'} |"
+        )
+    by = {(r["robot_model"], r["n_robots"]): r for r in rows}
+    if ("paddle", 9) in by and ("disk", 9) in by:
+        ratio = by[("disk", 9)]["env_steps_per_s"] / by[("paddle", 9)]["env_steps_per_s"]
+        lines.append("")
+        lines.append(f"disk / paddle env steps/s at N=9: {ratio:.1f}x")
+    for model in ("paddle", "disk"):
+        sizes = sorted(n for m, n in by if m == model)
+        if len(sizes) > 1:
+            first, last = by[(model, sizes[0])], by[(model, sizes[-1])]
+            growth = last["us_per_robot_step"] / first["us_per_robot_step"]
+            lines.append(f"{model}: cost per robot-step at N={sizes[-1]} is {growth:.2f}x that at N={sizes[0]}")
+    return "\n".join(lines)
