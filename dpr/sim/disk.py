@@ -6,6 +6,7 @@ import numpy as np
 import pymunk
 
 from dpr.sim import constants as C
+from dpr.sim._setters import set_circle_radii, set_pin_distances
 from dpr.sim.neighbours import pairs_within
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
@@ -69,8 +70,7 @@ class DiskSwarm(Swarm):
         reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
         step = np.clip(gap[changing], -reach, reach)
         self.radius[changing] += step
-        for r in changing.tolist():
-            self._shapes[r].unsafe_set_radius(float(self.radius[r]))
+        set_circle_radii([self._shapes[r] for r in changing.tolist()], self.radius[changing].tolist())
         self._set_magnet_lengths(changing)
 
     def update_magnets(self) -> None:
@@ -105,8 +105,7 @@ class DiskSwarm(Swarm):
             mask[changed] = True
             pairs = pairs[mask[pairs[:, 0]] | mask[pairs[:, 1]]]
         lengths = self.radius[pairs[:, 0]] + self.radius[pairs[:, 1]]
-        for (a, b), length in zip(pairs.tolist(), lengths.tolist()):
-            self._magnets[(a, b)].distance = length
+        set_pin_distances([self._magnets[(a, b)] for a, b in pairs.tolist()], lengths.tolist())
 
     def magnet_segments(self) -> np.ndarray:
         if len(self._active) == 0:

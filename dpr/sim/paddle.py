@@ -8,6 +8,7 @@ import numpy as np
 import pymunk
 
 from dpr.sim import constants as C
+from dpr.sim._setters import set_motor_rates, set_pin_distances
 from dpr.sim.neighbours import pairs_within
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
@@ -130,10 +131,8 @@ class PaddleSwarm(Swarm):
             value = float(rate[r])
             # SimpleMotor drives b.w - a.w toward -rate: paddle1 turns outward at +value relative to the
             # body, and paddle2 turns back by the same amount so it stays parallel to the rim.
-            for m in self._motors1[r]:
-                m.rate = -value
-            for m in self._motors2[r]:
-                m.rate = value
+            set_motor_rates(self._motors1[r], -value)
+            set_motor_rates(self._motors2[r], value)
             self._rate[r] = value
 
     # -- magnets ----------------------------------------------------------------------------------------
@@ -176,8 +175,7 @@ class PaddleSwarm(Swarm):
             flat = tips.reshape(-1, 2)
             idx = np.array(wanted)
             lengths = np.linalg.norm(flat[idx[:, 0]] - flat[idx[:, 1]], axis=1)
-            for key, length in zip(wanted, lengths.tolist()):
-                self._magnets[key].distance = length
+            set_pin_distances([self._magnets[key] for key in wanted], lengths.tolist())
         self._active = wanted
 
     def magnet_segments(self) -> np.ndarray:

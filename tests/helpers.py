@@ -1,0 +1,53 @@
+"""Helpers shared by the test modules (tests/ is on sys.path under pytest's default import mode)."""
+
+import numpy as np
+
+ENV_IDS = ("dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Unresponsive-v0", "dpr/Manipulation-v0")
+ROBOT_MODELS = ("paddle", "disk")
+ACTION_TYPES = ("multibinary", "discrete", "continuous")
+OBS_TYPES = ("state", "pixels", "pixels_state")
+
+
+def robot_of_body(swarm) -> dict:
+    """Map every body of ``swarm`` to the index of the robot it belongs to, by geometry at construction
+    (a paddle lies within 40 units of its own robot's centre; robots start 77.5 apart)."""
+    centres = np.array([tuple(b.position) for b in swarm.robot_bodies])
+    owner = {}
+    for body in swarm.bodies:
+        d = np.linalg.norm(centres - np.array(tuple(body.position)), axis=1)
+        owner[body] = int(np.argmin(d))
+    return owner
+
+
+def shift_robot(swarm, owner: dict, robot: int, offset) -> None:
+    """Teleport every body of one robot by ``offset`` (velocities zeroed)."""
+    offset = np.asarray(offset, dtype=float)
+    for body, r in owner.items():
+        if r == robot:
+            body.position = tuple(np.array(tuple(body.position)) + offset)
+            body.velocity = (0.0, 0.0)
+            body.angular_velocity = 0.0
+            if body.space is not None:
+                body.space.reindex_shapes_for_body(body)
+
+
+def move_bodies(bodies, offset) -> None:
+    """Teleport ``bodies`` by ``offset`` and stop them."""
+    offset = np.asarray(offset, dtype=float)
+    for body in bodies:
+        body.position = tuple(np.array(tuple(body.position)) + offset)
+        body.velocity = (0.0, 0.0)
+        body.angular_velocity = 0.0
+        if body.space is not None:
+            body.space.reindex_shapes_for_body(body)
+
+
+def expansions(obs, n_robots: int) -> np.ndarray:
+    """The expansion column of a state observation (or of a pixels_state dict)."""
+    state = obs["state"] if isinstance(obs, dict) else obs
+    return np.asarray(state)[: 6 * n_robots].reshape(n_robots, 6)[:, 5]
+
+
+def positions(obs, n_robots: int) -> np.ndarray:
+    state = obs["state"] if isinstance(obs, dict) else obs
+    return np.asarray(state)[: 6 * n_robots].reshape(n_robots, 6)[:, 0:2]

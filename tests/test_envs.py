@@ -1,0 +1,634 @@
+"""The four Gymnasium tasks: API conformance, spaces, observation and reward content, rendering, task rules."""
+
+import itertools
+import math
+
+import gymnasium as gym
+import numpy as np
+import pymunk
+import pytest
+from gymnasium import spaces
+from gymnasium.utils.env_checker import check_env
+from helpers import ACTION_TYPES, ENV_IDS, OBS_TYPES, ROBOT_MODELS, expansions, move_bodies, positions
+
+# ---------------------------------------------------------------------------------------------------------
+# Gymnasium API conformance
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("action_type", ACTION_TYPES)
+@pytest.mark.parametrize("obs_type", OBS_TYPES)
+def test_check_env_disk(env_id, action_type, obs_type):
+    env = gym.make(
+        env_id,
+        robot_model="disk",
+        n_robots=4,
+        action_type=action_type,
+        obs_type=obs_type,
+        image_size=32,
+        render_size=64,
+        render_mode="rgb_array",
+    )
+    check_env(env.unwrapped, skip_render_check=False)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_check_env_paddle(env_id):
+    env = gym.make(env_id, robot_model="paddle", n_robots=4, action_type="multibinary", obs_type="state")
+    check_env(env.unwrapped, skip_render_check=False)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_check_env_paddle_pixels_discrete_with_render(env_id):
+    env = gym.make(
+        env_id,
+        robot_model="paddle",
+        n_robots=2,
+        action_type="discrete",
+        obs_type="pixels_state",
+        image_size=32,
+        render_size=64,
+        render_mode="rgb_array",
+    )
+    check_env(env.unwrapped, skip_render_check=False)
+    env.close()
+
+
+def test_registered_ids_have_2500_step_limit():
+    for env_id in ENV_IDS:
+        assert gym.spec(env_id).max_episode_steps == 2500
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Spaces
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("n_robots", [1, 4, 7])
+def test_state_observation_space(make_env, env_id, n_robots):
+    env = make_env(env_id, n_robots=n_robots)
+    extra = 4 if env_id == "dpr/Manipulation-v0" else 0
+    space = env.observation_space
+    assert isinstance(space, spaces.Box)
+    assert space.shape == (6 * n_robots + extra,)
+    assert space.dtype == np.float32
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (6 * n_robots + extra,)
+    assert obs.dtype == np.float32
+    assert space.contains(obs)
+    obs, *_ = env.step(env.action_space.sample())
+    assert obs.dtype == np.float32 and space.contains(obs)
+
+
+@pytest.mark.parametrize("n_robots", [1, 3, 9])
+def test_action_spaces(make_env, n_robots):
+    mb = make_env(n_robots=n_robots, action_type="multibinary").action_space
+    assert isinstance(mb, spaces.MultiBinary) and mb.n == n_robots
+    d = make_env(n_robots=n_robots, action_type="discrete").action_space
+    assert isinstance(d, spaces.Discrete) and d.n == 2**n_robots and d.start == 0
+    c = make_env(n_robots=n_robots, action_type="continuous").action_space
+    assert isinstance(c, spaces.Box) and c.shape == (n_robots,)
+    assert np.all(c.low == 0.0) and np.all(c.high == 1.0)
+
+
+def test_default_action_space_is_multibinary_9():
+    env = gym.make("dpr/Navigation-v0")
+    assert isinstance(env.action_space, spaces.MultiBinary) and env.action_space.n == 9
+    assert env.unwrapped.robot_model == "paddle"
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("image_size", [24, 48])
+def test_pixel_observations(make_env, env_id, image_size):
+    env = make_env(env_id, obs_type="pixels", image_size=image_size)
+    assert env.observation_space.shape == (image_size, image_size, 3)
+    assert env.observation_space.dtype == np.uint8
+    obs, _ = env.reset(seed=1)
+    assert obs.shape == (image_size, image_size, 3) and obs.dtype == np.uint8
+    assert obs.min() < obs.max()  # something is drawn
+    obs, *_ = env.step(env.action_space.sample())
+    assert obs.shape == (image_size, image_size, 3) and obs.dtype == np.uint8
+
+    env = make_env(env_id, obs_type="pixels_state", image_size=image_size)
+    assert isinstance(env.observation_space, spaces.Dict)
+    obs, _ = env.reset(seed=1)
+    assert set(obs) == {"pixels", "state"}
+    assert obs["pixels"].shape == (image_size, image_size, 3) and obs["pixels"].dtype == np.uint8
+    assert obs["state"].dtype == np.float32
+    assert env.observation_space.contains(obs)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Observation content
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_reset_observation_matches_world(make_env, env_id, robot_model):
+    n = 4
+    env = make_env(env_id, robot_model=robot_model, n_robots=n)
+    for seed in (0, 1, 2):
+        obs, info = env.reset(seed=seed)
+        base = env.unwrapped
+        assert np.array_equal(base.goal, [0.0, 0.0])
+        world_pos = np.array([tuple(b.position) for b in base.world.swarm.robot_bodies])
+        np.testing.assert_allclose(positions(obs, n), world_pos / 1000.0, rtol=1e-6, atol=1e-9)
+        exp = expansions(obs, n)
+        assert np.all((exp >= 0.0) & (exp <= 1.0))
+        np.testing.assert_allclose(exp, 0.0, atol=1e-6)
+        # robots start at rest
+        np.testing.assert_allclose(obs[: 6 * n].reshape(n, 6)[:, 2:5], 0.0, atol=1e-9)
+        # start circle 450-550 around the goal, square grid of pitch 77.5
+        centre = world_pos.mean(axis=0)
+        assert 450.0 - 1e-6 <= np.linalg.norm(centre) <= 550.0 + 1e-6
+        np.testing.assert_allclose(info["centre_of_mass"], centre, atol=1e-9)
+        gaps = np.linalg.norm(world_pos[:, None] - world_pos[None], axis=-1) + np.eye(n) * 1e9
+        np.testing.assert_allclose(gaps.min(axis=1), 77.5, atol=1e-6)
+        if env_id == "dpr/Manipulation-v0":
+            obj = np.array(tuple(base.world.object_body.position))
+            np.testing.assert_allclose(obs[6 * n : 6 * n + 2], obj / 1000.0, rtol=1e-6)
+            np.testing.assert_allclose(obs[6 * n + 2 :], 0.0, atol=1e-9)
+            np.testing.assert_allclose(info["object_position"], obj, atol=1e-9)
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+@pytest.mark.parametrize("action_type", ACTION_TYPES)
+def test_expanding_everyone_reaches_full_expansion(make_env, robot_model, action_type):
+    n = 4
+    env = make_env(robot_model=robot_model, n_robots=n, action_type=action_type)
+    obs, _ = env.reset(seed=0)
+    all_on = {"multibinary": np.ones(n, dtype=np.int8), "discrete": 2**n - 1, "continuous": np.ones(n, np.float32)}
+    history = []
+    for _ in range(5):
+        obs, *_ = env.step(all_on[action_type])
+        e = expansions(obs, n)
+        assert np.all((e >= 0.0) & (e <= 1.0))
+        history.append(e.copy())
+    assert np.all(history[0] > 0.0)  # started moving in the first step
+    assert np.all(history[-1] > 0.8), history[-1]
+    assert np.all(np.diff(np.array(history), axis=0) > -1e-6)  # expansion does not go back while commanded
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_observation_is_state_after_the_step(make_env, env_id, robot_model):
+    n = 4
+    env = make_env(env_id, robot_model=robot_model, n_robots=n)
+    env.reset(seed=3)
+    world = env.unwrapped.world
+    before = world.swarm.position.copy()
+    obs, *_ = env.step(np.ones(n, dtype=np.int8))
+    swarm = env.unwrapped.world.swarm
+    after = np.array([tuple(b.position) for b in swarm.robot_bodies])
+    velocity = np.array([tuple(b.velocity) for b in swarm.robot_bodies])
+    spin = np.array([b.angular_velocity for b in swarm.robot_bodies])
+    assert not np.allclose(after, before, rtol=0, atol=1e-9)  # the step did move the robots
+    rows = obs[: 6 * n].reshape(n, 6)
+    np.testing.assert_allclose(rows[:, 0:2], after / 1000.0, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(rows[:, 2:4], velocity / 1000.0, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(rows[:, 4], spin, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(rows[:, 5], swarm.expansion, rtol=1e-6, atol=1e-7)
+    alive = ~env.unwrapped.world.dead
+    assert alive.any()
+    assert np.all(rows[alive, 5] > 0.0)  # expansion after (not before, when it was 0)
+    if env_id == "dpr/Manipulation-v0":
+        body = env.unwrapped.world.object_body
+        np.testing.assert_allclose(obs[6 * n : 6 * n + 2], np.array(tuple(body.position)) / 1000.0, rtol=1e-6)
+        np.testing.assert_allclose(obs[6 * n + 2 :], np.array(tuple(body.velocity)) / 1000.0, rtol=1e-5, atol=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Rewards
+
+
+def _agent(info, env_id):
+    return info["object_position"] if env_id == "dpr/Manipulation-v0" else info["centre_of_mass"]
+
+
+@pytest.mark.parametrize("env_id", ["dpr/Navigation-v0", "dpr/Manipulation-v0"])
+@pytest.mark.parametrize("d", [450.0, 2000.0])
+def test_piecewise_and_projected_rewards(make_env, env_id, d):
+    rewards = {}
+    agents = {}
+    for kind in ("piecewise", "projected"):
+        env = make_env(env_id, robot_model="disk", n_robots=4, reward=kind, reward_threshold_d=d)
+        env.action_space.seed(7)
+        _, info = env.reset(seed=11)
+        agents[kind] = [np.array(_agent(info, env_id), dtype=float)]
+        rewards[kind] = []
+        for _ in range(25):
+            _, r, *_, info = env.step(env.action_space.sample())
+            assert isinstance(r, float)
+            rewards[kind].append(r)
+            agents[kind].append(np.array(_agent(info, env_id), dtype=float))
+    # same seeds, same actions: same trajectory whatever the reward
+    np.testing.assert_array_equal(np.array(agents["piecewise"]), np.array(agents["projected"]))
+    path = np.array(agents["piecewise"])
+    goal = np.zeros(2)
+    moved = False
+    for t in range(25):
+        prev, now = path[t], path[t + 1]
+        unit = (goal - prev) / np.linalg.norm(goal - prev)
+        progress = float((now - prev) @ unit)
+        moved |= abs(progress) > 1e-6
+        distance = float(np.linalg.norm(now - goal))
+        scale = d / distance if distance < d else 1.0
+        assert rewards["projected"][t] == pytest.approx(progress, rel=1e-9, abs=1e-12)
+        assert rewards["piecewise"][t] == pytest.approx(progress * scale, rel=1e-9, abs=1e-12)
+    assert moved, "the random actions should have moved the agent"
+    if d > 1000:  # inside d for the whole episode: the multiplier is > 1
+        assert np.sum(np.abs(rewards["piecewise"])) > np.sum(np.abs(rewards["projected"]))
+    else:  # start is 450-550 away; with d=450 and few steps the agent may or may not be inside
+        pass
+
+
+def test_piecewise_scaling_inside_threshold(make_env):
+    # start at exactly 300 from the goal: inside d=450, the multiplier is d / distance ~ 1.5
+    env = make_env(reward="piecewise", start_radius=(300.0, 300.0))
+    ref = make_env(reward="projected", start_radius=(300.0, 300.0))
+    env.reset(seed=5)
+    ref.reset(seed=5)
+    ratios = []
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a = rng.integers(0, 2, 4).astype(np.int8)
+        _, r, *_, info = env.step(a)
+        _, p, *_ = ref.step(a)
+        if abs(p) > 1e-9:
+            distance = np.linalg.norm(info["centre_of_mass"])
+            ratios.append((r / p, 450.0 / distance))
+    assert ratios
+    for got, want in ratios:
+        assert got == pytest.approx(want, rel=1e-9)
+        assert got > 1.4
+
+
+@pytest.mark.parametrize("env_id", ["dpr/Navigation-v0", "dpr/Manipulation-v0"])
+def test_inverse_distance_reward(make_env, env_id):
+    env = make_env(env_id, reward="inverse_distance")
+    env.action_space.seed(2)
+    env.reset(seed=4)
+    for _ in range(10):
+        _, r, *_, info = env.step(env.action_space.sample())
+        assert r == pytest.approx(1.0 / np.linalg.norm(_agent(info, env_id)), rel=1e-9)
+        assert 0 < r < 1.0 / 300
+
+
+def test_info_metrics_follow_the_agent(make_env):
+    env = make_env()
+    env.action_space.seed(0)
+    _, info = env.reset(seed=0)
+    start = info["centre_of_mass"].copy()
+    path = [start]
+    for _ in range(15):
+        _, _, _, _, info = env.step(env.action_space.sample())
+        path.append(info["centre_of_mass"].copy())
+    path = np.array(path)
+    assert info["total_distance"] == pytest.approx(np.linalg.norm(np.diff(path, axis=0), axis=1).sum(), rel=1e-9)
+    assert info["net_displacement"] == pytest.approx(np.linalg.norm(path[-1] - path[0]), rel=1e-9)
+    unit = -start / np.linalg.norm(start)
+    assert info["projected_displacement"] == pytest.approx((path[-1] - path[0]) @ unit, rel=1e-9, abs=1e-12)
+    assert not info["is_success"]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Rendering
+
+
+def _frame(env_id, seed=0, **kwargs):
+    kwargs.setdefault("robot_model", "disk")
+    kwargs.setdefault("n_robots", 4)
+    env = gym.make(env_id, render_mode="rgb_array", render_size=128, **kwargs)
+    env.reset(seed=seed)
+    frame = env.render()
+    env.close()
+    return frame
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_render_rgb_array(env_id, robot_model):
+    frame = _frame(env_id, robot_model=robot_model)
+    assert isinstance(frame, np.ndarray)
+    assert frame.shape == (128, 128, 3) and frame.dtype == np.uint8
+    assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 2  # background plus goal plus robots
+
+
+def test_render_size_is_honoured():
+    env = gym.make("dpr/Navigation-v0", robot_model="disk", n_robots=2, render_mode="rgb_array", render_size=80)
+    env.reset(seed=0)
+    assert env.render().shape == (80, 80, 3)
+    env.close()
+
+
+def test_render_without_mode_returns_none(make_env):
+    env = make_env()
+    env.reset(seed=0)
+    assert env.unwrapped.render() is None
+
+
+def test_gate_walls_are_drawn():
+    nav = _frame("dpr/Navigation-v0", seed=3)
+    gate = _frame("dpr/Gate-v0", seed=3)
+    differing = np.any(nav != gate, axis=-1).sum()
+    # two walls of 500 x 100 at a scale of 128 px / (2 * ~700 units): hundreds of pixels
+    assert differing > 200
+
+
+def test_manipulation_object_is_drawn():
+    nav = _frame("dpr/Navigation-v0", seed=3)
+    manip = _frame("dpr/Manipulation-v0", seed=3)
+    assert np.any(nav != manip, axis=-1).sum() > 10
+
+
+def test_render_follows_the_swarm():
+    a = _frame("dpr/Navigation-v0", seed=0)
+    b = _frame("dpr/Navigation-v0", seed=1)
+    assert not np.array_equal(a, b)
+
+
+def test_paddle_and_disk_frames_differ():
+    assert not np.array_equal(_frame("dpr/Navigation-v0", robot_model="paddle"), _frame("dpr/Navigation-v0"))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Unresponsive
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_dead_robots_never_expand(make_env, robot_model):
+    n = 9
+    env = make_env("dpr/Unresponsive-v0", robot_model=robot_model, n_robots=n)
+    obs, info = env.reset(seed=1)
+    dead = np.asarray(info["dead_robots"])
+    assert len(dead) == 2
+    alive = np.setdiff1d(np.arange(n), dead)
+    for _ in range(8):
+        obs, *_ = env.step(np.ones(n, dtype=np.int8))
+        assert np.all(expansions(obs, n)[dead] < 0.05)
+    assert np.all(expansions(obs, n)[alive] > 0.8)
+
+
+@pytest.mark.parametrize("action_type", ["continuous", "discrete"])
+def test_dead_robots_ignore_every_action_type(make_env, action_type):
+    n = 5
+    env = make_env("dpr/Unresponsive-v0", n_robots=n, n_dead=2, action_type=action_type)
+    obs, info = env.reset(seed=0)
+    dead = np.asarray(info["dead_robots"])
+    action = 2**n - 1 if action_type == "discrete" else np.ones(n, dtype=np.float32)
+    for _ in range(4):
+        obs, *_ = env.step(action)
+    e = expansions(obs, n)
+    assert np.all(e[dead] == 0.0)
+    assert np.all(np.delete(e, dead) > 0.8)
+
+
+def test_dead_robots_come_from_the_seed(make_env):
+    env = make_env("dpr/Unresponsive-v0", n_robots=9)
+    drawn = []
+    for seed in range(10):
+        _, info = env.reset(seed=seed)
+        dead = np.asarray(info["dead_robots"])
+        assert len(dead) == 2 and len(np.unique(dead)) == 2
+        assert np.all((0 <= dead) & (dead < 9))
+        drawn.append(tuple(sorted(dead.tolist())))
+    assert len(set(drawn)) > 1
+    # same seed, same dead robots (also from a fresh env)
+    other = make_env("dpr/Unresponsive-v0", n_robots=9)
+    for seed in (0, 4, 9):
+        _, info = other.reset(seed=seed)
+        assert tuple(sorted(np.asarray(info["dead_robots"]).tolist())) == drawn[seed]
+        assert np.array_equal(np.flatnonzero(other.unwrapped.world.dead), np.sort(info["dead_robots"]))
+
+
+@pytest.mark.parametrize("n_robots", range(1, 13))
+def test_default_n_dead(n_robots):
+    env = gym.make("dpr/Unresponsive-v0", robot_model="disk", n_robots=n_robots)
+    assert env.unwrapped.n_dead == round(0.2 * n_robots)
+    _, info = env.reset(seed=0)
+    assert len(info["dead_robots"]) == round(0.2 * n_robots)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Manipulation-v0"])
+def test_other_tasks_have_no_dead_robots(make_env, env_id):
+    _, info = make_env(env_id).reset(seed=0)
+    assert len(info["dead_robots"]) == 0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Gate
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_gate_walls_collide_with_every_robot(make_env, robot_model):
+    env = make_env("dpr/Gate-v0", robot_model=robot_model, n_robots=4)
+    env.reset(seed=0)
+    space = env.unwrapped.world.space
+    walls = [s for s in space.shapes if s.body.body_type == pymunk.Body.STATIC]
+    assert len(walls) == 2
+    robot_shapes = [s for s in space.shapes if s.body.body_type == pymunk.Body.DYNAMIC]
+    assert robot_shapes
+    for wall in walls:
+        for shape in robot_shapes:
+            assert not shape.filter.rejects_collision(wall.filter)
+            assert not wall.filter.rejects_collision(shape.filter)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_gate_geometry(make_env, seed):
+    env = make_env("dpr/Gate-v0", gate_width=150.0)
+    _, info = env.reset(seed=seed)
+    space = env.unwrapped.world.space
+    walls = [s for s in space.shapes if s.body.body_type == pymunk.Body.STATIC]
+    start = info["centre_of_mass"]
+    middle = start / 2
+    # the opening sits on the start-goal line halfway: the middle point is free, the walls are 75 + ... off it
+    assert space.point_query_nearest(tuple(middle), 0.0, pymunk.ShapeFilter()) is None
+    distances = [w.point_query(tuple(middle)).distance for w in walls]
+    np.testing.assert_allclose(distances, 75.0, atol=1e-6)
+    # walls lie across the line: points 100 beside the middle, perpendicular to it, are inside a wall
+    along = -start / np.linalg.norm(start)
+    across = np.array([-along[1], along[0]])
+    for side in (1, -1):
+        hit = space.point_query_nearest(tuple(middle + side * across * 300), 0.0, pymunk.ShapeFilter())
+        assert hit is not None and hit.shape in walls
+    # the swarm starts clear of the walls
+    for wall in walls:
+        assert not [q for q in space.shape_query(wall) if q.shape.body.body_type == pymunk.Body.DYNAMIC]
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_wall_physically_blocks_robot_zero(robot_model):
+    """A wall right across robot 0's path stops it when it is driven toward the wall."""
+    from dpr.sim import World
+
+    wall = np.array([(-200.0, 80.0), (200.0, 80.0), (200.0, 180.0), (-200.0, 180.0)])
+    world = World(1, robot_model, centre=(0.0, 0.0), walls=[wall])
+    body = world.swarm.robot_bodies[0]
+    for _ in range(20):  # 200 units/s for 2 s would carry it ~400 units without the wall
+        body.velocity = (0.0, 200.0)
+        world.step(np.zeros(1))
+    for _ in range(10):  # let the contact settle
+        world.step(np.zeros(1))
+    y = world.swarm.position[0, 1]
+    assert 20.0 < y < 80.0 - 20.0, y
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Manipulation
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+@pytest.mark.parametrize("n_robots", [1, 4, 9])
+@pytest.mark.parametrize("object_type", ["ball", "box"])
+def test_object_starts_touching_the_swarm_on_the_goal_side(make_env, robot_model, n_robots, object_type):
+    env = make_env("dpr/Manipulation-v0", robot_model=robot_model, n_robots=n_robots, object_type=object_type)
+    for seed in range(4):
+        _, info = env.reset(seed=seed)
+        world = env.unwrapped.world
+        obj = np.array(tuple(world.object_body.position))
+        centres = world.swarm.position
+        centre = centres.mean(axis=0)
+        assert np.linalg.norm(obj) < np.linalg.norm(centre)
+        # on the goal side: the object is ahead of every robot along the centre-to-goal direction
+        toward = -centre / np.linalg.norm(centre)
+        assert (obj - centre) @ toward > ((centres - centre) @ toward).max()
+        # touching or near: from the object's surface to the nearest robot centre is less than 60
+        gap = min(world.object_shape.point_query(tuple(c)).distance for c in centres)
+        assert 0.0 < gap < 60.0
+        # and not overlapping any robot
+        assert not [q for q in world.space.shape_query(world.object_shape) if q.shape.body is not world.object_body]
+        np.testing.assert_allclose(info["object_position"], obj)
+
+
+def test_object_kwargs(make_env):
+    env = make_env("dpr/Manipulation-v0", object_type="box", object_mass=55.0, object_size=20.0)
+    env.reset(seed=0)
+    world = env.unwrapped.world
+    assert world.object_body.mass == pytest.approx(55.0)
+    assert isinstance(world.object_shape, pymunk.Poly)
+    bb = world.object_shape.bb
+    assert max(bb.right - bb.left, bb.top - bb.bottom) <= 2 * 20.0 * math.sqrt(2) + 1e-6
+    env = make_env("dpr/Manipulation-v0")
+    env.reset(seed=0)
+    world = env.unwrapped.world
+    assert isinstance(world.object_shape, pymunk.Circle) and world.object_shape.radius == pytest.approx(30.0)
+    assert world.object_body.mass == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_goal_is_not_solid(make_env, env_id):
+    env = make_env(env_id)
+    env.reset(seed=0)
+    space = env.unwrapped.world.space
+    assert space.point_query((0.0, 0.0), 5.0, pymunk.ShapeFilter()) == []
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+@pytest.mark.parametrize("object_type", ["ball", "box"])
+def test_object_on_goal_terminates_with_success(make_env, robot_model, object_type):
+    n = 4
+    env = make_env("dpr/Manipulation-v0", robot_model=robot_model, n_robots=n, object_type=object_type)
+    env.reset(seed=0)
+    _, _, terminated, truncated, info = env.step(np.zeros(n, dtype=np.int8))
+    assert not terminated and not info["is_success"]
+    world = env.unwrapped.world
+    body = world.object_body
+    body.position = (0.0, 0.0)
+    body.velocity = (0.0, 0.0)
+    body.angular_velocity = 0.0
+    world.space.reindex_shapes_for_body(body)
+    _, reward, terminated, truncated, info = env.step(np.zeros(n, dtype=np.int8))
+    assert terminated and not truncated
+    assert info["is_success"]
+    assert np.linalg.norm(info["object_position"]) < 10.0
+    assert reward > 0  # the object jumped toward the goal
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+@pytest.mark.parametrize("env_id", ["dpr/Navigation-v0", "dpr/Unresponsive-v0"])
+def test_swarm_on_goal_terminates_with_success(make_env, robot_model, env_id):
+    n = 4
+    env = make_env(env_id, robot_model=robot_model, n_robots=n)
+    _, info = env.reset(seed=2)
+    world = env.unwrapped.world
+    move_bodies(world.swarm.bodies, -world.centre_of_mass)
+    _, _, terminated, truncated, info = env.step(np.zeros(n, dtype=np.int8))
+    assert np.linalg.norm(info["centre_of_mass"]) < 10.0
+    assert terminated and not truncated
+    assert info["is_success"]
+
+
+def test_swarm_near_but_outside_goal_does_not_terminate(make_env):
+    n = 4
+    env = make_env(n_robots=n)
+    env.reset(seed=2)
+    world = env.unwrapped.world
+    move_bodies(world.swarm.bodies, -world.centre_of_mass + np.array([30.0, 0.0]))
+    _, _, terminated, _, info = env.step(np.zeros(n, dtype=np.int8))
+    assert np.linalg.norm(info["centre_of_mass"]) > 10.0
+    assert not terminated and not info["is_success"]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Action decoding
+
+
+def _bits(value, n):
+    return np.array([(value >> (n - 1 - i)) & 1 for i in range(n)], dtype=np.int8)
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_discrete_decoding_msb_is_robot_zero(make_env, robot_model):
+    n = 4
+    env = make_env(robot_model=robot_model, n_robots=n, action_type="discrete")
+    for action, expected in ((2**n - 1, [1, 1, 1, 1]), (0, [0, 0, 0, 0]), (2 ** (n - 1), [1, 0, 0, 0]), (1, [0, 0, 0, 1])):
+        env.reset(seed=0)
+        for _ in range(3):
+            obs, *_ = env.step(action)
+        e = expansions(obs, n)
+        expected = np.array(expected, dtype=bool)
+        assert np.all(e[expected] > 0.3), (action, e)
+        assert np.all(e[~expected] < 0.05), (action, e)
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_discrete_matches_multibinary(make_env, robot_model):
+    n = 3
+    disc = make_env(robot_model=robot_model, n_robots=n, action_type="discrete")
+    mb = make_env(robot_model=robot_model, n_robots=n, action_type="multibinary")
+    cont = make_env(robot_model=robot_model, n_robots=n, action_type="continuous")
+    rng = np.random.default_rng(0)
+    a, _ = disc.reset(seed=9)
+    b, _ = mb.reset(seed=9)
+    c, _ = cont.reset(seed=9)
+    assert np.array_equal(a, b) and np.array_equal(a, c)
+    for value in rng.integers(0, 2**n, size=20):
+        a, *_ = disc.step(int(value))
+        b, *_ = mb.step(_bits(int(value), n))
+        c, *_ = cont.step(_bits(int(value), n).astype(np.float32))
+        assert np.array_equal(a, b)
+        assert np.array_equal(a, c)
+
+
+def test_discrete_accepts_numpy_integers(make_env):
+    env = make_env(action_type="discrete")
+    env.reset(seed=0)
+    for action in (np.int64(3), np.array(5), np.array([7]), env.action_space.sample()):
+        env.step(action)
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_continuous_partial_expansion(make_env, robot_model):
+    n = 2
+    env = make_env(robot_model=robot_model, n_robots=n, action_type="continuous")
+    env.reset(seed=0)
+    for _ in range(8):
+        obs, *_ = env.step(np.array([0.5, 1.0], dtype=np.float32))
+    e = expansions(obs, n)
+    assert 0.3 < e[0] < 0.7, e
+    assert e[1] > 0.85, e
