@@ -294,6 +294,33 @@ def test_info_metrics_follow_the_agent(make_env):
     assert not info["is_success"]
 
 
+@pytest.mark.parametrize("env_id", ["dpr/Navigation-v0", "dpr/Manipulation-v0"])
+def test_returned_data_is_not_live_env_state(make_env, env_id):
+    """Users keep (and sometimes edit) what step/reset return: doing so must not change the episode."""
+
+    def run(scribble):
+        env = make_env(env_id)
+        obs, info = env.reset(seed=0)
+        rng = np.random.default_rng(0)
+        out = []
+        for _ in range(8):
+            if scribble:
+                obs[:] = 0.0
+                for value in info.values():
+                    if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+                        value[...] = 0.0
+            obs, reward, terminated, truncated, info = env.step(rng.integers(0, 2, 4).astype(np.int8))
+            out.append((obs.copy(), reward, info["total_distance"], info["projected_displacement"],
+                        np.array(info["centre_of_mass"]).copy()))
+        return out
+
+    clean, scribbled = run(False), run(True)
+    for a, b in zip(clean, scribbled):
+        assert np.array_equal(a[0], b[0])
+        assert a[1:4] == b[1:4]
+        assert np.array_equal(a[4], b[4])
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Rendering
 

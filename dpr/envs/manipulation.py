@@ -1,10 +1,20 @@
 """Manipulation: push an object to the goal."""
 
+import math
+
 import numpy as np
 
 from dpr.envs.particle_env import ParticleSwarmEnv
 from dpr.sim.objects import OBJECT_TYPES, direction_angle
+from dpr.sim.constants import GRID_PITCH
 from dpr.sim.world import ObjectSpec
+
+OBJECT_STARTS = ("touching", "paper")
+
+
+def _square_point(direction: np.ndarray, half_side: float) -> np.ndarray:
+    """Where the ray along ``direction`` leaves a square of ``half_side`` centred on its origin."""
+    return direction * half_side / np.abs(direction).max()
 
 
 class ManipulationEnv(ParticleSwarmEnv):
@@ -32,7 +42,10 @@ class ManipulationEnv(ParticleSwarmEnv):
 
     ## Arguments
     Navigation's, plus ``object_type="ball"`` (or ``"box"``), ``object_mass=100.0``, ``object_size=30.0``
-    (the ball's radius, or half the box's side).
+    (the ball's radius, or half the box's side), and ``object_start``: ``"touching"`` (default) or
+    ``"paper"``, the 2021 code's placement on a square of half side ``ceil(sqrt(N)) / 2 * 77.5 + size / 4``
+    around the swarm's centre, which overlaps the contracted front row (by about 16 units at N=9) so that
+    the first physics step kicks the object toward the goal; use it to compare with the 2021 figures.
 
     ## Version History
     * v0: first version; the goal is a marker, not a solid block, so the object can reach it.
@@ -41,8 +54,18 @@ class ManipulationEnv(ParticleSwarmEnv):
     task = "manipulation"
     has_object = True
 
-    def __init__(self, object_type: str = "ball", object_mass: float = 100.0, object_size: float = 30.0, **kwargs):
+    def __init__(
+        self,
+        object_type: str = "ball",
+        object_mass: float = 100.0,
+        object_size: float = 30.0,
+        object_start: str = "touching",
+        **kwargs,
+    ):
         super().__init__(**kwargs)
+        if object_start not in OBJECT_STARTS:
+            raise ValueError(f"object_start must be one of {OBJECT_STARTS}, got {object_start!r}")
+        self.object_start = object_start
         if object_type not in OBJECT_TYPES:
             raise ValueError(f"object_type must be one of {OBJECT_TYPES}, got {object_type!r}")
         if not object_mass > 0:
@@ -55,8 +78,11 @@ class ManipulationEnv(ParticleSwarmEnv):
 
     def _object(self, start: np.ndarray, centres: np.ndarray) -> ObjectSpec:
         toward_goal = (self.goal - start) / np.linalg.norm(self.goal - start)
-        reach = float(((centres - start) @ toward_goal).max()) + self.swarm_class.contracted_radius
-        position = start + toward_goal * (reach + self.object_size + 1.0)
+        if self.object_start == "paper":
+            position = start + _square_point(toward_goal, math.ceil(math.sqrt(self.n_robots)) / 2 * GRID_PITCH + self.object_size / 4)
+        else:
+            reach = float(((centres - start) @ toward_goal).max()) + self.swarm_class.contracted_radius
+            position = start + toward_goal * (reach + self.object_size + 1.0)
         return ObjectSpec(
             self.object_type,
             (float(position[0]), float(position[1])),

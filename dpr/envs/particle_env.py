@@ -185,7 +185,7 @@ class ParticleSwarmEnv(gym.Env):
         """What the task moves: the swarm's centre, or the object."""
         if self.has_object:
             return self.world.object_pose[0:2].copy()
-        return self.world.centre_of_mass
+        return self.world.centre_of_mass.copy()
 
     def _targets(self, action) -> np.ndarray:
         """Validate ``action`` against the action space and turn it into expansion targets in [0, 1]."""
@@ -251,7 +251,7 @@ class ParticleSwarmEnv(gym.Env):
         tracker = self._tracker
         info = {
             "is_success": tracker.success,
-            "centre_of_mass": self.world.centre_of_mass,
+            "centre_of_mass": self.world.centre_of_mass.copy(),
             "projected_displacement": tracker.projected_displacement,
             "net_displacement": tracker.net_displacement,
             "total_distance": tracker.total_distance,

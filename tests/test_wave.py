@@ -1,0 +1,216 @@
+"""The hand-crafted wave policy: binning, phases, wave direction, output types, and short locomotion runs."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from dpr.policies.wave import MODEL_DEFAULTS, WavePolicy
+
+# Robots along the goal direction (+x before rotation), y summing to 0 so that the swarm centre lies on it.
+XS = np.array([440.0, 470.0, 520.0, 590.0, 650.0, 700.0])
+YS = np.array([-50.0, 30.0, 0.0, 80.0, -20.0, -40.0])
+
+
+def _rotate(points, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return points @ np.array([[c, s], [-s, c]])
+
+
+def _observation(points, extra=0):
+    """A state observation (goal frame, / 1000) with the given robot positions and zero velocities."""
+    n = len(points)
+    rows = np.zeros((n, 6))
+    rows[:, 0:2] = points / 1000.0
+    rows[:, 5] = 0.5
+    return np.concatenate([rows.ravel(), np.full(extra, 0.123)]).astype(np.float32)
+
+
+def _expected_bins(points, bin_width=60.0):
+    """Distance of each robot to the line through the goal perpendicular to the goal->centre direction."""
+    centre = points.mean(axis=0)
+    u = centre / np.linalg.norm(centre)
+    v = np.array([-u[1], u[0]])  # the line's direction
+    distance = np.abs(v[0] * points[:, 1] - v[1] * points[:, 0])  # |cross(v, p)|
+    return np.floor((distance - distance.min()) / bin_width).astype(int)
+
+
+def _run(policy, obs, steps):
+    return np.array([np.asarray(policy(obs)) for _ in range(steps)])
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.4, 2.0, -2.7])
+@pytest.mark.parametrize("hold_steps", [1, 3, 10])
+def test_phases_follow_bins_near(angle, hold_steps):
+    points = _rotate(np.stack([XS, YS], axis=1), angle)
+    bins = _expected_bins(points)
+    assert bins.tolist() == [0, 0, 1, 2, 3, 4]  # by construction of XS
+    n_phases = bins.max() + 1
+    policy = WavePolicy(len(points), "multibinary", hold_steps=hold_steps, start_side="near")
+    actions = _run(policy, _observation(points), n_phases * hold_steps * 2)
+    for t, action in enumerate(actions):
+        phase = (t // hold_steps) % n_phases
+        assert np.array_equal(action, (bins == phase).astype(np.int8)), (t, action)
+    # the nearest robots expand first
+    assert np.array_equal(actions[0], [1, 1, 0, 0, 0, 0])
+
+
+@pytest.mark.parametrize("angle", [0.0, 1.1])
+def test_far_start_reverses_the_wave(angle):
+    points = _rotate(np.stack([XS, YS], axis=1), angle)
+    bins = _expected_bins(points)
+    n_phases = bins.max() + 1
+    hold = 4
+    policy = WavePolicy(len(points), "multibinary", hold_steps=hold, start_side="far")
+    actions = _run(policy, _observation(points), n_phases * hold)
+    for t, action in enumerate(actions):
+        phase = t // hold
+        assert np.array_equal(action, (bins == n_phases - 1 - phase).astype(np.int8))
+    assert np.array_equal(actions[0], [0, 0, 0, 0, 0, 1])  # the farthest robot expands first
+
+
+def test_bin_width_parameter():
+    points = np.stack([XS, YS], axis=1)
+    policy = WavePolicy(len(points), "multibinary", hold_steps=1, bin_width=1000.0)
+    actions = _run(policy, _observation(points), 3)
+    assert np.all(actions == 1)  # one bin: everyone expands in every phase
+    policy = WavePolicy(len(points), "multibinary", hold_steps=1, bin_width=27.0)
+    bins = _expected_bins(points, 27.0)  # no robot on a bin edge (float32 obs)
+    actions = _run(policy, _observation(points), bins.max() + 1)
+    for t, action in enumerate(actions):
+        assert np.array_equal(action, (bins == t).astype(np.int8))
+
+
+def test_plan_is_kept_for_the_whole_cycle():
+    points = np.stack([XS, YS], axis=1)
+    policy = WavePolicy(len(points), "multibinary", hold_steps=2)
+    first = policy(_observation(points))
+    # mid-cycle, the swarm turns around the goal: the cycle's bins stay those planned at its start
+    moved = _rotate(points[::-1], 1.0)
+    rest = _run(policy, _observation(moved), 2 * 5 - 1)
+    bins = _expected_bins(points)
+    assert np.array_equal(first, (bins == 0).astype(np.int8))
+    for t, action in enumerate(rest, start=1):
+        assert np.array_equal(action, (bins == t // 2).astype(np.int8))
+    # the next cycle is planned from the observation it starts with
+    assert np.array_equal(policy(_observation(moved)), (_expected_bins(moved) == 0).astype(np.int8))
+
+
+def test_reset_restarts_the_cycle():
+    points = np.stack([XS, YS], axis=1)
+    obs = _observation(points)
+    policy = WavePolicy(len(points), "multibinary", hold_steps=2)
+    fresh = _run(WavePolicy(len(points), "multibinary", hold_steps=2), obs, 4)
+    _run(policy, obs, 5)
+    policy.reset()
+    assert np.array_equal(_run(policy, obs, 4), fresh)
+
+
+def test_output_types():
+    points = np.stack([XS, YS], axis=1)
+    n = len(points)
+    obs = _observation(points)
+    mb = WavePolicy(n, "multibinary", hold_steps=1)
+    disc = WavePolicy(n, "discrete", hold_steps=1)
+    cont = WavePolicy(n, "continuous", hold_steps=1)
+    for _ in range(6):
+        a, d, c = mb(obs), disc(obs), cont(obs)
+        assert isinstance(a, np.ndarray) and a.dtype == np.int8 and a.shape == (n,)
+        assert isinstance(d, int) and not isinstance(d, bool)
+        assert 0 <= d < 2**n
+        assert isinstance(c, np.ndarray) and c.dtype == np.float32 and c.shape == (n,)
+        # robot 0 is the most significant bit, as in the env
+        assert d == int("".join(str(int(x)) for x in a), 2)
+        assert np.array_equal(c, a.astype(np.float32))
+
+
+def test_accepts_pixels_state_dicts_and_object_features():
+    points = np.stack([XS, YS], axis=1)
+    state = _observation(points, extra=4)  # Manipulation: 6N + 4
+    a = _run(WavePolicy(len(points), hold_steps=1), state, 5)
+    b = _run(WavePolicy(len(points), hold_steps=1), {"pixels": np.zeros((8, 8, 3), np.uint8), "state": state}, 5)
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("robot_model", ["paddle", "disk"])
+@pytest.mark.parametrize("action_type", ["multibinary", "discrete", "continuous"])
+@pytest.mark.parametrize("obs_type", ["state", "pixels_state"])
+def test_from_env(robot_model, action_type, obs_type):
+    env = gym.make(
+        "dpr/Manipulation-v0", robot_model=robot_model, n_robots=4, action_type=action_type, obs_type=obs_type,
+        image_size=32,
+    )
+    policy = WavePolicy.from_env(env)
+    assert policy.n_robots == 4 and policy.action_type == action_type
+    assert policy.hold_steps == MODEL_DEFAULTS[robot_model]["hold_steps"]
+    assert policy.start_side == MODEL_DEFAULTS[robot_model]["start_side"]
+    assert WavePolicy.from_env(env, hold_steps=7).hold_steps == 7
+    assert WavePolicy.from_env(env.unwrapped, start_side="far").start_side == "far"
+    obs, _ = env.reset(seed=0)
+    for _ in range(12):
+        action = policy(obs)
+        assert env.action_space.contains(action)
+        obs, *_ = env.step(action)
+    env.close()
+
+
+def test_paddle_default_is_the_papers():
+    assert MODEL_DEFAULTS["paddle"] == {"hold_steps": 10, "start_side": "near"}
+    policy = WavePolicy(9)
+    assert policy.hold_steps == 10 and policy.start_side == "near" and policy.bin_width == 60.0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Locomotion on a short horizon
+
+
+def _wave_episode(robot_model, seed, steps, env_id="dpr/Navigation-v0", **policy_kwargs):
+    env = gym.make(env_id, robot_model=robot_model, n_robots=9)
+    obs, info = env.reset(seed=seed)
+    policy = WavePolicy.from_env(env, **policy_kwargs)
+    key = "object_position" if env_id == "dpr/Manipulation-v0" else "centre_of_mass"
+    start = info[key].copy()
+    for t in range(steps):
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+        assert "physics_error" not in info
+        assert not truncated or t + 1 == steps == env.spec.max_episode_steps
+        if terminated:
+            break
+    env.close()
+    end = info[key]
+    unit = -start / np.linalg.norm(start)
+    projected = float((end - start) @ unit)
+    assert projected == pytest.approx(info["projected_displacement"], rel=1e-9, abs=1e-9)
+    return projected
+
+
+def test_paddle_wave_moves_toward_goal():
+    assert _wave_episode("paddle", seed=0, steps=400, hold_steps=10, start_side="near") > 0.0
+
+
+def test_disk_wave_with_model_defaults_moves_toward_goal():
+    assert _wave_episode("disk", seed=0, steps=400) > 0.0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Long runs (pytest -m slow)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot_model", ["paddle", "disk"])
+def test_wave_moves_toward_goal_over_full_episodes(robot_model):
+    results = [_wave_episode(robot_model, seed, 2500) for seed in range(3)]
+    assert all(r > 0.0 for r in results), results
+
+
+@pytest.mark.slow
+def test_paddle_wave_from_the_far_side_moves_away():
+    results = [_wave_episode("paddle", seed, 2500, start_side="far") for seed in range(3)]
+    assert np.median(results) < 0.0, results
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot_model", ["paddle", "disk"])
+def test_wave_moves_the_swarm_in_gate_and_unresponsive(robot_model):
+    for env_id in ("dpr/Gate-v0", "dpr/Unresponsive-v0"):
+        results = [_wave_episode(robot_model, seed, 1000, env_id=env_id) for seed in range(3)]
+        assert np.median(results) > 0.0, (env_id, results)
