@@ -101,6 +101,7 @@ def test_gate_just_wider_than_one_robot(robot_model, width):
         ({"object_type": None}, "object_type"),
         ({"object_mass": 0.0}, "object_mass"),
         ({"object_size": -1.0}, "object_size"),
+        ({"object_start": "random"}, "object_start"),
     ],
 )
 def test_bad_object_kwargs(kwargs, name):

@@ -534,6 +534,24 @@ def test_object_starts_touching_the_swarm_on_the_goal_side(make_env, robot_model
         np.testing.assert_allclose(info["object_position"], obj)
 
 
+@pytest.mark.parametrize("n_robots", [4, 9])
+def test_object_start_paper_is_on_the_line_to_the_goal(make_env, n_robots):
+    env = make_env("dpr/Manipulation-v0", n_robots=n_robots, object_start="paper")
+    assert make_env("dpr/Manipulation-v0").unwrapped.object_start == "touching"
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        world = env.unwrapped.world
+        centre = world.swarm.position.mean(axis=0)
+        obj = info["object_position"]
+        toward = -centre / np.linalg.norm(centre)
+        offset = obj - centre
+        assert abs(offset[0] * toward[1] - offset[1] * toward[0]) < 1e-6  # on the centre-goal line
+        assert offset @ toward > 0  # on the goal side
+        # on the square of half side ceil(sqrt(N)) / 2 * 77.5 + size / 4 around the centre
+        half = math.ceil(math.sqrt(n_robots)) / 2 * 77.5 + 30.0 / 4
+        assert np.abs(offset).max() == pytest.approx(half, abs=1e-6)
+
+
 def test_object_kwargs(make_env):
     env = make_env("dpr/Manipulation-v0", object_type="box", object_mass=55.0, object_size=20.0)
     env.reset(seed=0)

@@ -16,7 +16,7 @@ class NavigationEnv(ParticleSwarmEnv):
     ``"discrete"``: ``Discrete(2^N)`` (N <= 16), the binary number whose most significant bit is robot 0.
     ``"continuous"``: ``Box(0, 1, (N,))``, a target expansion per robot (0 contracted, 1 expanded).
     A robot accepts a new target only once it has reached its previous one (within 10 degrees of stroke); a
-    full stroke takes about 3 steps. Actions of the wrong shape, dtype or range raise ``ValueError``.
+    full stroke takes about 5 steps (the motors need time to spin the paddles up). Actions of the wrong shape, dtype or range raise ``ValueError``.
 
     ## Observation Space
     ``obs_type="state"`` (default): ``Box(6N,)`` float32, robot-major: for each robot x, y (goal frame), vx,

@@ -136,8 +136,16 @@ class World:
         # NaN compares False, so one reduction catches NaN, infinities and runaway values alike
         return bool(np.abs(self._rows).max() < _SANE_LIMIT)
 
-    # Batch buffers are cffi objects: rebuild them after unpickling.
+    # Batch buffers are cffi objects: rebuild them after unpickling. pymunk re-measures a PinJoint's
+    # length from its bodies when unpickling it, so lengths are carried explicitly.
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_buffer"] = None
+        state["_pin_lengths"] = [(j, j.distance) for j in self.space.constraints if isinstance(j, pymunk.PinJoint)]
         return state
+
+    def __setstate__(self, state):
+        lengths = state.pop("_pin_lengths", [])
+        self.__dict__.update(state)
+        for joint, length in lengths:
+            joint.distance = length
