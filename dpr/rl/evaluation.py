@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from dpr.envs import ENV_IDS
-from dpr.metrics import EpisodeMetrics, summarize
+from dpr.metrics import EpisodeMetrics, episode_metrics, summarize
 
 SCRIPTED_POLICIES = ("wave", "random")
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")
@@ -77,21 +77,19 @@ def run_episode(env_id: str, policy_name: str, seed: int, steps: int = 2500, env
 
     env = gym.make(env_id, max_episode_steps=steps, **(env_kwargs or {}))
     policy = make_policy(policy_name, env)
-    observation, info = env.reset(seed=seed)
+    observation, _ = env.reset(seed=seed)
     policy.reset(seed)
     base = env.unwrapped
     trajectory = [base._agent_position()]
     done = False
     while not done:
         observation, _, terminated, truncated, info = env.step(policy(observation))
-        trajectory.append(base._agent_position())
+        if "physics_error" not in info:  # a blown-up step's state is not part of the trajectory
+            trajectory.append(base._agent_position())
         done = terminated or truncated
     env.close()
-    metrics = EpisodeMetrics(
-        info["projected_displacement"], info["net_displacement"], info["total_distance"],
-        bool(info["is_success"]), len(trajectory) - 1,
-    )
-    return EpisodeResult(env_id, policy_name, seed, metrics, np.array(trajectory), base.goal.copy())
+    trajectory = np.array(trajectory)
+    return EpisodeResult(env_id, policy_name, seed, episode_metrics(trajectory, base.goal), trajectory, base.goal.copy())
 
 
 def evaluate(
@@ -123,8 +121,6 @@ def evaluate(
     else:
         with ProcessPoolExecutor(workers) as pool:
             futures = {pool.submit(run_episode, *job): i for i, job in enumerate(jobs)}
-            from concurrent.futures import as_completed
-
             for future in as_completed(futures):
                 results[futures[future]] = future.result()
                 if progress:

@@ -45,7 +45,7 @@ class World:
     """A pymunk space holding one swarm, static walls and at most one object.
 
     ``step(targets)`` runs one control step: the swarm applies its command rule, refreshes its magnets,
-    then the space is stepped ``SUBSTEPS`` times by ``DT``; afterwards every body's state is read in one
+    then the space is stepped ``swarm.substeps`` times (``step_physics``); afterwards every body's state is read in one
     batch call. A new World is built for every episode: pymunk keeps contact caches in a space, so re-using
     one would break determinism.
     """
