@@ -68,33 +68,51 @@ def episode_metrics(trajectory: np.ndarray, goal) -> EpisodeMetrics:
 
 
 class MetricTracker:
-    """The same metrics, updated one step at a time in O(1) (what the env reports in ``info``)."""
+    """The same metrics, updated one step at a time in O(1) (what the env reports in ``info``).
+
+    Works on plain floats: a step's bookkeeping is a handful of scalar operations, cheaper than numpy calls
+    on 2-vectors. ``distance_to_goal`` is kept so the env's reward and termination need not recompute it.
+    """
 
     def __init__(self, start, goal):
-        self.start = np.asarray(start, dtype=float).copy()
-        self.last = self.start.copy()
-        self.goal = np.asarray(goal, dtype=float)
-        to_goal = self.goal - self.start
-        norm = np.linalg.norm(to_goal)
-        self._unit = to_goal / norm if norm > 0 else np.zeros(2)
+        self._sx, self._sy = float(start[0]), float(start[1])
+        self._gx, self._gy = float(goal[0]), float(goal[1])
+        self._lx, self._ly = self._sx, self._sy
+        self.goal_position = (self._gx, self._gy)
+        norm = math.hypot(self._gx - self._sx, self._gy - self._sy)
+        self._ux, self._uy = ((self._gx - self._sx) / norm, (self._gy - self._sy) / norm) if norm > 0 else (0.0, 0.0)
+        self.distance_to_goal = norm
         self.total_distance = 0.0
-        self.success = bool(np.linalg.norm(self.start - self.goal) < SUCCESS_RADIUS)
+        self.success = norm < SUCCESS_RADIUS
         self.steps = 0
 
+    @property
+    def start(self) -> np.ndarray:
+        return np.array((self._sx, self._sy))
+
+    @property
+    def last(self) -> np.ndarray:
+        return np.array((self._lx, self._ly))
+
+    @property
+    def last_position(self) -> tuple[float, float]:
+        return self._lx, self._ly
+
     def update(self, position) -> None:
-        position = np.array(position, dtype=float)
-        self.total_distance += math.hypot(*(position - self.last))
-        self.last = position
-        self.success |= math.hypot(*(position - self.goal)) < SUCCESS_RADIUS
+        x, y = float(position[0]), float(position[1])
+        self.total_distance += math.hypot(x - self._lx, y - self._ly)
+        self._lx, self._ly = x, y
+        self.distance_to_goal = math.hypot(x - self._gx, y - self._gy)
+        self.success = self.success or self.distance_to_goal < SUCCESS_RADIUS
         self.steps += 1
 
     @property
     def net_displacement(self) -> float:
-        return math.hypot(*(self.last - self.start))
+        return math.hypot(self._lx - self._sx, self._ly - self._sy)
 
     @property
     def projected_displacement(self) -> float:
-        return float((self.last - self.start) @ self._unit)
+        return (self._lx - self._sx) * self._ux + (self._ly - self._sy) * self._uy
 
     def as_metrics(self) -> EpisodeMetrics:
         return EpisodeMetrics(

@@ -526,9 +526,9 @@ def test_object_starts_touching_the_swarm_on_the_goal_side(make_env, robot_model
         # on the goal side: the object is ahead of every robot along the centre-to-goal direction
         toward = -centre / np.linalg.norm(centre)
         assert (obj - centre) @ toward > ((centres - centre) @ toward).max()
-        # touching or near: from the object's surface to the nearest robot centre is less than 60
+        # touching: the object's surface is 1 unit from the nearest contracted robot's rim
         gap = min(world.object_shape.point_query(tuple(c)).distance for c in centres)
-        assert 0.0 < gap < 60.0
+        assert gap == pytest.approx(env.unwrapped.swarm_class.contracted_radius + 1.0, abs=1e-6)
         # and not overlapping any robot
         assert not [q for q in world.space.shape_query(world.object_shape) if q.shape.body is not world.object_body]
         np.testing.assert_allclose(info["object_position"], obj)

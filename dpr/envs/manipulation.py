@@ -17,6 +17,23 @@ def _square_point(direction: np.ndarray, half_side: float) -> np.ndarray:
     return direction * half_side / np.abs(direction).max()
 
 
+def _distance_ahead(offsets: np.ndarray, direction: np.ndarray, robot_radius: float, object_type: str, size: float) -> float:
+    """The smallest distance along ``direction`` at which the object clears every robot (centres at
+    ``offsets``, contracted radius ``robot_radius``): the object then touches the first robot in its path,
+    not a point in empty space in front of the swarm's bounding box. A box faces the swarm with one side."""
+    along = offsets @ direction
+    across = np.abs(offsets @ np.array([-direction[1], direction[0]]))
+    if object_type == "ball":
+        reach = robot_radius + size
+        in_path = across < reach
+        needed = np.sqrt(reach**2 - across[in_path] ** 2)
+    else:
+        in_path = across < size + robot_radius
+        overhang = np.clip(across[in_path] - size, 0.0, None)
+        needed = size + np.sqrt(robot_radius**2 - overhang**2)
+    return float(np.max(along[in_path] + needed, initial=robot_radius + size))
+
+
 class ManipulationEnv(ParticleSwarmEnv):
     """
     ## Description
@@ -34,8 +51,9 @@ class ManipulationEnv(ParticleSwarmEnv):
     As Navigation, computed on the object's position.
 
     ## Starting State
-    As Navigation; the object is placed touching the swarm on the goal side, on the line from the swarm's
-    centre to the goal (a box turned to face the swarm with one side).
+    As Navigation; the object is placed on the goal side of the swarm, on the line from the swarm's centre
+    to the goal, 1 unit clear of the first contracted robot on that line (a box turned to face the swarm
+    with one side), so that the robot's first expansion reaches it.
 
     ## Episode End
     Terminated when the object comes within 10 units of the goal; truncated as in Navigation.
@@ -81,8 +99,11 @@ class ManipulationEnv(ParticleSwarmEnv):
         if self.object_start == "paper":
             position = start + _square_point(toward_goal, math.ceil(math.sqrt(self.n_robots)) / 2 * GRID_PITCH + self.object_size / 4)
         else:
-            reach = float(((centres - start) @ toward_goal).max()) + self.swarm_class.contracted_radius
-            position = start + toward_goal * (reach + self.object_size + 1.0)
+            # 1 unit of air between the object and the nearest contracted robot
+            ahead = _distance_ahead(
+                centres - start, toward_goal, self.swarm_class.contracted_radius + 1.0, self.object_type, self.object_size
+            )
+            position = start + toward_goal * ahead
         return ObjectSpec(
             self.object_type,
             (float(position[0]), float(position[1])),

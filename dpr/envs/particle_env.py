@@ -156,16 +156,15 @@ class ParticleSwarmEnv(gym.Env):
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         targets = self._targets(action)
-        previous = self._agent_position()
+        previous = self._tracker.last_position
         self.world.step(targets)
         if not self.world.is_sane():
             info = self._info()
             info["physics_error"] = "non-finite or exploding body state; episode truncated"
             return _copy(self._last_obs), 0.0, False, True, info
-        position = self._agent_position()
-        self._tracker.update(position)
-        reward = self._reward(previous, position)
-        terminated = math.hypot(*(position - self.goal)) < SUCCESS_RADIUS
+        self._tracker.update(self._agent_position())
+        reward = self._reward(previous)
+        terminated = self._tracker.distance_to_goal < SUCCESS_RADIUS
         self._last_obs = self._observation()
         return self._last_obs, reward, terminated, False, self._info()
 
@@ -213,13 +212,15 @@ class ParticleSwarmEnv(gym.Env):
             raise ValueError(f"action must lie in [0, 1] for action_type='continuous', got {action!r}")
         return targets
 
-    def _reward(self, previous: np.ndarray, position: np.ndarray) -> float:
-        distance = math.hypot(*(position - self.goal))
+    def _reward(self, previous: tuple[float, float]) -> float:
+        """Reward for the step from ``previous`` to the tracker's current agent position."""
+        tracker = self._tracker
+        distance = tracker.distance_to_goal
         if self.reward_type == "inverse_distance":
             return 1.0 / max(distance, 1e-6)
-        to_goal = self.goal - previous
-        norm = math.hypot(*to_goal)
-        progress = float((position - previous) @ to_goal) / norm if norm > 0 else 0.0
+        (px, py), (x, y), (gx, gy) = previous, tracker.last_position, tracker.goal_position
+        norm = math.hypot(gx - px, gy - py)
+        progress = ((x - px) * (gx - px) + (y - py) * (gy - py)) / norm if norm > 0 else 0.0
         d = self.reward_threshold_d
         if self.reward_type == "piecewise" and distance < d:
             return progress * d / max(distance, 1e-6)
