@@ -199,6 +199,11 @@ class ParticleSwarmEnv(gym.Env):
                 raise ValueError(f"action must be in [0, {2**n}) for action_type='discrete', got {value}")
             # robot 0 is the most significant bit
             return ((int(value) >> np.arange(n - 1, -1, -1)) & 1).astype(float)
+        if self.action_type == "multibinary" and isinstance(action, np.ndarray) and action.shape == (n,) \
+                and action.dtype.kind in "iub":
+            targets = action.astype(float)  # the common case (a policy's int8/int64 array) in three calls
+            if ((targets == 0.0) | (targets == 1.0)).all():
+                return targets
         array = np.asarray(action)
         if array.shape != (n,):
             raise ValueError(f"action must have shape ({n},) for action_type={self.action_type!r}, got {array.shape}")
@@ -227,16 +232,18 @@ class ParticleSwarmEnv(gym.Env):
         return progress
 
     def _state(self) -> np.ndarray:
-        swarm = self.world.swarm
-        robots = np.empty((self.n_robots, ROBOT_FEATURES))
+        swarm, n = self.world.swarm, self.n_robots
+        state = np.empty(self.state_size, dtype=np.float32)
+        robots = state[: ROBOT_FEATURES * n].reshape(n, ROBOT_FEATURES)
         robots[:, 0:2] = (swarm.position - self.goal) * LENGTH_SCALE
         robots[:, 2:4] = swarm.velocity * LENGTH_SCALE
         robots[:, 4] = swarm.angular_velocity
         robots[:, 5] = swarm.expansion
-        parts = [robots.ravel()]
         if self.has_object:
-            parts.append(np.concatenate([self.world.object_pose[0:2] - self.goal, self.world.object_velocity]) * LENGTH_SCALE)
-        return np.concatenate(parts).astype(np.float32)
+            world = self.world
+            state[-4:-2] = (world.object_pose[0:2] - self.goal) * LENGTH_SCALE
+            state[-2:] = world.object_velocity * LENGTH_SCALE
+        return state
 
     def _observation(self):
         if self.obs_type == "state":

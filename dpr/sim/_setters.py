@@ -8,9 +8,17 @@ more than the physics step itself. pymunk is pinned below 8 for these private ha
 from pymunk._chipmunk import lib
 
 
-def set_motor_rates(motors, rate: float) -> None:
-    for motor in motors:
-        lib.cpSimpleMotorSetRate(motor._constraint, rate)
+def motor_handles(*groups) -> tuple[list, ...]:
+    """The chipmunk handles of each group of SimpleMotors (cffi pointers: valid while the motors live)."""
+    return tuple([motor._constraint for motor in group] for group in groups)
+
+
+def set_motor_rates(handles: tuple[list, ...], *rates: float) -> None:
+    """Set every motor of ``handles[g]`` to ``rates[g]``."""
+    set_rate = lib.cpSimpleMotorSetRate
+    for group, rate in zip(handles, rates):
+        for handle in group:
+            set_rate(handle, rate)
 
 
 def set_pin_distances(joints, distances) -> None:

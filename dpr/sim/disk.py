@@ -48,6 +48,7 @@ class DiskSwarm(Swarm):
         self._radius_target = self.radius.copy()
         self._magnets: dict[tuple[int, int], pymunk.PinJoint] = {}
         self._active = np.empty((0, 2), dtype=np.int64)
+        self._active_joints: list[pymunk.PinJoint] = []  # the rods of ``_active``, row by row
 
     def update_state(self, rows: np.ndarray) -> None:
         super().update_state(rows)
@@ -55,8 +56,8 @@ class DiskSwarm(Swarm):
         self.expansion = (self.radius - C.DISK_CONTRACTED_RADIUS) / span
 
     def _drive(self) -> None:
-        target = np.where(self.alive, self.target, 0.0)
-        self._radius_target = C.DISK_CONTRACTED_RADIUS + target * (
+        # dead robots never accept a target, so theirs stays 0 (contracted)
+        self._radius_target = C.DISK_CONTRACTED_RADIUS + self.target * (
             C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS
         )
 
@@ -68,15 +69,15 @@ class DiskSwarm(Swarm):
         if len(changing) == 0:
             return
         reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
-        step = np.clip(gap[changing], -reach, reach)
-        self.radius[changing] += step
-        set_circle_radii([self._shapes[r] for r in changing.tolist()], self.radius[changing].tolist())
-        self._set_magnet_lengths(changing)
+        self.radius[changing] += np.clip(gap[changing], -reach, reach)
+        shapes = self._shapes
+        set_circle_radii([shapes[r] for r in changing.tolist()], self.radius[changing].tolist())
+        self._set_magnet_lengths()
 
     def update_magnets(self) -> None:
         """Rods between the centres of every pair closer than the magnet range; kept between steps."""
         pairs = pairs_within(self.position, self.magnet_range)
-        if not np.array_equal(pairs, self._active):
+        if pairs.tobytes() != self._active.tobytes():  # both (P, 2) int64: equal bytes, equal pairs
             old = {tuple(p) for p in self._active.tolist()}
             new = {tuple(p) for p in pairs.tolist()}
             gone, added = old - new, new - old
@@ -93,19 +94,14 @@ class DiskSwarm(Swarm):
             if fresh:
                 self.space.add(*fresh)
             self._active = pairs
-            self._set_magnet_lengths(None)
+            self._active_joints = [self._magnets[key] for key in map(tuple, pairs.tolist())]
+            self._set_magnet_lengths()
 
-    def _set_magnet_lengths(self, changed: np.ndarray | None) -> None:
-        """Rod length = sum of the two radii, for rods touching a robot in ``changed`` (None: all)."""
+    def _set_magnet_lengths(self) -> None:
+        """Rod length = sum of the two radii (all rods: cheaper than picking those of the robots that moved)."""
         pairs = self._active
-        if len(pairs) == 0:
-            return
-        if changed is not None:
-            mask = np.zeros(self.n, dtype=bool)
-            mask[changed] = True
-            pairs = pairs[mask[pairs[:, 0]] | mask[pairs[:, 1]]]
-        lengths = self.radius[pairs[:, 0]] + self.radius[pairs[:, 1]]
-        set_pin_distances([self._magnets[(a, b)] for a, b in pairs.tolist()], lengths.tolist())
+        if len(pairs):
+            set_pin_distances(self._active_joints, (self.radius[pairs[:, 0]] + self.radius[pairs[:, 1]]).tolist())
 
     def magnet_segments(self) -> np.ndarray:
         if len(self._active) == 0:

@@ -13,9 +13,11 @@ _DENSE_LIMIT = 64
 
 
 @functools.lru_cache(maxsize=64)
-def _upper_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+def _upper_triangle(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair i < j of n points: first indices, second indices, and both as a (P, 2) table."""
     first, second = np.triu_indices(n, 1)
-    return first.astype(np.int64), second.astype(np.int64)
+    table = np.stack([first, second], axis=1).astype(np.int64)
+    return table[:, 0].copy(), table[:, 1].copy(), table
 
 
 def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
@@ -27,10 +29,9 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
     if n < 2:
         return np.empty((0, 2), dtype=np.int64)
     if n <= _DENSE_LIMIT:
-        first, second = _upper_triangle(n)
+        first, second, table = _upper_triangle(n)
         delta = points[first] - points[second]
-        close = np.einsum("ij,ij->i", delta, delta) < radius * radius
-        return np.stack([first[close], second[close]], axis=1)
+        return table[np.einsum("ij,ij->i", delta, delta) < radius * radius]
     cells = np.floor((points - points.min(axis=0)) / radius).astype(np.int64)
     width = int(cells[:, 1].max()) + 3  # +3 leaves room for the -1/+1 stencil offsets
     keys = cells[:, 0] * width + cells[:, 1] + 1

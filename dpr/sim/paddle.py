@@ -8,12 +8,13 @@ import numpy as np
 import pymunk
 
 from dpr.sim import constants as C
-from dpr.sim._setters import set_motor_rates, set_pin_distances
+from dpr.sim._setters import motor_handles, set_motor_rates, set_pin_distances
 from dpr.sim.neighbours import pairs_within
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
 
 _PADDLE_ANGLES = 2 * math.pi * np.arange(C.N_PADDLES) / C.N_PADDLES
+_CONTRACTED_PADDLE_ANGLES = _PADDLE_ANGLES - math.pi / 2  # paddle1 angle, relative to its body, when contracted
 _TIP_OFFSET = C.PADDLE_LENGTH / 2  # paddle1 turns about its centre, pinned to the rim
 
 
@@ -98,11 +99,13 @@ class PaddleSwarm(Swarm):
         self._motors1 = [motors1[r * k : (r + 1) * k] for r in range(n)]
         self._motors2 = [motors2[r * k : (r + 1) * k] for r in range(n)]
         self._rate = np.zeros(n)  # expansion rate (rad/s) applied to each robot's paddles
+        self._motor_handles = None  # chipmunk handles of each robot's motors, made on first use (not pickled)
         self.paddle_angle = np.zeros((n, k))  # paddle1 angle relative to its body, 0 contracted
         self.paddle1_pose = np.zeros((n, k, 3))
         self.paddle2_pose = np.zeros((n, k, 3))
         self._magnets: dict[tuple[int, int], pymunk.PinJoint] = {}
         self._active: list[tuple[int, int]] = []
+        self._active_joints: list[pymunk.PinJoint] = []
         self._drive()
 
     # -- state ------------------------------------------------------------------------------------------
@@ -111,9 +114,9 @@ class PaddleSwarm(Swarm):
         n, k = self.n, C.N_PADDLES
         self.paddle1_pose = rows[n : n + n * k, 0:3].reshape(n, k, 3)
         self.paddle2_pose = rows[n + n * k : n + 2 * n * k, 0:3].reshape(n, k, 3)
-        relative = self.paddle1_pose[:, :, 2] - self.angle[:, None] - (_PADDLE_ANGLES - math.pi / 2)
+        relative = self.paddle1_pose[:, :, 2] - self.angle[:, None] - _CONTRACTED_PADDLE_ANGLES
         self.paddle_angle = relative
-        self.expansion = np.clip(relative.mean(axis=1) / C.STROKE, 0.0, 1.0)
+        self.expansion = np.clip(relative.sum(axis=1) * (1.0 / (k * C.STROKE)), 0.0, 1.0)
 
     # -- control ----------------------------------------------------------------------------------------
     def _drive(self) -> None:
@@ -127,13 +130,16 @@ class PaddleSwarm(Swarm):
             np.clip(error / C.CONTROL_PERIOD, -C.PADDLE_SPEED, C.PADDLE_SPEED),
         )
         rate[~self.alive] = -C.PADDLE_SPEED
-        for r in np.flatnonzero(np.abs(rate - self._rate) > 1e-12):
-            value = float(rate[r])
+        changed = np.flatnonzero(rate != self._rate)
+        if len(changed) == 0:
+            return
+        if self._motor_handles is None:
+            self._motor_handles = [motor_handles(m1, m2) for m1, m2 in zip(self._motors1, self._motors2)]
+        for r, value in zip(changed.tolist(), rate[changed].tolist()):
             # SimpleMotor drives b.w - a.w toward -rate: paddle1 turns outward at +value relative to the
             # body, and paddle2 turns back by the same amount so it stays parallel to the rim.
-            set_motor_rates(self._motors1[r], -value)
-            set_motor_rates(self._motors2[r], value)
-            self._rate[r] = value
+            set_motor_rates(self._motor_handles[r], -value, value)
+        self._rate[changed] = rate[changed]
 
     # -- magnets ----------------------------------------------------------------------------------------
     def update_magnets(self) -> None:
@@ -141,25 +147,34 @@ class PaddleSwarm(Swarm):
         each that is nearest to the other's centre, at the rods' current length, for this step.
 
         Each paddle2 holds at most one magnet (pairs are served in index order). Rods are kept between
-        steps and re-used; only their membership in the space and their length change.
+        steps and re-used; only their membership in the space and their length change. A magnet is the
+        pair of global paddle2 indices ``(r * 16 + i, s * 16 + j)`` of its two ends.
         """
         centres = self.position
         pairs = pairs_within(centres, self.magnet_range)
-        k = C.N_PADDLES
         tips = self.paddle2_pose[:, :, 0:2]
         if len(pairs):
             a, b = pairs[:, 0], pairs[:, 1]
-            tip_a = np.argmin(((tips[a] - centres[b][:, None]) ** 2).sum(-1), axis=1)
-            tip_b = np.argmin(((tips[b] - centres[a][:, None]) ** 2).sum(-1), axis=1)
-            ga, gb = a * k + tip_a, b * k + tip_b
-            wanted = _one_magnet_per_tip(ga, gb)
+            tip_a = np.einsum("pkd,pkd->pk", d := tips[a] - centres[b][:, None], d).argmin(axis=1)
+            tip_b = np.einsum("pkd,pkd->pk", d := tips[b] - centres[a][:, None], d).argmin(axis=1)
+            k = C.N_PADDLES
+            wanted = _one_magnet_per_tip((a * k + tip_a).tolist(), (b * k + tip_b).tolist())
         else:
             wanted = []
-        wanted_set = set(wanted)
-        stale = [key for key in self._active if key not in wanted_set]
+        if wanted != self._active:
+            self._change_magnets(wanted)
+        if wanted:
+            ends = np.array(wanted)
+            flat = tips.reshape(-1, 2)
+            delta = flat[ends[:, 0]] - flat[ends[:, 1]]
+            set_pin_distances(self._active_joints, np.sqrt(np.einsum("md,md->m", delta, delta)).tolist())
+
+    def _change_magnets(self, wanted: list[tuple[int, int]]) -> None:
+        """Swap the rods in the space for ``wanted`` (new rods are made once and cached)."""
+        wanted_set, active_set = set(wanted), set(self._active)
+        stale = [self._magnets[key] for key in self._active if key not in wanted_set]
         if stale:
-            self.space.remove(*(self._magnets[key] for key in stale))
-        active_set = set(self._active)
+            self.space.remove(*stale)
         fresh = []
         for key in wanted:
             if key not in active_set:
@@ -171,12 +186,13 @@ class PaddleSwarm(Swarm):
                 fresh.append(joint)
         if fresh:
             self.space.add(*fresh)
-        if wanted:
-            flat = tips.reshape(-1, 2)
-            idx = np.array(wanted)
-            lengths = np.linalg.norm(flat[idx[:, 0]] - flat[idx[:, 1]], axis=1)
-            set_pin_distances([self._magnets[key] for key in wanted], lengths.tolist())
         self._active = wanted
+        self._active_joints = [self._magnets[key] for key in wanted]
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_motor_handles"] = None  # cffi pointers do not pickle; rebuilt on first use
+        return state
 
     def magnet_segments(self) -> np.ndarray:
         if not self._active:
@@ -186,15 +202,13 @@ class PaddleSwarm(Swarm):
         return np.stack([flat[idx[:, 0]], flat[idx[:, 1]]], axis=1)
 
 
-def _one_magnet_per_tip(ga: np.ndarray, gb: np.ndarray) -> list[tuple[int, int]]:
+def _one_magnet_per_tip(ga: list[int], gb: list[int]) -> list[tuple[int, int]]:
     """Keep pairs in order, dropping any whose tip already holds a magnet."""
-    pairs = list(zip(ga.tolist(), gb.tolist()))
-    ends = np.concatenate([ga, gb])
-    if len(np.unique(ends)) == len(ends):  # the usual case: no tip is shared
-        return pairs
+    if len(set(ga).union(gb)) == 2 * len(ga):  # the usual case: no tip is shared
+        return list(zip(ga, gb))
     used: set[int] = set()
     kept = []
-    for x, y in pairs:
+    for x, y in zip(ga, gb):
         if x in used or y in used:
             continue
         used.update((x, y))

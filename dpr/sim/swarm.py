@@ -57,11 +57,12 @@ class Swarm:
     # -- control ----------------------------------------------------------------------------------------
     def command(self, targets: np.ndarray) -> None:
         """Apply the command rule to ``targets`` (N values in [0, 1]) and drive the actuators."""
-        reached = np.abs(self.target - self.expansion) < REACHED_FRACTION
-        self.moving &= ~reached
-        accept = ~self.moving & self.alive
-        self.target[accept] = targets[accept]
-        self.moving |= accept & (np.abs(self.target - self.expansion) >= REACHED_FRACTION)
+        # A robot is busy while it is moving and has not reached its target; the others (alive) accept
+        # the new target, and are moving afterwards unless they are already there.
+        busy = self.moving & (np.abs(self.target - self.expansion) >= REACHED_FRACTION)
+        accept = self.alive & ~busy
+        np.copyto(self.target, targets, where=accept)
+        self.moving = (busy | accept) & (np.abs(self.target - self.expansion) >= REACHED_FRACTION)
         self._drive()
 
     def _drive(self) -> None:

@@ -117,7 +117,7 @@ class World:
         # Dynamic bodies come first, in the order they were added; the static body follows.
         rows = np.frombuffer(self._buffer.float_buf(), dtype=np.float64).reshape(-1, 6)[: self._n_bodies].copy()
         self.swarm.update_state(rows)
-        self.centre_of_mass = self.swarm.position.mean(axis=0)
+        self.centre_of_mass = self.swarm.position.sum(axis=0) * (1.0 / self.swarm.n)  # np.mean costs 3x more
         if self.object_body is not None:
             self.object_pose = rows[-1, 0:3]
             self.object_velocity = rows[-1, 3:5]
