@@ -37,6 +37,7 @@ class GateEnv(ParticleSwarmEnv):
     """
 
     task = "gate"
+    task_description = "navigate the swarm through the gate to the goal"
 
     def __init__(self, gate_width: float = 150.0, **kwargs):
         super().__init__(**kwargs)

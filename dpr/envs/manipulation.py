@@ -93,6 +93,7 @@ class ManipulationEnv(ParticleSwarmEnv):
         self.object_type = object_type
         self.object_mass = float(object_mass)
         self.object_size = float(object_size)
+        self.task_description = f"push the {object_type} to the goal"
 
     def _object(self, start: np.ndarray, centres: np.ndarray) -> ObjectSpec:
         toward_goal = (self.goal - start) / np.linalg.norm(self.goal - start)

@@ -60,3 +60,4 @@ class NavigationEnv(ParticleSwarmEnv):
     """
 
     task = "navigation"
+    task_description = "navigate the swarm to the goal"

@@ -41,6 +41,7 @@ class ParticleSwarmEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
     task = ""
+    task_description = ""  # one sentence for datasets (LeRobot's per-frame "task" string)
     has_object = False
 
     def __init__(

@@ -35,6 +35,7 @@ class UnresponsiveEnv(ParticleSwarmEnv):
     """
 
     task = "unresponsive"
+    task_description = "navigate the swarm to the goal despite its unresponsive robots"
 
     def __init__(self, n_dead: int | None = None, **kwargs):
         super().__init__(**kwargs)

@@ -11,45 +11,9 @@ import numpy as np
 
 from dpr.envs import ENV_IDS
 from dpr.metrics import EpisodeMetrics, episode_metrics, summarize
+from dpr.policies.registry import SCRIPTED_POLICIES, make_policy
 
-SCRIPTED_POLICIES = ("wave", "random")
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")
-
-
-class RandomPolicy:
-    """Uniformly random actions from the env's action space, seeded per episode."""
-
-    def __init__(self, env):
-        self.space = env.action_space
-
-    def reset(self, seed: int | None = None) -> None:
-        self.space.seed(seed)
-
-    def __call__(self, observation):
-        return self.space.sample()
-
-
-def make_policy(name: str, env):
-    """A policy callable with ``reset(seed)`` for ``env``: "wave", "random" (SB3 models come later)."""
-    if name == "wave":
-        from dpr.policies.wave import WavePolicy
-
-        policy = WavePolicy.from_env(env)
-        return _SeedIgnoring(policy)
-    if name == "random":
-        return RandomPolicy(env)
-    raise ValueError(f"policy must be one of {SCRIPTED_POLICIES}, got {name!r}")
-
-
-class _SeedIgnoring:
-    def __init__(self, policy):
-        self.policy = policy
-
-    def reset(self, seed: int | None = None) -> None:
-        self.policy.reset()
-
-    def __call__(self, observation):
-        return self.policy(observation)
 
 
 def check_env_id(env_id: str) -> str:

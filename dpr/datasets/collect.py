@@ -1,0 +1,379 @@
+"""Record policy rollouts as a LeRobot v3.0 dataset (and optionally one MCAP log per episode).
+
+``collect`` rolls out a policy on one task for ``episodes`` seeds (``seed``, ``seed + 1``, ...), in worker
+processes, and the main process appends each finished episode to the dataset in seed order. Frames follow
+LeRobot's convention: frame ``t`` holds the observation the policy saw, the action it took, and the reward,
+done and success flags that action produced (``next.*``); an episode of ``T`` steps has ``T`` frames.
+
+Resuming: the dataset is valid after every saved episode (see :mod:`dpr.datasets.lerobot`). Running the same
+command again opens the dataset, checks that it records the same env, env kwargs, policy and features, and
+rolls out only the seeds it does not hold yet. A killed run loses at most the episodes in flight.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import signal
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
+from dpr.envs import ENV_IDS
+from dpr.metrics import EpisodeMetrics, episode_metrics
+from dpr.policies.registry import check_policy_name, make_policy
+
+FPS = 10  # the envs' control rate (metadata["render_fps"])
+MCAP_FOLDER = "mcap"
+
+
+@dataclass(frozen=True)
+class CollectSpec:
+    """What a dataset records: the same spec must be given to resume it."""
+
+    env_id: str
+    policy: str = "wave"
+    n_robots: int = 9
+    robot_model: str = "paddle"
+    steps: int = 2500
+    pixels: bool = False
+    image_size: int = 96
+    env_kwargs: dict = field(default_factory=dict)  # any further gym.make kwargs (e.g. object_type="box")
+
+    def __post_init__(self):
+        if self.env_id not in ENV_IDS.values():
+            raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
+        check_policy_name(self.policy)
+        for name in ("n_robots", "steps", "image_size"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        reserved = {"n_robots", "robot_model", "render_mode", "render_size", "max_episode_steps"} & set(self.env_kwargs)
+        if reserved:
+            raise ValueError(f"env_kwargs must not set {sorted(reserved)}: they are CollectSpec fields")
+
+    def make_kwargs(self) -> dict:
+        """The ``gym.make`` kwargs that reproduce an episode (stored with every episode)."""
+        kwargs = {"n_robots": self.n_robots, "robot_model": self.robot_model, **self.env_kwargs}
+        kwargs["max_episode_steps"] = self.steps
+        if self.pixels:
+            kwargs.update(render_mode="rgb_array", render_size=self.image_size)
+        return kwargs
+
+    def make_env(self) -> gym.Env:
+        import dpr  # noqa: F401  (registers the ids in worker processes)
+
+        return gym.make(self.env_id, **self.make_kwargs())
+
+
+def dataset_features(env: gym.Env, pixels: bool = False, image_size: int = 96) -> dict[str, dict]:
+    """LeRobot features for ``env``'s state observation and action (named per robot), rewards and flags."""
+    base = env.unwrapped
+    if base.obs_type != "state":
+        raise ValueError(f"datasets record the state observation; make the env with obs_type='state', got {base.obs_type!r}")
+    n = base.n_robots
+    state_names = [f"robot{i}.{part}" for i in range(n) for part in ("x", "y", "vx", "vy", "omega", "expansion")]
+    if base.has_object:
+        state_names += ["object.x", "object.y", "object.vx", "object.vy"]
+    if base.action_type == "discrete":
+        action = {"dtype": "int64", "shape": [1], "names": ["action"]}
+    else:
+        action = {"dtype": "float32", "shape": [n], "names": [f"robot{i}.expand" for i in range(n)]}
+    features = {
+        "observation.state": {"dtype": "float32", "shape": [len(state_names)], "names": state_names},
+        "action": action,
+        "next.reward": {"dtype": "float32", "shape": [1], "names": None},
+        "next.done": {"dtype": "bool", "shape": [1], "names": None},
+        "next.success": {"dtype": "bool", "shape": [1], "names": None},
+    }
+    if pixels:
+        features["observation.image"] = {
+            "dtype": "image", "shape": [image_size, image_size, 3], "names": ["height", "width", "channels"],
+        }
+    return features
+
+
+@dataclass
+class EpisodeRecord:
+    """One rolled-out episode as arrays (``T`` frames), with what is needed to replay it."""
+
+    seed: int
+    observations: np.ndarray  # [T, D] float32
+    actions: np.ndarray  # [T, N] float32 or [T, 1] int64
+    rewards: np.ndarray  # [T] float32
+    dones: np.ndarray  # [T] bool
+    successes: np.ndarray  # [T] bool
+    metrics: EpisodeMetrics
+    images: np.ndarray | None = None  # [T, H, W, 3] uint8
+    physics_error: str | None = None
+    seconds: float = 0.0
+
+    @property
+    def frames(self) -> int:
+        return len(self.actions)
+
+
+def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> EpisodeRecord:
+    """Roll ``spec.policy`` out from ``reset(seed=seed)`` until the episode ends; optionally log it to MCAP."""
+    started = time.perf_counter()
+    env = spec.make_env()
+    base = env.unwrapped
+    observation, info = env.reset(seed=seed)
+    policy = make_policy(spec.policy, env)
+    policy.reset(seed)
+    discrete = base.action_type == "discrete"
+    observations, actions, rewards, dones, successes, images = [], [], [], [], [], []
+    trajectory = [base._agent_position()]
+    physics_error = None
+    writer = None
+    if mcap_path is not None:
+        from dpr.datasets.mcap import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
+
+        writer = McapEpisodeWriter(mcap_path, metadata=episode_metadata(env, seed=seed, policy=spec.policy))
+        log_env_scene(writer, env)
+        log_env_step(writer, env, 0, None, None, None, None, info)
+    try:
+        done = False
+        while not done:
+            if spec.pixels:
+                images.append(env.render())
+            action = policy(observation)
+            observations.append(observation)
+            actions.append(action)
+            observation, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            rewards.append(reward)
+            dones.append(done)
+            successes.append(info["is_success"])
+            if "physics_error" in info:
+                physics_error = info["physics_error"]
+            else:
+                trajectory.append(base._agent_position())
+            if writer is not None:
+                log_env_step(writer, env, len(actions), action, reward, terminated, truncated, info)
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    if writer is not None:
+        writer.close()
+    env.close()
+    action_array = np.array(actions, dtype=np.int64).reshape(-1, 1) if discrete else np.array(actions, dtype=np.float32)
+    return EpisodeRecord(
+        seed=seed,
+        observations=np.array(observations, dtype=np.float32),
+        actions=action_array,
+        rewards=np.array(rewards, dtype=np.float32),
+        dones=np.array(dones, dtype=bool),
+        successes=np.array(successes, dtype=bool),
+        metrics=episode_metrics(np.array(trajectory), base.goal),
+        images=np.array(images, dtype=np.uint8) if spec.pixels else None,
+        physics_error=physics_error,
+        seconds=time.perf_counter() - started,
+    )
+
+
+def save_record(writer: LeRobotWriter, spec: CollectSpec, record: EpisodeRecord, task: str, mcap_file: str | None) -> int:
+    """Append ``record`` to the dataset as one episode; returns its index."""
+    for t in range(record.frames):
+        frame = {
+            "observation.state": record.observations[t],
+            "action": record.actions[t],
+            "next.reward": record.rewards[t : t + 1],
+            "next.done": record.dones[t : t + 1],
+            "next.success": record.successes[t : t + 1],
+        }
+        if record.images is not None:
+            frame["observation.image"] = record.images[t]
+        writer.add_frame(frame, task=task)
+    meta = {
+        "seed": record.seed,
+        "env_id": spec.env_id,
+        "env_kwargs": spec.make_kwargs(),
+        "policy": spec.policy,
+        "n_robots": spec.n_robots,
+        "robot_model": spec.robot_model,
+        "projected_displacement": record.metrics.projected_displacement,
+        "net_displacement": record.metrics.net_displacement,
+        "total_distance": record.metrics.total_distance,
+        "success": bool(record.metrics.success),
+        "physics_error": record.physics_error or "",
+        "mcap_file": mcap_file or "",
+    }
+    return writer.save_episode(meta)
+
+
+@dataclass
+class CollectSummary:
+    root: str
+    env_id: str
+    policy: str
+    episodes_before: int
+    episodes_added: int
+    episodes_total: int
+    frames_added: int
+    frames_total: int
+    seconds: float
+    bytes_written: int
+    interrupted: bool
+    metrics: dict  # median / min / max of each metric over the added episodes, and the success rate
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _folder_bytes(root: Path) -> int:
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file()) if root.exists() else 0
+
+
+def _recorded_seeds(root: Path) -> set[int]:
+    if not (root / "meta" / "info.json").is_file():
+        return set()
+    reader = LeRobotReader(root)
+    return {int(episode["seed"]) for episode in reader.episodes if "seed" in episode}
+
+
+def _ignore_sigint() -> None:
+    # Ctrl-C reaches the whole process group: workers ignore it and the main process shuts them down.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
+    return rollout(*job)
+
+
+def _results(jobs: list, workers: int) -> Iterator[EpisodeRecord]:
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield _rollout_job(job)
+        return
+    # spawn, not fork: pymunk spaces and pygame must not be shared with a forked parent
+    context = mp.get_context("spawn")
+    pool = context.Pool(min(workers, len(jobs)), initializer=_ignore_sigint)
+    try:
+        yield from pool.imap(_rollout_job, jobs)  # in job (seed) order, whatever order they finish in
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def collect(
+    root: str | Path,
+    spec: CollectSpec,
+    episodes: int,
+    seed: int = 0,
+    workers: int = 1,
+    mcap: bool = False,
+    progress: Callable[[EpisodeRecord, int], None] | None = None,
+) -> CollectSummary:
+    """Record ``episodes`` episodes of seeds ``seed .. seed + episodes - 1`` into the dataset at ``root``,
+    skipping seeds it already holds. ``progress(record, episode_index)`` is called after each saved episode.
+    Ctrl-C stops after the episodes already saved (the summary says ``interrupted``)."""
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    root = Path(root)
+    probe = spec.make_env()
+    features = dataset_features(probe, spec.pixels, spec.image_size)
+    task = probe.unwrapped.task_description
+    probe.close()
+    info_extra = {"dpr": {"env_id": spec.env_id, "policy": spec.policy, "env_kwargs": spec.make_kwargs()}}
+    bytes_before = _folder_bytes(root)
+    writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
+    started = time.perf_counter()
+    added: list[EpisodeRecord] = []
+    interrupted = False
+    episodes_before = writer.num_episodes
+    try:
+        done = _recorded_seeds(root)
+        mcap_dir = root / MCAP_FOLDER
+        if mcap:
+            mcap_dir.mkdir(exist_ok=True)
+            for leftover in mcap_dir.glob("*.part"):  # logs of episodes a killed run had in flight
+                leftover.unlink()
+        jobs = [
+            (spec, s, mcap_dir / f"seed-{s:06d}.mcap" if mcap else None)
+            for s in range(seed, seed + episodes)
+            if s not in done
+        ]
+        try:
+            for record in _results(jobs, workers):
+                mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if mcap else None
+                index = save_record(writer, spec, record, task, mcap_file)
+                added.append(record)
+                if progress is not None:
+                    progress(record, index)
+        except KeyboardInterrupt:
+            interrupted = True
+    finally:
+        writer.finalize()  # releases the dataset's writer lock; saved episodes are already durable
+    return CollectSummary(
+        root=str(root),
+        env_id=spec.env_id,
+        policy=spec.policy,
+        episodes_before=episodes_before,
+        episodes_added=len(added),
+        episodes_total=episodes_before + len(added),
+        frames_added=sum(r.frames for r in added),
+        frames_total=writer.num_frames,
+        seconds=time.perf_counter() - started,
+        bytes_written=_folder_bytes(root) - bytes_before,
+        interrupted=interrupted,
+        metrics=_metric_summary(added),
+    )
+
+
+def _metric_summary(records: list[EpisodeRecord]) -> dict:
+    if not records:
+        return {}
+    out = {}
+    for name in ("projected_displacement", "net_displacement", "total_distance"):
+        values = np.array([getattr(r.metrics, name) for r in records])
+        out[name] = {"median": float(np.median(values)), "min": float(values.min()), "max": float(values.max())}
+    out["success_rate"] = float(np.mean([r.metrics.success for r in records]))
+    return out
+
+
+def format_summary(summary: CollectSummary) -> str:
+    lines = [
+        f"dataset     {summary.root}  ({summary.env_id}, policy {summary.policy})",
+        f"episodes    {summary.episodes_added} added, {summary.episodes_total} in total"
+        + ("  (interrupted: run the same command again to resume)" if summary.interrupted else ""),
+        f"frames      {summary.frames_added} added, {summary.frames_total} in total",
+        f"written     {_human_bytes(summary.bytes_written)} in {summary.seconds:.1f} s"
+        + (f" ({summary.frames_added / summary.seconds:.0f} frames/s)" if summary.seconds > 0 else ""),
+    ]
+    if summary.metrics:
+        m = summary.metrics
+        lines.append(f"success     {m['success_rate']:.0%}")
+        for name in ("projected_displacement", "net_displacement", "total_distance"):
+            s = m[name]
+            lines.append(f"{name:<24s} median {s['median']:.1f}  min {s['min']:.1f}  max {s['max']:.1f}")
+    return "\n".join(lines)
+
+
+def _human_bytes(n: int) -> str:
+    if n < 1024:
+        return f"{n} B"
+    exponent = min(int(math.log(n, 1024)), 4)
+    return f"{n / 1024**exponent:.1f} {'BKMGT'[exponent]}{'iB' if exponent else ''}"
+
+
+__all__ = [
+    "CollectSpec",
+    "CollectSummary",
+    "DatasetError",
+    "EpisodeRecord",
+    "collect",
+    "dataset_features",
+    "format_summary",
+    "rollout",
+    "save_record",
+]

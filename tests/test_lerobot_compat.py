@@ -1,0 +1,92 @@
+"""Datasets written by ``dpr.datasets.lerobot`` load unchanged in the real ``LeRobotDataset``.
+
+LeRobot is not a dependency of dpr, so these tests run only where ``lerobot`` is importable (the scratch venv
+described at the top of ``tools/check_lerobot_load.py``) and are skipped everywhere else. They record real
+wave-policy rollouts with our writer and run the tool's checks in-process: length, every frame's values
+(state, action, reward, done, success, PNG images), tasks, stats, episode boundaries with
+``delta_timestamps`` padding, and one DataLoader epoch.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+if importlib.util.find_spec("lerobot") is None:
+    pytest.skip("lerobot is not installed: see tools/check_lerobot_load.py", allow_module_level=True)
+
+TOOL_PATH = Path(__file__).resolve().parents[1] / "tools" / "check_lerobot_load.py"
+
+
+@pytest.fixture(scope="module")
+def tool(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
+    """tools/check_lerobot_load.py as a module, with LeRobot kept offline and its Arrow cache in a temp folder."""
+    spec = importlib.util.spec_from_file_location("check_lerobot_load", TOOL_PATH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses resolve their module through sys.modules
+    spec.loader.exec_module(module)
+    module.prepare_environment(tmp_path_factory.mktemp("hf-cache"))
+    module.make_torchvision_importable()
+    return module
+
+
+def test_state_dataset_loads_in_lerobot(tool: ModuleType, tmp_path: Path) -> None:
+    recording = tool.record_dataset(tmp_path / "state", pixels=False, episodes=3, steps=30, seed=0)
+    report = tool.check_dataset(recording.root, recording)
+    assert report.ok, report.format()
+    assert {c.name for c in report.checks} >= {
+        "len(ds) == total frames",
+        "ds[i] equals the recorded frames",
+        "delta_timestamps values and *_is_pad at episode boundaries",
+        "DataLoader(batch_size=8, shuffle=True) runs one epoch",
+    }
+
+
+def test_pixel_dataset_loads_in_lerobot(tool: ModuleType, tmp_path: Path) -> None:
+    recording = tool.record_dataset(tmp_path / "pixels", pixels=True, episodes=2, steps=25, seed=3)
+    assert recording.episodes[0]["observation.image"].shape == (25, tool.IMAGE_SIZE, tool.IMAGE_SIZE, 3)
+    report = tool.check_dataset(recording.root, recording)
+    assert report.ok, report.format()
+
+
+def _tasks_without_pandas_metadata(root: Path, task: str) -> None:
+    """Task strings as a plain column: LeRobot then returns the row number as the task."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({"task": [task], "task_index": pa.array([0], pa.int64())}), root / "meta" / "tasks.parquet")
+
+
+def _episode_rows_reversed(root: Path, task: str) -> None:
+    """Episode rows in reverse order (kept per file counts): LeRobot indexes meta.episodes by position."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    paths = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    tables = [pq.read_table(path) for path in paths]
+    rows = pa.concat_tables(tables, promote_options="default")
+    rows = rows.take(list(reversed(range(rows.num_rows))))
+    offset = 0
+    for path, table in zip(paths, tables, strict=True):
+        pq.write_table(rows.slice(offset, table.num_rows), path)
+        offset += table.num_rows
+
+
+@pytest.mark.parametrize(
+    ("mutate", "failing_check"),
+    [
+        (_tasks_without_pandas_metadata, "meta.tasks and item['task']"),
+        (_episode_rows_reversed, "delta_timestamps values and *_is_pad at episode boundaries"),
+    ],
+)
+def test_checker_catches_silently_wrong_layouts(tool: ModuleType, tmp_path: Path, mutate, failing_check) -> None:
+    """Layouts LeRobot loads without error but reads wrongly must fail the check (else the check proves nothing)."""
+    recording = tool.record_dataset(tmp_path / "ds", pixels=False, episodes=2, steps=10, seed=1)
+    mutate(recording.root, recording.task)
+    report = tool.check_dataset(recording.root, recording)
+    failed = {c.name for c in report.failed}
+    assert failed and failing_check in failed, report.format()
