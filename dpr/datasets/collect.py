@@ -180,17 +180,16 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
 
 def save_record(writer: LeRobotWriter, spec: CollectSpec, record: EpisodeRecord, task: str, mcap_file: str | None) -> int:
     """Append ``record`` to the dataset as one episode; returns its index."""
-    for t in range(record.frames):
-        frame = {
-            "observation.state": record.observations[t],
-            "action": record.actions[t],
-            "next.reward": record.rewards[t : t + 1],
-            "next.done": record.dones[t : t + 1],
-            "next.success": record.successes[t : t + 1],
-        }
-        if record.images is not None:
-            frame["observation.image"] = record.images[t]
-        writer.add_frame(frame, task=task)
+    frames = {
+        "observation.state": record.observations,
+        "action": record.actions,
+        "next.reward": record.rewards,
+        "next.done": record.dones,
+        "next.success": record.successes,
+    }
+    if record.images is not None:
+        frames["observation.image"] = record.images
+    writer.add_frames(frames, task=task)
     meta = {
         "seed": record.seed,
         "env_id": spec.env_id,

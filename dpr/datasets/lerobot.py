@@ -888,22 +888,42 @@ class LeRobotWriter:
         # Convert everything before appending anything, so a bad frame leaves the buffer as it was.
         converted = {name: self._convert(name, value) for name, value in frame.items()}
         for name, value in converted.items():
-            self._buffer[name].append(value)
+            self._buffer[name].append([value] if self._user_features[name]["dtype"] == "image" else value[None])
         self._frame_tasks.append(task)
 
-    def _convert(self, name: str, value: object) -> object:
+    def add_frames(self, frames: dict[str, object], task: str) -> None:
+        """Buffer ``T`` frames at once: each feature an array of shape ``[T, *shape]`` (images ``[T, H, W, 3]``
+        uint8), all with the same ``T``. The same checks as :meth:`add_frame`, once per array instead of once per
+        frame (what recording a whole rolled-out episode wants)."""
+        self._check_open()
+        if not isinstance(frames, Mapping) or frames.keys() != self._user_features.keys():
+            given = sorted(frames.keys()) if isinstance(frames, Mapping) else type(frames)
+            raise DatasetError(f"{self.root}: add_frames: frames must map exactly the features "
+                               f"{sorted(self._user_features)} to arrays, got {given}")
+        if not isinstance(task, str) or not task:
+            raise DatasetError(f"{self.root}: add_frames: task must be a non-empty string, got {task!r}")
+        lengths = {name: np.shape(value)[0] if np.ndim(value) else None for name, value in frames.items()}
+        if None in lengths.values() or len(set(lengths.values())) != 1:
+            raise DatasetError(f"{self.root}: add_frames: every feature needs the same number of frames, got {lengths}")
+        converted = {name: self._convert(name, value, leading=(lengths[name],)) for name, value in frames.items()}
+        for name, value in converted.items():
+            self._buffer[name].append(value)
+        self._frame_tasks.extend([task] * next(iter(lengths.values())))
+
+    def _convert(self, name: str, value: object, leading: tuple[int, ...] = ()) -> object:
+        """``value`` checked and converted to the feature's dtype; ``leading``: the frame axis of a block."""
         spec = self._user_features[name]
-        shape = self._shapes[name]
+        shape = leading + self._shapes[name]
         if spec["dtype"] == "image":
             arr = np.asarray(value)
             if arr.dtype != np.uint8 or arr.shape != shape:
                 raise DatasetError(f"{self.root}: add_frame: feature {name!r} expects a uint8 image of shape "
                                    f"{shape}, got {arr.dtype} {arr.shape}")
-            return _encode_png(arr)
+            return [_encode_png(image) for image in arr] if leading else _encode_png(arr)
         arr = np.asarray(value)
         if arr.shape != shape:
-            if shape == (1,) and arr.shape == ():
-                arr = arr.reshape(1)
+            if self._shapes[name] == (1,) and arr.shape == leading:
+                arr = arr.reshape(shape)
             else:
                 raise DatasetError(f"{self.root}: add_frame: feature {name!r} expects shape {shape}, got {arr.shape}")
         target = self._dtypes[name]
@@ -980,8 +1000,8 @@ class LeRobotWriter:
         """The buffered frames stacked per feature, plus the five derived default columns."""
         columns: dict[str, Any] = {}
         for name, spec in self._user_features.items():
-            values = self._buffer[name]
-            columns[name] = values if spec["dtype"] == "image" else np.stack(values)
+            blocks = self._buffer[name]  # per add_frame(s) call: a list of PNGs, or an array [k, *shape]
+            columns[name] = [png for block in blocks for png in block] if spec["dtype"] == "image" else np.concatenate(blocks)
         frame_index = np.arange(n, dtype=np.int64)
         columns["timestamp"] = (frame_index / self.fps).astype(np.float32)
         columns["frame_index"] = frame_index

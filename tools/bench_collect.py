@@ -1,0 +1,143 @@
+"""Dataset recording benchmarks (the figures in BENCHMARKS.md, measured in one run).
+
+* overhead: the same episodes (same seeds) rolled out bare (env + policy, nothing kept) and recorded with
+  ``collect(..., workers=1)`` into a fresh state-only dataset; reports recorded / bare wall time.
+* workers: the same episodes recorded with ``--workers 1`` and ``--workers 2``; reports the speed-up.
+* scale (``--scale``): a large state-only dataset (default 200 episodes x 2500 steps, N=9, disk model),
+  reporting wall time, peak RSS of the recording process and of a worker, and the size on disk; then opens
+  it lazily and reads one episode, reporting the reader's RSS.
+
+    python tools/bench_collect.py --robot-model paddle --episodes 4 --steps 2500
+    python tools/bench_collect.py --scale --robot-model disk --episodes 200 --steps 2500 --out /tmp/scale
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import gymnasium as gym
+
+import dpr  # noqa: F401  (registers the ids)
+from dpr.datasets.collect import CollectSpec, collect
+from dpr.policies.registry import make_policy
+
+
+def bare_rollout(spec: CollectSpec, seed: int) -> int:
+    """Env + policy only: what an episode costs when nothing is recorded."""
+    env = gym.make(spec.env_id, **spec.make_kwargs())
+    observation, _ = env.reset(seed=seed)
+    policy = make_policy(spec.policy, env)
+    policy.reset(seed)
+    steps, done = 0, False
+    while not done:
+        observation, _, terminated, truncated, _ = env.step(policy(observation))
+        done = terminated or truncated
+        steps += 1
+    env.close()
+    return steps
+
+
+def timed_collect(spec: CollectSpec, episodes: int, workers: int) -> float:
+    folder = Path(tempfile.mkdtemp(prefix="dpr-bench-"))
+    try:
+        started = time.perf_counter()
+        collect(folder / "ds", spec, episodes=episodes, workers=workers)
+        return time.perf_counter() - started
+    finally:
+        shutil.rmtree(folder)
+
+
+def bench_overhead(spec: CollectSpec, episodes: int, repeats: int) -> dict:
+    bare, recorded = [], []
+    for _ in range(repeats):  # interleaved, so that load changes hit both alike
+        started = time.perf_counter()
+        for seed in range(episodes):
+            bare_rollout(spec, seed)
+        bare.append(time.perf_counter() - started)
+        recorded.append(timed_collect(spec, episodes, workers=1))
+    b, r = statistics.median(bare), statistics.median(recorded)
+    return {"bare_s": b, "recorded_s": r, "recorded_over_bare": r / b}
+
+
+def bench_workers(spec: CollectSpec, episodes: int, repeats: int) -> dict:
+    one, two = [], []
+    for _ in range(repeats):
+        one.append(timed_collect(spec, episodes, workers=1))
+        two.append(timed_collect(spec, episodes, workers=2))
+    a, b = statistics.median(one), statistics.median(two)
+    return {"workers1_s": a, "workers2_s": b, "speedup": a / b}
+
+
+def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> dict:
+    if out.exists():
+        raise SystemExit(f"--out: {out} already exists; the scale benchmark records into a new folder")
+    started = time.perf_counter()
+    summary = collect(out, spec, episodes=episodes, workers=workers)
+    seconds = time.perf_counter() - started
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    probe = (
+        "import resource, sys, time; from dpr.datasets.lerobot import LeRobotReader; t = time.perf_counter(); "
+        "r = LeRobotReader(sys.argv[1]); opened = time.perf_counter() - t; e = r.episode(r.num_episodes // 2); "
+        "print(r.num_frames, opened, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)"
+    )
+    import subprocess
+
+    frames, opened, reader_rss = subprocess.run(
+        [sys.executable, "-c", probe, str(out)], check=True, capture_output=True, text=True
+    ).stdout.split()
+    return {
+        "episodes": summary.episodes_total,
+        "frames": summary.frames_total,
+        "seconds": seconds,
+        "frames_per_s": summary.frames_added / seconds,
+        "peak_rss_main_mib": own,
+        "peak_rss_worker_mib": children,
+        "bytes_on_disk": size,
+        "reader_frames": int(frames),
+        "reader_open_s": float(opened),
+        "reader_peak_rss_mib_after_one_episode": float(reader_rss),
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", default="dpr/Navigation-v0")
+    parser.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle")
+    parser.add_argument("--n-robots", type=int, default=9)
+    parser.add_argument("--episodes", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=2500)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--scale", action="store_true", help="run the scale benchmark instead")
+    parser.add_argument("--out", type=Path, help="dataset folder for --scale (must not exist)")
+    parser.add_argument("--workers", type=int, default=2, help="workers for --scale")
+    parser.add_argument("--json", type=Path, help="also write the results here")
+    args = parser.parse_args()
+    spec = CollectSpec(args.env, n_robots=args.n_robots, robot_model=args.robot_model, steps=args.steps)
+    if args.scale:
+        if args.out is None:
+            parser.error("--scale needs --out")
+        results = {"scale": bench_scale(spec, args.episodes, args.out, args.workers)}
+    else:
+        results = {
+            "overhead": bench_overhead(spec, args.episodes, args.repeats),
+            "workers": bench_workers(spec, args.episodes, args.repeats),
+        }
+    results["config"] = vars(args) | {"out": str(args.out), "json": str(args.json)}
+    print(json.dumps(results, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
