@@ -11,7 +11,7 @@ from pathlib import Path
 ALL_ENVS = "all"
 
 
-def parse_seeds(text: str) -> list[int]:
+def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
     """'0-4' -> [0..4], '1,3,7' -> [1, 3, 7], '5' -> [5]."""
     seeds: list[int] = []
     try:
@@ -25,9 +25,9 @@ def parse_seeds(text: str) -> list[int]:
             else:
                 seeds.append(int(part))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--seeds must look like '0-4' or '1,3,7', got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"{flag} must look like '0-4' or '1,3,7', got {text!r}") from None
     if not seeds or min(seeds) < 0:
-        raise argparse.ArgumentTypeError(f"--seeds must be non-negative integers, got {text!r}")
+        raise argparse.ArgumentTypeError(f"{flag} must be non-negative integers, got {text!r}")
     return seeds
 
 
@@ -131,6 +131,11 @@ def cmd_collect(args, parser) -> int:
         )
     except ValueError as error:
         parser.error(str(error))
+    try:
+        spec.make_env().close()  # a bad --env-kwarg name or value fails here, before anything is written
+    except (TypeError, ValueError) as error:
+        parser.error(f"cannot make {spec.env_id} from --n-robots/--robot-model/--env-kwarg "
+                     f"{spec.make_kwargs()}: {error}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         parser.error(f"--out: {out} exists and is not a folder")
@@ -241,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
         "observations, rewards and flags with the recording. Exit status 1 when any episode differs.",
     )
     rp.add_argument("dataset", help="dataset folder written by `dpr collect`")
-    rp.add_argument("--episodes", type=parse_seeds, help="episode indices, e.g. 0-4 or 1,3 (default: all)")
+    rp.add_argument("--episodes", type=lambda text: parse_seeds(text, "--episodes"), help="episode indices, e.g. 0-4 or 1,3 (default: all)")
     rp.set_defaults(func=cmd_replay)
 
     be = sub.add_parser(

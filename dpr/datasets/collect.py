@@ -15,8 +15,10 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -242,6 +244,27 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C back until the block ends, then deliver it: an episode being saved is always saved whole
+    (a KeyboardInterrupt in the middle would leave its files uncommitted on disk, where LeRobot would load
+    them). Only the main thread can set signal handlers; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if received:
+        if callable(previous):
+            previous(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
+        elif previous == signal.SIG_DFL:
+            signal.raise_signal(signal.SIGINT)
+
+
 def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
     return rollout(*job)
 
@@ -283,7 +306,8 @@ def collect(
     features = dataset_features(probe, spec.pixels, spec.image_size)
     task = probe.unwrapped.task_description
     probe.close()
-    info_extra = {"dpr": {"env_id": spec.env_id, "policy": spec.policy, "env_kwargs": spec.make_kwargs()}}
+    # what must match to resume: the env, its kwargs, the policy, and whether episodes carry MCAP logs
+    info_extra = {"dpr": {"env_id": spec.env_id, "policy": spec.policy, "env_kwargs": spec.make_kwargs(), "mcap": mcap}}
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
     started = time.perf_counter()
@@ -305,8 +329,9 @@ def collect(
         try:
             for record in _results(jobs, workers):
                 mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if mcap else None
-                index = save_record(writer, spec, record, task, mcap_file)
-                added.append(record)
+                with _sigint_deferred():
+                    index = save_record(writer, spec, record, task, mcap_file)
+                    added.append(record)
                 if progress is not None:
                     progress(record, index)
         except KeyboardInterrupt:

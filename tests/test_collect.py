@@ -1,0 +1,607 @@
+"""Dataset collection (dpr.datasets.collect), replay (dpr.datasets.replay) and the `dpr collect` / `dpr replay`
+commands: recorded frames equal an independent rollout, resuming, refusing another spec, surviving SIGKILL and
+Ctrl-C of the real CLI, MCAP logs, pixels, discrete actions and bad command-line input."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dpr.datasets.collect as collect_module
+from dpr.cli import main as cli_main
+from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
+from dpr.datasets.mcap import read_mcap
+from dpr.datasets.replay import replay_dataset, replay_episode
+from dpr.envs.particle_env import LENGTH_SCALE
+from dpr.policies import registry
+
+REPO = Path(__file__).resolve().parents[1]
+NAV = "dpr/Navigation-v0"
+SMALL = {"env_id": NAV, "n_robots": 4, "robot_model": "disk", "steps": 40}
+COLUMNS = ("observation.state", "action", "next.reward", "next.done", "next.success")
+
+# The subprocess runs: long enough (about 0.3 s of work per episode on 2 cores) that a kill after the first
+# committed episodes lands well before the last of the 12.
+CLI_EPISODES = 12
+CLI_STEPS = 3000
+CLI_ARGS = [
+    "--env", NAV, "--robot-model", "disk", "--n-robots", "9", "--steps", str(CLI_STEPS),
+    "--episodes", str(CLI_EPISODES), "--workers", "2",
+]
+
+
+# ------------------------------------------------------------------------------------------------- helpers
+
+
+def small_spec(**overrides) -> CollectSpec:
+    return CollectSpec(**{**SMALL, **overrides})
+
+
+def reference_rollout(env_id: str, env_kwargs: dict, policy_name: str, seed: int, render: bool = False) -> dict:
+    """Roll ``policy_name`` out independently of collect(): gym.make, reset(seed), the registry's policy."""
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        observation, _ = env.reset(seed=seed)
+        policy = registry.make_policy(policy_name, env)
+        policy.reset(seed)
+        frames: dict[str, list] = {name: [] for name in (*COLUMNS, "observation.image")}
+        done, info = False, {}
+        while not done:
+            if render:
+                frames["observation.image"].append(env.render())
+            action = policy(observation)
+            frames["observation.state"].append(observation)
+            frames["action"].append(action)
+            observation, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            frames["next.reward"].append([reward])
+            frames["next.done"].append([done])
+            frames["next.success"].append([info["is_success"]])
+        return {
+            "observation.state": np.array(frames["observation.state"], dtype=np.float32),
+            "action": np.array(frames["action"]),
+            "next.reward": np.array(frames["next.reward"], dtype=np.float32),
+            "next.done": np.array(frames["next.done"], dtype=bool),
+            "next.success": np.array(frames["next.success"], dtype=bool),
+            "observation.image": np.array(frames["observation.image"], dtype=np.uint8),
+            "final_info": info,
+            "task": env.unwrapped.task_description,
+        }
+    finally:
+        env.close()
+
+
+def snapshot(root: Path) -> dict[str, tuple[bytes, int] | None]:
+    """Every folder and file under ``root`` with each file's bytes and mtime."""
+    return {
+        str(p.relative_to(root)): (p.read_bytes(), p.stat().st_mtime_ns) if p.is_file() else None
+        for p in sorted(root.rglob("*"))
+    }
+
+
+def parquet_files(root: Path, folder: str) -> list[str]:
+    return sorted(str(p.relative_to(root)) for p in (root / folder).glob("*/*.parquet"))
+
+
+def committed_episodes(root: Path) -> int:
+    try:
+        return json.loads((root / "meta" / "info.json").read_text())["total_episodes"]
+    except (FileNotFoundError, json.JSONDecodeError, KeyError):
+        return 0
+
+
+def run_cli(argv: list[str]) -> int:
+    """dpr.cli.main's exit status, whether it returns it or argparse raises SystemExit."""
+    try:
+        return cli_main(argv)
+    except SystemExit as exit_:
+        return exit_.code
+
+
+def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:
+    """`dpr collect` in a new session (its own process group, workers included)."""
+    with open(log, "ab") as handle:
+        return subprocess.Popen(
+            [sys.executable, "-m", "dpr.cli", "collect", *CLI_ARGS, "--out", str(out)],
+            cwd=REPO, stdout=handle, stderr=subprocess.STDOUT, start_new_session=True,
+            env={**os.environ, "SDL_VIDEODRIVER": "dummy"},
+        )
+
+
+def run_cli_collect(out: Path, log: Path) -> int:
+    process = start_cli_collect(out, log)
+    try:
+        return process.wait(timeout=120)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+
+
+def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, log: Path, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while committed_episodes(root) < count:
+        if process.poll() is not None:
+            pytest.fail(f"dpr collect exited ({process.returncode}) before {count} episodes:\n{log.read_text()}")
+        if time.monotonic() > deadline:
+            os.killpg(process.pid, signal.SIGKILL)
+            pytest.fail(f"no {count} committed episodes within {timeout} s:\n{log.read_text()}")
+        time.sleep(0.01)
+
+
+def group_members(pgid: int) -> list[int]:
+    """Live (non-zombie) processes in process group ``pgid``, from /proc."""
+    members = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2 :].split()  # after "pid (comm) ": state, ppid, pgrp, ...
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            members.append(int(entry.name))
+    return members
+
+
+def check_complete_dataset(root: Path, steps: int) -> LeRobotReader:
+    """Seeds 0..CLI_EPISODES-1 once each, whole episodes, contiguous frame indices, no leftover files."""
+    reader = LeRobotReader(root)
+    assert reader.num_episodes == CLI_EPISODES
+    assert sorted(int(e["seed"]) for e in reader.episodes) == list(range(CLI_EPISODES))
+    lengths = [int(e["length"]) for e in reader.episodes]
+    assert reader.num_frames == sum(lengths)
+    indices = []
+    for i in range(reader.num_episodes):
+        data = reader.episode(i, ["index", "frame_index", "episode_index", "next.done", "next.success"])
+        indices.append(data["index"][:, 0])
+        np.testing.assert_array_equal(data["frame_index"][:, 0], np.arange(lengths[i]))
+        assert (data["episode_index"] == i).all()
+        check_whole_episode(data, steps)
+    np.testing.assert_array_equal(np.concatenate(indices), np.arange(reader.num_frames))
+    assert len(parquet_files(root, "data")) == len(parquet_files(root, "meta/episodes")) == CLI_EPISODES
+    assert not list(root.rglob("*.dpr-tmp"))
+    return reader
+
+
+def check_whole_episode(data: dict, steps: int) -> None:
+    """Done only on the last frame, which ended the episode by success or by the step limit."""
+    done = data["next.done"][:, 0]
+    assert done[-1] and not done[:-1].any()
+    assert len(done) == steps or data["next.success"][-1, 0]
+
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory) -> Path:
+    """Two wave-policy episodes (seeds 0, 1) of the small spec; tests must leave it unchanged."""
+    root = tmp_path_factory.mktemp("small") / "ds"
+    summary = collect(root, small_spec(), episodes=2, workers=1)
+    assert summary.episodes_added == 2 and not summary.interrupted
+    return root
+
+
+# ----------------------------------------------------------------------------------------------- round trip
+
+
+def test_recorded_frames_equal_an_independent_rollout(small_dataset):
+    reader = LeRobotReader(small_dataset)
+    assert reader.num_episodes == 2
+    spec = small_spec()
+    for index, meta in enumerate(reader.episodes):
+        assert meta["seed"] == index
+        assert meta["env_id"] == NAV
+        assert meta["env_kwargs"] == {"n_robots": 4, "robot_model": "disk", "max_episode_steps": 40}
+        assert meta["env_kwargs"] == spec.make_kwargs()
+        assert (meta["policy"], meta["n_robots"], meta["robot_model"]) == ("wave", 4, "disk")
+        assert meta["mcap_file"] == "" and meta["physics_error"] == ""
+
+        expected = reference_rollout(meta["env_id"], meta["env_kwargs"], meta["policy"], meta["seed"])
+        recorded = reader.episode(index)
+        frames = len(expected["action"])
+        assert meta["length"] == frames == 40  # no success within 40 steps: the time limit ends it
+        shapes = {
+            "observation.state": ((frames, 24), np.float32),
+            "action": ((frames, 4), np.float32),
+            "next.reward": ((frames, 1), np.float32),
+            "next.done": ((frames, 1), np.bool_),
+            "next.success": ((frames, 1), np.bool_),
+        }
+        for name, (shape, dtype) in shapes.items():
+            assert recorded[name].shape == shape, name
+            assert recorded[name].dtype == dtype, name
+            np.testing.assert_array_equal(recorded[name], expected[name].astype(dtype), err_msg=name)
+
+        final = expected["final_info"]
+        for metric in ("projected_displacement", "net_displacement", "total_distance"):
+            assert meta[metric] == pytest.approx(final[metric], rel=1e-9, abs=1e-9), metric
+        assert meta["success"] == bool(final["is_success"])
+        assert meta["tasks"] == [expected["task"]]
+        assert (recorded["task_index"] == 0).all()
+
+    env = gym.make(NAV, **spec.make_kwargs())
+    assert reader.tasks == [env.unwrapped.task_description]
+    env.close()
+    assert reader.tasks[0]  # a real sentence, not an empty placeholder
+    features = reader.features
+    assert features["observation.state"]["dtype"] == "float32" and features["observation.state"]["shape"] == [24]
+    parts = ("x", "y", "vx", "vy", "omega", "expansion")
+    assert features["observation.state"]["names"][:6] == [f"robot0.{part}" for part in parts]
+    assert features["action"] == {"dtype": "float32", "shape": [4], "names": [f"robot{i}.expand" for i in range(4)]}
+    for flag in ("next.done", "next.success"):
+        assert features[flag]["dtype"] == "bool" and features[flag]["shape"] == [1]
+    assert reader.info["dpr"] == {"env_id": NAV, "policy": "wave", "env_kwargs": spec.make_kwargs(), "mcap": False}
+    assert reader.info["robot_type"] == "disk" and reader.fps == 10
+
+
+def test_replay_reports_every_episode_equal(small_dataset):
+    checks = replay_dataset(small_dataset)
+    assert [(c.episode_index, c.seed, c.frames, c.equal, c.first_mismatch) for c in checks] == [
+        (0, 0, 40, True, None), (1, 1, 40, True, None),
+    ]
+    assert all(v == 0.0 for c in checks for v in c.max_abs_difference.values())
+
+
+def test_replay_finds_the_first_tampered_frame(small_dataset, monkeypatch):
+    original = LeRobotReader.episode
+
+    def tampered(self, index, columns=None):
+        data = {name: array.copy() for name, array in original(self, index, columns).items()}
+        if index == 1:
+            data["observation.state"][23, 7] += np.float32(1e-6)  # robot 1's y, by a few float32 steps
+            data["next.reward"][31, 0] += np.float32(0.5)
+        return data
+
+    monkeypatch.setattr(LeRobotReader, "episode", tampered)
+    checks = replay_dataset(small_dataset)
+    assert checks[0].equal and checks[0].first_mismatch is None
+    assert not checks[1].equal
+    assert checks[1].first_mismatch == 23
+    assert checks[1].max_abs_difference["observation.state"] > 0
+    assert checks[1].max_abs_difference["next.reward"] == pytest.approx(0.5, rel=1e-3)
+    assert checks[1].max_abs_difference["next.done"] == checks[1].max_abs_difference["next.success"] == 0.0
+
+
+def test_replay_detects_a_data_file_from_other_seeds(small_dataset, tmp_path):
+    """An episode whose frames come from another seed's rollout fails replay from its first frame."""
+    other = tmp_path / "other"
+    collect(other, small_spec(), episodes=1, seed=5, workers=1)
+    tampered = tmp_path / "tampered"
+    shutil.copytree(small_dataset, tampered)
+    data_file = "data/chunk-000/file-001.parquet"
+    shutil.copyfile(other / "data/chunk-000/file-000.parquet", tampered / data_file)
+    checks = replay_dataset(tampered)
+    assert checks[0].equal
+    assert not checks[1].equal and checks[1].first_mismatch == 0
+    assert checks[1].max_abs_difference["observation.state"] > 0
+
+
+def test_cli_replay_good_dataset(small_dataset, capsys):
+    assert run_cli(["replay", str(small_dataset)]) == 0
+    out = capsys.readouterr().out
+    assert "2/2 episodes replay bit-identically (80 frames)" in out
+    assert run_cli(["replay", str(small_dataset), "--episodes", "1"]) == 0
+    assert "1/1 episodes replay bit-identically (40 frames)" in capsys.readouterr().out
+
+
+def test_cli_replay_reports_a_mismatch(small_dataset, monkeypatch, capsys):
+    original = LeRobotReader.episode
+
+    def tampered(self, index, columns=None):
+        data = {name: array.copy() for name, array in original(self, index, columns).items()}
+        if index == 0:
+            data["next.done"][12, 0] = True
+        return data
+
+    monkeypatch.setattr(LeRobotReader, "episode", tampered)
+    assert run_cli(["replay", str(small_dataset)]) == 1
+    out = capsys.readouterr().out
+    assert "episode 0 (seed 0): differs from frame 12 on" in out
+    assert "1/2 episodes replay bit-identically" in out
+
+
+# ---------------------------------------------------------------------------------------------------- resume
+
+
+def test_resume_adds_only_missing_seeds_and_keeps_saved_files(tmp_path):
+    root = tmp_path / "ds"
+    spec = small_spec(steps=30)
+    first = collect(root, spec, episodes=2, workers=1)
+    assert (first.episodes_before, first.episodes_added, first.episodes_total) == (0, 2, 2)
+    names = [*parquet_files(root, "data"), *parquet_files(root, "meta/episodes")]
+    saved = {name: (root / name).read_bytes() for name in names}
+    assert len(saved) == 4
+
+    second = collect(root, spec, episodes=4, workers=1)
+    assert (second.episodes_before, second.episodes_added, second.episodes_total) == (2, 2, 4)
+    assert second.frames_total == 120
+    reader = LeRobotReader(root)
+    assert [int(e["seed"]) for e in reader.episodes] == [0, 1, 2, 3]
+    for name, content in saved.items():
+        assert (root / name).read_bytes() == content, name
+    assert all(c.equal for c in replay_dataset(root))
+
+    before = snapshot(root)
+    third = collect(root, spec, episodes=4, workers=1)  # nothing left to do
+    assert third.episodes_added == 0 and third.episodes_total == 4
+    assert snapshot(root) == before
+
+
+def test_resume_with_another_first_seed_skips_recorded_seeds(tmp_path):
+    root = tmp_path / "ds"
+    spec = small_spec(steps=30)
+    collect(root, spec, episodes=2, seed=0, workers=1)
+    summary = collect(root, spec, episodes=3, seed=1, workers=1)  # seeds 1, 2, 3: 1 is already there
+    assert summary.episodes_added == 2
+    assert [int(e["seed"]) for e in LeRobotReader(root).episodes] == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"env_id": "dpr/Unresponsive-v0"},
+        {"n_robots": 9},
+        {"policy": "random"},
+        {"pixels": True, "image_size": 16},
+        {"robot_model": "paddle"},
+        {"steps": 41},
+        {"env_kwargs": {"reward": "projected"}},
+        {"mcap": True},
+    ],
+    ids=lambda change: ",".join(change),
+)
+def test_another_spec_is_refused_before_any_work(small_dataset, change, monkeypatch):
+    def no_rollouts(job):
+        raise AssertionError("a refused dataset must not start rollouts")
+
+    monkeypatch.setattr(collect_module, "_rollout_job", no_rollouts)
+    before = snapshot(small_dataset)
+    change = dict(change)
+    mcap = change.pop("mcap", False)
+    with pytest.raises(DatasetError, match="does not match"):
+        collect(small_dataset, small_spec(**change), episodes=3, workers=1, mcap=mcap)
+    assert snapshot(small_dataset) == before
+
+
+# ------------------------------------------------------------------------------------- crash and Ctrl-C (CLI)
+
+
+def test_cli_collect_survives_sigkill_and_resumes(tmp_path):
+    out, log = tmp_path / "ds", tmp_path / "collect.log"
+    process = start_cli_collect(out, log)
+    try:
+        wait_for_episodes(out, 2, process, log)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)  # the main process and its workers
+        process.wait(timeout=30)
+    assert process.returncode == -signal.SIGKILL
+    committed = committed_episodes(out)
+    assert 2 <= committed < CLI_EPISODES, "the kill should land mid-run; make the episodes longer"
+
+    reader = LeRobotReader(out)
+    assert reader.num_episodes == committed
+    assert [int(e["seed"]) for e in reader.episodes] == list(range(committed))
+    for index in range(committed):
+        data = reader.episode(index)
+        assert len(data["action"]) == reader.episodes[index]["length"]
+        check_whole_episode(data, CLI_STEPS)
+    check = replay_episode(reader, committed - 1)
+    assert check.equal and check.frames == reader.episodes[committed - 1]["length"]
+    kept = {name: (out / name).read_bytes() for name in parquet_files(out, "data")[:committed]}
+
+    assert run_cli_collect(out, log) == 0, log.read_text()
+    check_complete_dataset(out, CLI_STEPS)
+    for name, content in kept.items():
+        assert (out / name).read_bytes() == content, name
+
+
+def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
+    out, log = tmp_path / "ds", tmp_path / "collect.log"
+    process = start_cli_collect(out, log)
+    try:
+        wait_for_episodes(out, 1, process, log)
+        os.killpg(process.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole foreground group
+        process.wait(timeout=20)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+            pytest.fail(f"dpr collect did not exit within 20 s of Ctrl-C:\n{log.read_text()}")
+    assert process.returncode == 130, log.read_text()
+    assert "interrupted" in log.read_text()
+    deadline = time.monotonic() + 10  # the resource tracker leaves once the main process's pipe closes
+    while group_members(process.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert group_members(process.pid) == [], "worker processes outlived dpr collect"
+
+    committed = committed_episodes(out)
+    assert 1 <= committed < CLI_EPISODES
+    reader = LeRobotReader(out)
+    for index in range(committed):
+        check_whole_episode(reader.episode(index, ["next.done", "next.success"]), CLI_STEPS)
+    # a clean stop leaves nothing uncommitted behind (LeRobot itself would load any data/*/*.parquet)
+    assert len(parquet_files(out, "data")) == len(parquet_files(out, "meta/episodes")) == committed
+    assert not list(out.rglob("*.dpr-tmp"))
+
+    assert run_cli_collect(out, log) == 0, log.read_text()  # the writer lock was released
+    check_complete_dataset(out, CLI_STEPS)
+
+
+def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch):
+    """Ctrl-C arriving in the middle of writing an episode's files waits for them, then stops the run."""
+    original = LeRobotWriter.save_episode
+
+    def interrupted_save(self, episode_meta=None):
+        os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at the next bytecode, inside the save
+        return original(self, episode_meta)
+
+    monkeypatch.setattr(LeRobotWriter, "save_episode", interrupted_save)
+    root = tmp_path / "ds"
+    try:
+        summary = collect(root, small_spec(steps=30), episodes=3, workers=1)
+    except KeyboardInterrupt:
+        pytest.fail("collect() let Ctrl-C escape instead of stopping after the saved episodes")
+    assert summary.interrupted
+    assert (summary.episodes_added, summary.episodes_total, summary.frames_total) == (1, 1, 30)
+    reader = LeRobotReader(root)
+    assert reader.num_episodes == 1 and reader.episodes[0]["seed"] == 0
+    assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
+    assert not list(root.rglob("*.dpr-tmp"))
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+# -------------------------------------------------------------------------------------------- MCAP, pixels
+
+
+def test_mcap_log_per_episode_matches_the_dataset(tmp_path):
+    root = tmp_path / "ds"
+    collect(root, small_spec(), episodes=1, workers=1, mcap=True)
+    stale = root / "mcap" / "seed-000001.mcap.part"  # a log a killed run had in flight
+    stale.write_bytes(b"partial")
+    collect(root, small_spec(), episodes=2, workers=1, mcap=True)
+    assert not stale.exists()
+    assert sorted(p.name for p in (root / "mcap").iterdir()) == ["seed-000000.mcap", "seed-000001.mcap"]
+
+    reader = LeRobotReader(root)
+    for index, meta in enumerate(reader.episodes):
+        assert meta["mcap_file"] == f"mcap/seed-{index:06d}.mcap"
+        log = read_mcap(root / meta["mcap_file"])
+        data = reader.episode(index)
+        frames = len(data["action"])
+        assert log.n_steps == frames
+        assert log.metadata["seed"] == index and log.metadata["policy"] == "wave"
+        np.testing.assert_array_equal(log.actions, data["action"])
+        np.testing.assert_array_equal(log.rewards.astype(np.float32), data["next.reward"][:, 0])
+        # frame t's observation is the state before action t: x, y = (position - goal) * LENGTH_SCALE
+        state = data["observation.state"].reshape(frames, 4, 6)
+        np.testing.assert_array_equal(log.goal, [0.0, 0.0])
+        expected_xy = ((log.positions[:-1] - log.goal) * LENGTH_SCALE).astype(np.float32)
+        np.testing.assert_array_equal(state[:, :, 0:2], expected_xy)
+        np.testing.assert_array_equal(state[:, :, 5], log.expansions[:-1].astype(np.float32))
+
+
+def test_pixels_record_the_rendered_frames(tmp_path):
+    root = tmp_path / "ds"
+    collect(root, small_spec(steps=30, pixels=True, image_size=32), episodes=1, seed=3, workers=1)
+    reader = LeRobotReader(root)
+    assert reader.features["observation.image"]["dtype"] == "image"
+    assert reader.features["observation.image"]["shape"] == [32, 32, 3]
+    data = reader.episode(0)
+    assert data["observation.image"].dtype == np.uint8 and data["observation.image"].shape == (30, 32, 32, 3)
+
+    kwargs = {
+        "n_robots": 4, "robot_model": "disk", "max_episode_steps": 30, "render_mode": "rgb_array", "render_size": 32,
+    }
+    assert reader.episodes[0]["env_kwargs"] == kwargs
+    expected = reference_rollout(NAV, kwargs, "wave", 3, render=True)
+    np.testing.assert_array_equal(data["observation.image"], expected["observation.image"])
+    assert len(np.unique(data["observation.image"].reshape(-1, 3), axis=0)) > 2  # a scene, not a blank frame
+    np.testing.assert_array_equal(data["observation.state"], expected["observation.state"])
+    assert replay_dataset(root)[0].equal
+
+
+def test_discrete_actions_are_recorded_as_int64(tmp_path, capsys):
+    root = tmp_path / "ds"
+    argv = [
+        "collect", "--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--steps", "40", "--episodes", "2",
+        "--workers", "1", "--env-kwarg", "action_type=discrete", "--out", str(root),
+    ]
+    assert run_cli(argv) == 0
+    reader = LeRobotReader(root)
+    assert reader.features["action"] == {"dtype": "int64", "shape": [1], "names": ["action"]}
+    assert reader.episodes[0]["env_kwargs"]["action_type"] == "discrete"
+    for index in range(2):
+        action = reader.episode(index, ["action"])["action"]
+        assert action.dtype == np.int64 and action.shape == (40, 1)
+        assert ((0 <= action) & (action < 16)).all() and len(np.unique(action)) > 1
+        expected = reference_rollout(NAV, reader.episodes[index]["env_kwargs"], "wave", index)
+        np.testing.assert_array_equal(action[:, 0], expected["action"])
+    assert all(c.equal for c in replay_dataset(root))
+    capsys.readouterr()
+    assert run_cli(["replay", str(root)]) == 0
+    assert "2/2 episodes replay bit-identically" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------------------------- bad input
+
+
+def collect_argv(out: Path, *extra: str) -> list[str]:
+    return ["collect", "--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--steps", "20", "--episodes", "1",
+            "--workers", "1", "--out", str(out), *extra]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--env", "dpr/Nope-v0"], "dpr/Nope-v0"),
+        (["--policy", "nope"], "policy"),
+        (["--episodes", "0"], "--episodes"),
+        (["--seed", "-1"], "--seed"),
+        (["--n-robots", "0"], "--n-robots"),
+        (["--env-kwarg", "badformat"], "--env-kwarg"),
+        (["--env-kwarg", "n_robots=3"], "n_robots"),
+        (["--env-kwarg", "action_type=bogus"], "action_type"),
+        (["--env-kwarg", "no_such_kwarg=1"], "no_such_kwarg"),
+    ],
+    ids=lambda value: value if isinstance(value, str) else " ".join(value),
+)
+def test_cli_collect_refuses_bad_arguments(tmp_path, capsys, extra, message):
+    out = tmp_path / "ds"
+    assert run_cli(collect_argv(out, *extra)) == 2
+    error = capsys.readouterr().err
+    assert message in error and "Traceback" not in error
+    assert not out.exists()
+
+
+def test_cli_collect_refuses_a_file_as_out(tmp_path, capsys):
+    out = tmp_path / "file"
+    out.write_text("keep me")
+    assert run_cli(collect_argv(out)) == 2
+    assert "--out" in capsys.readouterr().err
+    assert out.read_text() == "keep me"
+
+
+def test_cli_collect_refuses_a_folder_without_a_dataset(tmp_path, capsys):
+    out = tmp_path / "ds"
+    out.mkdir()
+    (out / "notes.txt").write_text("not a dataset")
+    before = snapshot(out)
+    assert run_cli(collect_argv(out)) == 2
+    error = capsys.readouterr().err
+    assert str(out / "meta" / "info.json") in error and "holds no dataset" in error
+    assert snapshot(out) == before
+
+
+def test_cli_collect_refuses_another_spec(small_dataset, capsys):
+    before = snapshot(small_dataset)
+    assert run_cli(collect_argv(small_dataset)) == 2  # 20 steps where the dataset has 40
+    assert "does not match" in capsys.readouterr().err
+    assert snapshot(small_dataset) == before
+
+
+def test_cli_replay_refuses_a_corrupt_info_json(small_dataset, tmp_path, capsys):
+    root = tmp_path / "ds"
+    shutil.copytree(small_dataset, root)
+    info = root / "meta" / "info.json"
+    info.write_text(info.read_text()[:50])
+    before = snapshot(root)
+    assert run_cli(["replay", str(root)]) == 2
+    error = capsys.readouterr().err
+    assert str(info) in error and "not valid JSON" in error
+    assert snapshot(root) == before
+
+
+def test_cli_replay_refuses_missing_folder_and_episodes(small_dataset, tmp_path, capsys):
+    assert run_cli(["replay", str(tmp_path / "absent")]) == 2
+    assert str(tmp_path / "absent") in capsys.readouterr().err
+    assert run_cli(["replay", str(small_dataset), "--episodes", "0-2"]) == 2
+    assert "episodes [2]" in capsys.readouterr().err
