@@ -51,6 +51,19 @@ def _check_output(path: str | None, parser: argparse.ArgumentParser, flag: str) 
         parser.error(f"{flag}: folder {p.parent} does not exist")
 
 
+def _check_env_kwargs(env_ids: list[str], env_kwargs: dict, parser: argparse.ArgumentParser) -> None:
+    """Build each env once, so that a bad kwarg is reported before any episode runs."""
+    import gymnasium as gym
+
+    import dpr  # noqa: F401
+
+    for env_id in env_ids:
+        try:
+            gym.make(env_id, **env_kwargs).close()
+        except (TypeError, ValueError) as error:
+            parser.error(f"{env_id} with {env_kwargs}: {error}")
+
+
 def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
@@ -59,7 +72,8 @@ def cmd_evaluate(args, parser) -> int:
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
-    env_kwargs = {"n_robots": args.n_robots, "robot_model": args.robot_model}
+    env_kwargs = {"n_robots": args.n_robots, "robot_model": args.robot_model, **dict(args.env_kwarg or [])}
+    _check_env_kwargs(env_ids, env_kwargs, parser)
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
             results = evaluate(
@@ -210,6 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--steps", type=positive_int, default=2500, help="steps per episode (default 2500)")
     ev.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="episodes run in this many processes (default: up to 2)")
+    ev.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
+                    help="extra gym.make kwarg, e.g. object_start=paper (repeatable)")
     ev.add_argument("--json", help="also write episodes and summary to this new JSON file")
     ev.set_defaults(func=cmd_evaluate)
 
