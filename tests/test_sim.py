@@ -1,10 +1,12 @@
 """Physics layer: neighbour search, world construction, collision filtering, magnets and the command rule."""
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pymunk
 import pytest
+from pymunk._chipmunk import ffi, lib
 from helpers import ROBOT_MODELS, robot_of_body, shift_robot
 
 from dpr.sim import ObjectSpec, World, grid_centres
@@ -169,14 +171,37 @@ def test_no_self_collision_while_moving(robot_model):
 # Magnets
 
 
+@dataclass
+class _Rod:
+    a: pymunk.Body
+    b: pymunk.Body
+    max_force: float
+    distance: float
+
+
+def _paddle_rods(swarm) -> list[_Rod]:
+    """The paddle model's magnets are chipmunk joints that live from update_magnets() to the end of the
+    step: rebuild them from the current state and read what chipmunk holds (bodies, force, length)."""
+    swarm.update_magnets()
+    body = {int(ffi.cast("uintptr_t", b._body)): b for b in swarm.bodies}
+    rods = []
+    for rod in swarm._rods:
+        a = body[int(ffi.cast("uintptr_t", lib.cpConstraintGetBodyA(rod)))]
+        b = body[int(ffi.cast("uintptr_t", lib.cpConstraintGetBodyB(rod)))]
+        rods.append(_Rod(a, b, lib.cpConstraintGetMaxForce(rod), lib.cpPinJointGetDist(rod)))
+    swarm.after_physics()
+    return rods
+
+
 def _magnets(world, owner=None):
-    """Inter-robot rods: PinJoints whose two bodies belong to different robots -> list of (joint, ra, rb).
+    """Inter-robot rods: joints whose two bodies belong to different robots -> list of (joint, ra, rb).
     ``owner`` (body -> robot) must be given once robots have been moved out of their start grid."""
     owner = owner if owner is not None else robot_of_body(world.swarm)
-    out = []
-    for c in world.space.constraints:
-        if isinstance(c, pymunk.PinJoint) and c.a in owner and c.b in owner and owner[c.a] != owner[c.b]:
-            out.append((c, owner[c.a], owner[c.b]))
+    if world.swarm.model == "paddle":
+        joints = _paddle_rods(world.swarm)
+    else:
+        joints = [c for c in world.space.constraints if isinstance(c, pymunk.PinJoint)]
+    out = [(c, owner[c.a], owner[c.b]) for c in joints if c.a in owner and c.b in owner and owner[c.a] != owner[c.b]]
     return out, owner
 
 

@@ -18,6 +18,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -246,9 +247,9 @@ def _ignore_sigint() -> None:
 
 @contextmanager
 def _sigint_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C back until the block ends, then deliver it: an episode being saved is always saved whole
-    (a KeyboardInterrupt in the middle would leave its files uncommitted on disk, where LeRobot would load
-    them). Only the main thread can set signal handlers; elsewhere this does nothing."""
+    """Hold a Ctrl-C back until the block ends, then deliver it: for bookkeeping that must not be cut in
+    half (handing an episode to the saver thread and noting it). Only the main thread can set signal
+    handlers; elsewhere this does nothing."""
     if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
         yield
         return
@@ -326,16 +327,36 @@ def collect(
             for s in range(seed, seed + episodes)
             if s not in done
         ]
-        try:
-            for record in _results(jobs, workers):
-                mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if mcap else None
+        # Episodes are saved by one background thread while the next one rolls out (or arrives from a worker):
+        # recording then costs little more than the rollouts. Ctrl-C only reaches the main thread, so an
+        # episode being saved is always saved whole; at most one is in flight.
+        saver = ThreadPoolExecutor(1, thread_name_prefix="dpr-save")
+        in_flight: list[tuple[Future, EpisodeRecord]] = []
+
+        def settle() -> None:
+            while in_flight:
+                future, record = in_flight[0]
+                index = future.result()
                 with _sigint_deferred():
-                    index = save_record(writer, spec, record, task, mcap_file)
+                    in_flight.pop(0)
                     added.append(record)
                 if progress is not None:
                     progress(record, index)
-        except KeyboardInterrupt:
-            interrupted = True
+
+        try:
+            try:
+                saver.submit(int).result()  # start the thread now, not inside a later submit()
+                for record in _results(jobs, workers):
+                    settle()
+                    mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if mcap else None
+                    with _sigint_deferred():
+                        in_flight.append((saver.submit(save_record, writer, spec, record, task, mcap_file), record))
+                settle()
+            except KeyboardInterrupt:
+                interrupted = True
+                settle()  # the episode being saved is finished, not abandoned
+        finally:
+            saver.shutdown(wait=True)
     finally:
         writer.finalize()  # releases the dataset's writer lock; saved episodes are already durable
     return CollectSummary(

@@ -1,4 +1,4 @@
-"""Bulk setters that call chipmunk directly.
+"""Bulk setters (and the transient magnet rods) that call chipmunk directly.
 
 They do exactly what pymunk's public property setters do (``SimpleMotor.rate``, ``PinJoint.distance``,
 ``Circle.unsafe_set_radius``) without pymunk's per-attribute Python wrapper, which for a small swarm costs
@@ -29,3 +29,26 @@ def set_pin_distances(joints, distances) -> None:
 def set_circle_radii(shapes, radii) -> None:
     for shape, radius in zip(shapes, radii):
         lib.cpCircleShapeSetRadius(shape._shape, radius)
+
+
+def add_rods(space, bodies, pairs, max_force: float) -> list:
+    """Join ``bodies[i]`` and ``bodies[j]`` (chipmunk body handles) for each ``(i, j)`` in ``pairs`` by a
+    PinJoint between their centres at their current distance, force-limited, and add it to ``space``
+    (a chipmunk space handle). pymunk does not know these joints: remove them with :func:`remove_rods`
+    before anything else (pickling, freeing the bodies) touches the space."""
+    new, set_force, add = lib.cpPinJointNew, lib.cpConstraintSetMaxForce, lib.cpSpaceAddConstraint
+    rods = []
+    for i, j in pairs:
+        rod = new(bodies[i], bodies[j], (0.0, 0.0), (0.0, 0.0))
+        set_force(rod, max_force)
+        add(space, rod)
+        rods.append(rod)
+    return rods
+
+
+def remove_rods(space, rods) -> None:
+    """Take the joints made by :func:`add_rods` out of ``space`` and free them."""
+    remove, free = lib.cpSpaceRemoveConstraint, lib.cpConstraintFree
+    for rod in rods:
+        remove(space, rod)
+        free(rod)

@@ -8,7 +8,7 @@ import numpy as np
 import pymunk
 
 from dpr.sim import constants as C
-from dpr.sim._setters import motor_handles, set_motor_rates, set_pin_distances
+from dpr.sim._setters import add_rods, motor_handles, remove_rods, set_motor_rates
 from dpr.sim.neighbours import pairs_within
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
@@ -103,9 +103,9 @@ class PaddleSwarm(Swarm):
         self.paddle_angle = np.zeros((n, k))  # paddle1 angle relative to its body, 0 contracted
         self.paddle1_pose = np.zeros((n, k, 3))
         self.paddle2_pose = np.zeros((n, k, 3))
-        self._magnets: dict[tuple[int, int], pymunk.PinJoint] = {}
-        self._active: list[tuple[int, int]] = []
-        self._active_joints: list[pymunk.PinJoint] = []
+        self._active: list[tuple[int, int]] = []  # this step's magnets, as pairs of global paddle2 indices
+        self._rods: list = []  # their chipmunk joints, alive from update_magnets() to after_physics()
+        self._paddle2_handles = None  # chipmunk bodies of the paddle2s, made on first use (not pickled)
         self._drive()
 
     # -- state ------------------------------------------------------------------------------------------
@@ -144,54 +144,42 @@ class PaddleSwarm(Swarm):
     # -- magnets ----------------------------------------------------------------------------------------
     def update_magnets(self) -> None:
         """Link each pair of robots closer than 4 radii by a rod (max force 750) between the paddle2 of
-        each that is nearest to the other's centre, at the rods' current length, for this step.
+        each that is nearest to the other's centre, at the rods' current length, for this step only.
 
-        Each paddle2 holds at most one magnet (pairs are served in index order). Rods are kept between
-        steps and re-used; only their membership in the space and their length change. A magnet is the
-        pair of global paddle2 indices ``(r * 16 + i, s * 16 + j)`` of its two ends.
+        Each paddle2 holds at most one magnet (pairs are served in index order). As in the 2021 code the
+        rods are new every step (:meth:`after_physics` removes them): a rod kept from the previous step
+        would carry its accumulated impulse into the next (chipmunk's warm start), which is measurably
+        different physics. They are made with chipmunk's own calls, which cost less than keeping pymunk
+        joints and updating them. A magnet is the pair of global paddle2 indices ``(r * 16 + i, s * 16 + j)``.
         """
+        self._remove_rods()
         centres = self.position
         pairs = pairs_within(centres, self.magnet_range)
+        if len(pairs) == 0:
+            self._active = []
+            return
         tips = self.paddle2_pose[:, :, 0:2]
-        if len(pairs):
-            a, b = pairs[:, 0], pairs[:, 1]
-            tip_a = np.einsum("pkd,pkd->pk", d := tips[a] - centres[b][:, None], d).argmin(axis=1)
-            tip_b = np.einsum("pkd,pkd->pk", d := tips[b] - centres[a][:, None], d).argmin(axis=1)
-            k = C.N_PADDLES
-            wanted = _one_magnet_per_tip((a * k + tip_a).tolist(), (b * k + tip_b).tolist())
-        else:
-            wanted = []
-        if wanted != self._active:
-            self._change_magnets(wanted)
-        if wanted:
-            ends = np.array(wanted)
-            flat = tips.reshape(-1, 2)
-            delta = flat[ends[:, 0]] - flat[ends[:, 1]]
-            set_pin_distances(self._active_joints, np.sqrt(np.einsum("md,md->m", delta, delta)).tolist())
+        a, b = pairs[:, 0], pairs[:, 1]
+        tip_a = np.einsum("pkd,pkd->pk", d := tips[a] - centres[b][:, None], d).argmin(axis=1)
+        tip_b = np.einsum("pkd,pkd->pk", d := tips[b] - centres[a][:, None], d).argmin(axis=1)
+        k = C.N_PADDLES
+        self._active = _one_magnet_per_tip((a * k + tip_a).tolist(), (b * k + tip_b).tolist())
+        if self._paddle2_handles is None:
+            self._paddle2_handles = [body._body for body in self.paddle2_bodies]
+        self._rods = add_rods(self.space._space, self._paddle2_handles, self._active, C.MAGNET_MAX_FORCE)
 
-    def _change_magnets(self, wanted: list[tuple[int, int]]) -> None:
-        """Swap the rods in the space for ``wanted`` (new rods are made once and cached)."""
-        wanted_set, active_set = set(wanted), set(self._active)
-        stale = [self._magnets[key] for key in self._active if key not in wanted_set]
-        if stale:
-            self.space.remove(*stale)
-        fresh = []
-        for key in wanted:
-            if key not in active_set:
-                joint = self._magnets.get(key)
-                if joint is None:
-                    joint = pymunk.PinJoint(self.paddle2_bodies[key[0]], self.paddle2_bodies[key[1]])
-                    joint.max_force = C.MAGNET_MAX_FORCE
-                    self._magnets[key] = joint
-                fresh.append(joint)
-        if fresh:
-            self.space.add(*fresh)
-        self._active = wanted
-        self._active_joints = [self._magnets[key] for key in wanted]
+    def after_physics(self) -> None:
+        self._remove_rods()
+
+    def _remove_rods(self) -> None:
+        if self._rods:
+            remove_rods(self.space._space, self._rods)
+            self._rods = []
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_motor_handles"] = None  # cffi pointers do not pickle; rebuilt on first use
+        # cffi pointers do not pickle; handles are rebuilt on first use, and rods exist only inside a step
+        state.update(_motor_handles=None, _paddle2_handles=None, _rods=[])
         return state
 
     def magnet_segments(self) -> np.ndarray:

@@ -75,6 +75,9 @@ class Swarm:
     def before_physics(self) -> None:
         """Called once per control step before the pymunk steps (the disk model resizes its shapes here)."""
 
+    def after_physics(self) -> None:
+        """Called once per control step after the pymunk steps (the paddle model removes its rods here)."""
+
     def magnet_segments(self) -> np.ndarray:
         """(M, 2, 2) end points of the magnets active in this step, for drawing."""
         raise NotImplementedError

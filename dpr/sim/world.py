@@ -98,6 +98,7 @@ class World:
         swarm.update_magnets()
         swarm.before_physics()
         self.step_physics()
+        swarm.after_physics()
         self.read_state()
 
     def step_physics(self) -> None:
