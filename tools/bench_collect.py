@@ -82,17 +82,19 @@ def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> di
     started = time.perf_counter()
     summary = collect(out, spec, episodes=episodes, workers=workers)
     seconds = time.perf_counter() - started
-    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # this process: the writer
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    # VmHWM, not ru_maxrss: Linux carries a parent's ru_maxrss into a child it forks and execs
     probe = (
-        "import resource, sys, time; from dpr.datasets.lerobot import LeRobotReader; t = time.perf_counter(); "
-        "r = LeRobotReader(sys.argv[1]); opened = time.perf_counter() - t; e = r.episode(r.num_episodes // 2); "
-        "print(r.num_frames, opened, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)"
+        "import re, sys, time; from dpr.datasets.lerobot import LeRobotReader\n"
+        "def hwm(): return int(re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)) / 1024\n"
+        "base = hwm(); t = time.perf_counter(); r = LeRobotReader(sys.argv[1]); opened = time.perf_counter() - t\n"
+        "e = r.episode(r.num_episodes // 2); print(r.num_frames, opened, base, hwm())"
     )
     import subprocess
 
-    frames, opened, reader_rss = subprocess.run(
+    frames, opened, reader_base, reader_rss = subprocess.run(
         [sys.executable, "-c", probe, str(out)], check=True, capture_output=True, text=True
     ).stdout.split()
     return {
@@ -105,6 +107,7 @@ def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> di
         "bytes_on_disk": size,
         "reader_frames": int(frames),
         "reader_open_s": float(opened),
+        "reader_peak_rss_mib_after_imports": float(reader_base),
         "reader_peak_rss_mib_after_one_episode": float(reader_rss),
     }
 

@@ -121,6 +121,15 @@ class EpisodeRecord:
         return len(self.actions)
 
 
+@dataclass(frozen=True)
+class SavedEpisode:
+    """What a summary keeps of a recorded episode (not its arrays: memory stays bounded)."""
+
+    seed: int
+    frames: int
+    metrics: EpisodeMetrics
+
+
 def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> EpisodeRecord:
     """Roll ``spec.policy`` out from ``reset(seed=seed)`` until the episode ends; optionally log it to MCAP."""
     started = time.perf_counter()
@@ -312,7 +321,7 @@ def collect(
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
     started = time.perf_counter()
-    added: list[EpisodeRecord] = []
+    added: list[SavedEpisode] = []
     interrupted = False
     episodes_before = writer.num_episodes
     try:
@@ -339,7 +348,7 @@ def collect(
                 index = future.result()
                 with _sigint_deferred():
                     in_flight.pop(0)
-                    added.append(record)
+                    added.append(SavedEpisode(record.seed, record.frames, record.metrics))
                 if progress is not None:
                     progress(record, index)
 
@@ -375,7 +384,7 @@ def collect(
     )
 
 
-def _metric_summary(records: list[EpisodeRecord]) -> dict:
+def _metric_summary(records: list[SavedEpisode]) -> dict:
     if not records:
         return {}
     out = {}

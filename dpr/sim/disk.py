@@ -50,11 +50,6 @@ class DiskSwarm(Swarm):
         self._active = np.empty((0, 2), dtype=np.int64)
         self._active_joints: list[pymunk.PinJoint] = []  # the rods of ``_active``, row by row
 
-    def update_state(self, rows: np.ndarray) -> None:
-        super().update_state(rows)
-        span = C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS
-        self.expansion = (self.radius - C.DISK_CONTRACTED_RADIUS) / span
-
     def _drive(self) -> None:
         # dead robots never accept a target, so theirs stays 0 (contracted)
         self._radius_target = C.DISK_CONTRACTED_RADIUS + self.target * (
@@ -64,14 +59,16 @@ class DiskSwarm(Swarm):
     def before_physics(self) -> None:
         """Grow or shrink each moving robot by one control period's worth (the shapes and the rods change
         once per control step: per-substep updates cost more Python than the physics itself)."""
-        gap = self._radius_target - self.radius
-        changing = np.flatnonzero(gap != 0.0)
-        if len(changing) == 0:
-            return
         reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
-        self.radius[changing] += np.clip(gap[changing], -reach, reach)
-        shapes = self._shapes
-        set_circle_radii([shapes[r] for r in changing.tolist()], self.radius[changing].tolist())
+        step = np.clip(self._radius_target - self.radius, -reach, reach)
+        changing = np.flatnonzero(step).tolist()
+        if not changing:
+            return
+        self.radius += step
+        # the radius is the expansion state: it changes here only, so expansion is set here, not per read
+        self.expansion = (self.radius - C.DISK_CONTRACTED_RADIUS) / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
+        radius = self.radius.tolist()
+        set_circle_radii([self._shapes[r] for r in changing], [radius[r] for r in changing])
         self._set_magnet_lengths()
 
     def update_magnets(self) -> None:
