@@ -11,7 +11,7 @@ uniformly random actions and times, in the same run:
   between (a quieter state: paddles rest against their stops, so it runs faster than under commands).
 
 ``env / physics`` is the fraction of an env step spent in pymunk; ``1 - env / physics`` is Python overhead.
-Each figure is the median over ``repeats`` blocks.
+Each figure is the median over ``repeats`` blocks; the blocks of all configurations are interleaved.
 """
 
 from __future__ import annotations
@@ -25,61 +25,86 @@ import numpy as np
 REFERENCE_2021 = {9: 130.0, 25: 41.0, 49: 18.6, 100: 7.3}
 
 
+class _Bench:
+    """One configuration's env, its random actions, and the timing hooks (see the module docstring)."""
+
+    def __init__(self, robot_model: str, n_robots: int, steps: int, repeats: int, seed: int = 0):
+        import dpr  # noqa: F401  (registers the ids)
+
+        self.robot_model, self.n_robots, self.steps = robot_model, n_robots, steps
+        self.env = gym.make("dpr/Navigation-v0", n_robots=n_robots, robot_model=robot_model)
+        self.env.reset(seed=seed)
+        self.env.action_space.seed(seed)
+        self.world = self.env.unwrapped.world
+        self.physics_time = 0.0
+        self.plain_step_physics = self.world.step_physics
+        self.world.step_physics = self._timed_step_physics
+        self.actions = [self.env.action_space.sample() for _ in range(steps * (repeats + 1))]
+        self.env_rates, self.physics_rates, self.replay_rates = [], [], []
+        for action in self.actions[:steps]:  # warm-up
+            self.env.step(action)
+
+    def _timed_step_physics(self) -> None:
+        t0 = time.perf_counter()
+        self.plain_step_physics()
+        self.physics_time += time.perf_counter() - t0
+
+    def block(self, r: int) -> None:
+        """Time timed block ``r`` (env steps, the physics inside them, then physics-only replay)."""
+        actions = self.actions[(r + 1) * self.steps : (r + 2) * self.steps]
+        self.physics_time = 0.0
+        t0 = time.perf_counter()
+        for action in actions:
+            self.env.step(action)
+        self.env_rates.append(self.steps / (time.perf_counter() - t0))
+        self.physics_rates.append(self.steps / self.physics_time)
+        t0 = time.perf_counter()
+        for _ in range(self.steps):
+            self.plain_step_physics()
+        self.replay_rates.append(self.steps / (time.perf_counter() - t0))
+
+    def row(self) -> dict:
+        env_rate, physics_rate = float(np.median(self.env_rates)), float(np.median(self.physics_rates))
+        return {
+            "robot_model": self.robot_model,
+            "n_robots": self.n_robots,
+            "substeps": self.world.swarm.substeps,
+            "env_steps_per_s": env_rate,
+            "physics_steps_per_s": physics_rate,
+            "physics_replay_steps_per_s": float(np.median(self.replay_rates)),
+            "env_over_physics": env_rate / physics_rate,
+            "us_per_robot_step": 1e6 / env_rate / self.n_robots,
+        }
+
+
 def bench_env(robot_model: str, n_robots: int, steps: int = 200, repeats: int = 5, seed: int = 0) -> dict:
-    import dpr  # noqa: F401  (registers the ids)
-
-    env = gym.make("dpr/Navigation-v0", n_robots=n_robots, robot_model=robot_model)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    world = env.unwrapped.world
-    physics_time = [0.0]
-    plain_step_physics = world.step_physics
-
-    def timed_step_physics():
-        t0 = time.perf_counter()
-        plain_step_physics()
-        physics_time[0] += time.perf_counter() - t0
-
-    world.step_physics = timed_step_physics
-    actions = [env.action_space.sample() for _ in range(steps * (repeats + 1))]
-    for action in actions[:steps]:  # warm-up
-        env.step(action)
-    env_rates, physics_rates, replay_rates = [], [], []
+    """One configuration on its own."""
+    bench = _Bench(robot_model, n_robots, steps, repeats, seed)
     for r in range(repeats):
-        block = actions[(r + 1) * steps : (r + 2) * steps]
-        physics_time[0] = 0.0
-        t0 = time.perf_counter()
-        for action in block:
-            env.step(action)
-        env_rates.append(steps / (time.perf_counter() - t0))
-        physics_rates.append(steps / physics_time[0])
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            plain_step_physics()
-        replay_rates.append(steps / (time.perf_counter() - t0))
-    env.close()
-    env_rate, physics_rate = float(np.median(env_rates)), float(np.median(physics_rates))
-    return {
-        "robot_model": robot_model,
-        "n_robots": n_robots,
-        "substeps": world.swarm.substeps,
-        "env_steps_per_s": env_rate,
-        "physics_steps_per_s": physics_rate,
-        "physics_replay_steps_per_s": float(np.median(replay_rates)),
-        "env_over_physics": env_rate / physics_rate,
-        "us_per_robot_step": 1e6 / env_rate / n_robots,
-    }
+        bench.block(r)
+    bench.env.close()
+    return bench.row()
 
 
 def run_benchmarks(models=("paddle", "disk"), sizes=(9, 25, 49, 100), steps: int = 200, repeats: int = 5, progress=None):
-    rows = []
+    """Every configuration, with their timed blocks interleaved (repeat r of every configuration, then repeat
+    r + 1, ...), so that a change in the machine's load hits all configurations alike and ratios between
+    them (disk / paddle) are fair. Blocks are sized to take about the same time."""
+    benches = []
     for model in models:
         for n in sizes:
             # fewer steps for the slow big paddle swarms keep the whole run to a few minutes
             k = max(20, int(steps * 9 / n)) if model == "paddle" else steps * 5
-            rows.append(bench_env(model, n, steps=k, repeats=repeats))
-            if progress is not None:
-                progress(rows[-1])
+            benches.append(_Bench(model, n, k, repeats))
+    for r in range(repeats):
+        for bench in benches:
+            bench.block(r)
+    rows = []
+    for bench in benches:
+        bench.env.close()
+        rows.append(bench.row())
+        if progress is not None:
+            progress(rows[-1])
     return rows
 
 

@@ -201,10 +201,10 @@ class ParticleSwarmEnv(gym.Env):
             # robot 0 is the most significant bit
             return ((int(value) >> np.arange(n - 1, -1, -1)) & 1).astype(float)
         if self.action_type == "multibinary" and isinstance(action, np.ndarray) and action.shape == (n,) \
-                and action.dtype.kind in "iub":
-            targets = action.astype(float)  # the common case (a policy's int8/int64 array) in three calls
-            if ((targets == 0.0) | (targets == 1.0)).all():
-                return targets
+                and action.dtype.kind == "i":
+            # the common case, a policy's integer array, in two calls: x & ~1 is 0 only for x in {0, 1}
+            if not np.bitwise_and(action, -2).any():
+                return action.astype(float)
         array = np.asarray(action)
         if array.shape != (n,):
             raise ValueError(f"action must have shape ({n},) for action_type={self.action_type!r}, got {array.shape}")

@@ -21,14 +21,18 @@ def set_motor_rates(handles: tuple[list, ...], *rates: float) -> None:
             set_rate(handle, rate)
 
 
-def set_pin_distances(joints, distances) -> None:
-    for joint, distance in zip(joints, distances):
-        lib.cpPinJointSetDist(joint._constraint, distance)
+def set_pin_distances(handles, distances) -> None:
+    """``handles``: chipmunk handles of PinJoints (``joint._constraint``)."""
+    set_distance = lib.cpPinJointSetDist
+    for handle, distance in zip(handles, distances):
+        set_distance(handle, distance)
 
 
-def set_circle_radii(shapes, radii) -> None:
-    for shape, radius in zip(shapes, radii):
-        lib.cpCircleShapeSetRadius(shape._shape, radius)
+def set_circle_radii(handles, radii) -> None:
+    """``handles``: chipmunk handles of Circle shapes (``shape._shape``)."""
+    set_radius = lib.cpCircleShapeSetRadius
+    for handle, radius in zip(handles, radii):
+        set_radius(handle, radius)
 
 
 def add_rods(space, bodies, pairs, max_force: float) -> list:
