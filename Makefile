@@ -15,9 +15,12 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet -e '.[dev]' -c constraints.txt
 	touch $(STAMP)
 
-# Main job at its small default: the wave policy on all four tasks, metrics table.
+# Main job at its small default: the wave policy on all four tasks (metrics table), then a small demonstration
+# dataset (resumed, not rewritten, when it is already there) and its bit-exact replay check.
 run: $(STAMP)
 	$(BIN)/dpr evaluate --policy wave --env all --seeds 0-2
+	$(BIN)/dpr collect --env dpr/Navigation-v0 --policy wave --episodes 2 --steps 500 --out runs/datasets/nav9-demo --mcap
+	$(BIN)/dpr replay runs/datasets/nav9-demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
