@@ -9,6 +9,7 @@ from gymnasium.envs.registration import register, registry
 from dpr.envs.gate import GateEnv
 from dpr.envs.manipulation import ManipulationEnv
 from dpr.envs.navigation import NavigationEnv
+from dpr.envs.parallel import parallel_env
 from dpr.envs.particle_env import ACTION_TYPES, OBS_TYPES, REWARDS, ParticleSwarmEnv
 from dpr.envs.unresponsive import UnresponsiveEnv
 
@@ -41,4 +42,5 @@ __all__ = [
     "NavigationEnv",
     "ParticleSwarmEnv",
     "UnresponsiveEnv",
+    "parallel_env",
 ]

@@ -1,0 +1,459 @@
+"""One agent per robot: a PettingZoo ``ParallelEnv`` view of the particle-robot tasks, and an SB3 adapter.
+
+``parallel_env(task, **kwargs)`` wraps ONE instance of the task's Gymnasium env (the "super-agent" env of
+:mod:`dpr.envs`, which holds the physics) and splits its ``MultiBinary(N)`` (or ``Box(0, 1, (N,))``) action
+into N agents ``robot_0 .. robot_{N-1}``. Stepping every agent with its entry of a super-agent action gives
+exactly the super-agent env's trajectory.
+
+Conventions (also in :class:`ParticleParallelEnv`'s docstring):
+
+* Actions: ``Discrete(2)`` per agent for ``action_type="multibinary"`` (1 = expand), ``Box(0, 1, (1,))``
+  for ``"continuous"``; ``"discrete"`` (one ``Discrete(2^N)`` choice for the whole swarm) has no per-agent
+  meaning and is refused. Every agent in ``env.agents`` must be given an action at every step.
+* Observations: the shared global state vector (the paper's setup), or with ``local_obs=True`` a
+  fixed-size local vector per robot (see :func:`local_observations` for its layout).
+* Rewards: ``shared_reward=True`` gives every agent the super-agent reward; ``False`` gives each agent
+  ``reward / N``, so that the agents' rewards sum to the team reward.
+* Dead robots (Unresponsive task) stay in ``agents``; their actions are validated and ignored (as the
+  super-agent env ignores them) and ``infos[agent]["dead"]`` is True. The agent set never changes inside
+  an episode, which keeps vectorised learners simple.
+* All agents end together, when the super-agent env terminates (goal reached) or truncates (physics error,
+  or ``max_episode_steps`` reached); ``agents`` is then ``[]`` until the next ``reset``.
+
+``AgentsAsVecEnv(parallel_env)`` (from this module, built on first use so that ``import dpr.envs`` does not
+import Stable-Baselines3 or torch) presents the agents as the N envs of an SB3 ``VecEnv``, so that one
+policy network is shared by every robot::
+
+    from stable_baselines3 import PPO
+    from dpr.envs import parallel_env
+    from dpr.envs.parallel import AgentsAsVecEnv
+
+    venv = AgentsAsVecEnv(parallel_env("navigation", n_robots=4, robot_model="disk"))
+    PPO("MlpPolicy", venv, n_steps=32, batch_size=64).learn(10_000)
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from dpr.envs.particle_env import OBJECT_FEATURES, ROBOT_FEATURES, ParticleSwarmEnv
+from dpr.sim.neighbours import pairs_within
+
+DEFAULT_MAX_EPISODE_STEPS = 2500  # the registered ids' TimeLimit (dpr.envs.MAX_EPISODE_STEPS)
+MAX_NEIGHBOURS = 8  # neighbour slots of a local observation (a robot on the start grid has 8 within magnet range)
+PER_AGENT_ACTION_TYPES = ("multibinary", "continuous")
+# The state vector stores positions / 1000 (dpr.envs.particle_env.LENGTH_SCALE); neighbour search needs units.
+_STATE_TO_UNITS = 1000.0
+
+
+def local_observation_size(max_neighbours: int, has_object: bool) -> int:
+    """Length of one robot's local observation (see :func:`local_observations`)."""
+    return ROBOT_FEATURES + max_neighbours * (ROBOT_FEATURES + 1) + (OBJECT_FEATURES if has_object else 0)
+
+
+def local_observations(
+    state: np.ndarray,
+    n_robots: int,
+    neighbour_range: float,
+    max_neighbours: int = MAX_NEIGHBOURS,
+    has_object: bool = False,
+) -> np.ndarray:
+    """Every robot's local observation, one row each, computed from a global ``state`` vector alone.
+
+    Row layout (float32, ``6 + 7K`` values, ``+ 4`` with an object; K = ``max_neighbours``):
+
+    * ``[0:6]`` the robot's own features, as in the state: x, y (goal frame), vx, vy (all / 1000), angular
+      velocity, expansion;
+    * ``[6 : 6 + 6K]`` K neighbour slots of 6 values: the neighbour's x, y *relative to this robot*
+      (/ 1000), then its vx, vy, angular velocity and expansion as in the state. Neighbours are the robots
+      whose centres lie closer than ``neighbour_range`` (the magnet range: the pairs the magnets link at the
+      next step), nearest first; beyond K only the K nearest are kept. Unused slots are zeros;
+    * ``[6 + 6K : 6 + 7K]`` the mask: 1.0 where the slot holds a neighbour, 0.0 where it is padding;
+    * ``[6 + 7K : 6 + 7K + 4]`` (Manipulation) the object's x, y (goal frame), vx, vy, / 1000.
+    """
+    n, k = n_robots, max_neighbours
+    robots = np.asarray(state[: ROBOT_FEATURES * n], dtype=np.float32).reshape(n, ROBOT_FEATURES)
+    out = np.zeros((n, local_observation_size(k, has_object)), dtype=np.float32)
+    out[:, :ROBOT_FEATURES] = robots
+    if has_object:
+        out[:, -OBJECT_FEATURES:] = state[-OBJECT_FEATURES:]
+
+    positions = robots[:, 0:2].astype(np.float64) * _STATE_TO_UNITS
+    pairs = pairs_within(positions, neighbour_range)
+    if len(pairs) == 0:
+        return out
+    # Each pair gives both robots a neighbour; sort by owner, then by distance, and rank inside each owner.
+    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    delta = positions[other] - positions[owner]
+    distance = np.einsum("ij,ij->i", delta, delta)
+    order = np.lexsort((other, distance, owner))  # ties broken by index, so the layout is deterministic
+    owner, other = owner[order], other[order]
+    counts = np.bincount(owner, minlength=n)
+    rank = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+    keep = rank < k
+    owner, other, rank = owner[keep], other[keep], rank[keep]
+
+    slots = out[:, ROBOT_FEATURES : ROBOT_FEATURES + k * ROBOT_FEATURES].reshape(n, k, ROBOT_FEATURES)
+    slots[owner, rank] = robots[other]
+    slots[owner, rank, 0:2] -= robots[owner, 0:2]
+    mask = out[:, ROBOT_FEATURES + k * ROBOT_FEATURES : ROBOT_FEATURES + k * (ROBOT_FEATURES + 1)]
+    mask[owner, rank] = 1.0
+    return out
+
+
+def _local_observation_space(max_neighbours: int, has_object: bool) -> spaces.Box:
+    size = local_observation_size(max_neighbours, has_object)
+    low = np.full(size, -np.inf, dtype=np.float32)
+    high = np.full(size, np.inf, dtype=np.float32)
+    bounded = [5]  # own expansion
+    bounded += [ROBOT_FEATURES + 6 * slot + 5 for slot in range(max_neighbours)]  # neighbours' expansion
+    bounded += list(range(ROBOT_FEATURES * (1 + max_neighbours), ROBOT_FEATURES + max_neighbours * 7))  # mask
+    low[bounded], high[bounded] = 0.0, 1.0
+    return spaces.Box(low, high, dtype=np.float32)
+
+
+def _check_flag(name: str, value: Any) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _check_count(name: str, value: Any) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+class ParticleParallelEnv(ParallelEnv):
+    """A particle-robot task with one PettingZoo agent per robot, over one super-agent env.
+
+    ## Agents
+    ``robot_0 .. robot_{N-1}``; robot i is row i of the super-agent state. ``agents`` is the full list from
+    ``reset`` until the episode ends, then ``[]``. Dead robots (Unresponsive) stay in ``agents``: their
+    actions must still be valid and are ignored; ``infos[agent]["dead"]`` says which they are.
+
+    ## Action Space (per agent)
+    ``Discrete(2)`` (0 contract, 1 expand) for ``action_type="multibinary"``, ``Box(0, 1, (1,), float32)``
+    (target expansion) for ``"continuous"``. A scalar or a one-element array is accepted. ``step`` raises
+    ``ValueError`` naming the agent for an unknown agent, a missing agent or an invalid value.
+
+    ## Observation Space (per agent)
+    ``local_obs=False`` (default, the paper's setup): the super-agent env's global state vector, ``Box(6N,)``
+    (``+4`` in Manipulation); every agent receives the same read-only array. ``local_obs=True``: the
+    robot's own features, ``max_neighbours`` neighbour slots and their mask (layout in
+    :func:`local_observations`); rows of one read-only array.
+
+    ## Rewards
+    ``shared_reward=True`` (default): every agent receives the super-agent reward. ``False``: each agent
+    receives the super-agent reward divided by N (the team reward split equally; they sum to it).
+
+    ## Episode End
+    All agents terminate together when the super-agent env terminates, and truncate together when it
+    truncates (physics error, ``infos[agent]["physics_error"]``) or after ``max_episode_steps`` steps.
+
+    ## Info
+    Each agent's info is the super-agent info (metrics, ``dead_robots`` after reset) plus ``dead``.
+
+    ## Arguments
+    ``task`` (``"navigation"``, ``"gate"``, ``"unresponsive"``, ``"manipulation"``), ``max_episode_steps``
+    (2500), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, with ``local_obs``),
+    and the super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``, ``reward``,
+    ``render_mode``, task options such as ``n_dead``...). Only ``obs_type="state"`` is supported.
+    ``state()`` returns the global state; ``swarm_env`` is the wrapped super-agent env.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "is_parallelizable": True}
+
+    def __init__(
+        self,
+        task: str = "navigation",
+        *,
+        max_episode_steps: int = DEFAULT_MAX_EPISODE_STEPS,
+        local_obs: bool = False,
+        shared_reward: bool = True,
+        max_neighbours: int = MAX_NEIGHBOURS,
+        **env_kwargs: Any,
+    ):
+        from dpr.envs import TASK_CLASSES  # here, not at module level: dpr.envs imports this module
+
+        if task not in TASK_CLASSES:
+            raise ValueError(f"task must be one of {tuple(TASK_CLASSES)}, got {task!r}")
+        action_type = env_kwargs.get("action_type", "multibinary")
+        if action_type == "discrete":
+            raise ValueError(
+                "action_type='discrete' (one Discrete(2^N) choice for the whole swarm) has no per-agent meaning; "
+                f"use one of {PER_AGENT_ACTION_TYPES} with parallel_env"
+            )
+        obs_type = env_kwargs.get("obs_type", "state")
+        if obs_type != "state":
+            raise ValueError(f"parallel_env supports obs_type='state' only, got {obs_type!r}")
+        self.max_episode_steps = _check_count("max_episode_steps", max_episode_steps)
+        self.local_obs = _check_flag("local_obs", local_obs)
+        self.shared_reward = _check_flag("shared_reward", shared_reward)
+        self.max_neighbours = _check_count("max_neighbours", max_neighbours)
+
+        self._env: ParticleSwarmEnv = TASK_CLASSES[task](**env_kwargs)
+        base = self._env
+        self.task = task
+        self.render_mode = base.render_mode
+        self.metadata = {**self.metadata, "name": f"dpr_{task}_parallel_v0"}
+        self.n_robots = base.n_robots
+        self.possible_agents = [f"robot_{i}" for i in range(self.n_robots)]
+        self.agents: list[str] = []
+        self._index = {agent: i for i, agent in enumerate(self.possible_agents)}
+        self._all_agents = frozenset(self.possible_agents)
+        self._steps = 0
+
+        if self.local_obs:
+            observation_space = _local_observation_space(self.max_neighbours, base.has_object)
+        else:
+            observation_space = base.observation_space
+        if base.action_type == "multibinary":
+            action_space: spaces.Space = spaces.Discrete(2)
+        else:
+            action_space = spaces.Box(0.0, 1.0, (1,), dtype=np.float32)
+        # One object per agent (seeding one agent's space must not seed another's), returned as is every time.
+        self.observation_spaces = {a: copy.deepcopy(observation_space) for a in self.possible_agents}
+        self.action_spaces = {a: copy.deepcopy(action_space) for a in self.possible_agents}
+        self.state_space = copy.deepcopy(base.observation_space)
+
+    # -- PettingZoo API -----------------------------------------------------------------------------------
+    def observation_space(self, agent: str) -> spaces.Space:
+        return self.observation_spaces[self._known(agent)]
+
+    def action_space(self, agent: str) -> spaces.Space:
+        return self.action_spaces[self._known(agent)]
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        state, info = self._env.reset(seed=seed, options=options)
+        self.agents = list(self.possible_agents)
+        self._steps = 0
+        return self._observations(state), self._infos(info)
+
+    def step(self, actions: Mapping[str, Any]):
+        if not self.agents:
+            raise RuntimeError("the episode has ended (or reset() was never called): call reset() before step()")
+        targets = self._targets(actions)
+        state, reward, terminated, truncated, info = self._env.step(targets)
+        self._steps += 1
+        if self._steps >= self.max_episode_steps:
+            truncated = True  # as gymnasium's TimeLimit: truncated even on the step that also terminates
+        agents = self.agents
+        per_agent_reward = float(reward) if self.shared_reward else float(reward) / self.n_robots
+        observations = self._observations(state)
+        rewards = dict.fromkeys(agents, per_agent_reward)
+        terminations = dict.fromkeys(agents, bool(terminated))
+        truncations = dict.fromkeys(agents, bool(truncated))
+        infos = self._infos(info)
+        if terminated or truncated:
+            self.agents = []
+        return observations, rewards, terminations, truncations, infos
+
+    def render(self):
+        return self._env.render()
+
+    def close(self) -> None:
+        self._env.close()
+
+    def state(self) -> np.ndarray:
+        """The global state vector (the super-agent observation), for centralised critics."""
+        if self._env.world is None:
+            raise RuntimeError("call reset() before state()")
+        return self._env._state()
+
+    @property
+    def swarm_env(self) -> ParticleSwarmEnv:
+        """The wrapped super-agent env (its ``world`` holds the physics)."""
+        return self._env
+
+    # -- pieces -------------------------------------------------------------------------------------------
+    def _known(self, agent: str) -> str:
+        if agent not in self._index:
+            raise ValueError(f"unknown agent {agent!r}; agents are robot_0 .. robot_{self.n_robots - 1}")
+        return agent
+
+    def _observations(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        if self.local_obs:
+            rows = local_observations(
+                state, self.n_robots, self._env.swarm_class.magnet_range, self.max_neighbours, self._env.has_object
+            )
+            rows.flags.writeable = False
+            return dict(zip(self.possible_agents, rows))
+        shared = np.array(state, dtype=np.float32)  # a copy: the agents' array outlives the env's next step
+        shared.flags.writeable = False
+        return dict.fromkeys(self.possible_agents, shared)
+
+    def _infos(self, info: dict) -> dict[str, dict]:
+        dead = self._env.world.dead.tolist()
+        return {agent: {**info, "dead": dead[i]} for i, agent in enumerate(self.possible_agents)}
+
+    def _action_text(self) -> str:
+        if self._env.action_type == "multibinary":
+            return "0 or 1 (Discrete(2))"
+        return "a number in [0, 1] (Box(0, 1, (1,)))"
+
+    def _targets(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """The super-agent action from a dict of per-agent actions; ValueError names a wrong agent."""
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions must be a dict {{agent: action}} over env.agents, got {type(actions).__name__}")
+        if actions.keys() != self._all_agents:
+            unknown = [agent for agent in actions if agent not in self._index]
+            if unknown:
+                raise ValueError(
+                    f"actions for unknown agent(s) {unknown[:5]!r}; agents are robot_0 .. robot_{self.n_robots - 1}"
+                )
+            missing = [agent for agent in self.agents if agent not in actions]
+            raise ValueError(f"no action for agent(s) {missing[:5]!r} ({len(missing)} missing): every agent in "
+                             "env.agents needs an action at every step, dead robots included")
+        n = self.n_robots
+        values = [actions[agent] for agent in self.possible_agents]
+        try:
+            array = np.asarray(values)
+        except ValueError:  # ragged (scalars mixed with arrays): the per-agent path sorts it out
+            array = None
+        if array is not None and array.dtype.kind in "biuf" and array.shape in ((n,), (n, 1)):
+            targets = array.reshape(n).astype(np.float64)
+            if self._env.action_type == "multibinary":
+                valid = (targets == 0.0) | (targets == 1.0)
+            else:
+                valid = (targets >= 0.0) & (targets <= 1.0)  # NaN fails both comparisons
+            if valid.all():
+                return self._for_env(targets)
+        return self._for_env(np.array([self._check_one(a, v) for a, v in zip(self.possible_agents, values)]))
+
+    def _check_one(self, agent: str, value: Any) -> float:
+        array = np.asarray(value) if not isinstance(value, (str, bytes)) else None
+        if array is None or array.dtype.kind not in "biuf" or array.size != 1 or array.ndim > 1:
+            raise ValueError(f"action of {agent!r} must be {self._action_text()}, got {value!r}")
+        number = float(array.reshape(()))
+        if self._env.action_type == "multibinary":
+            ok = number in (0.0, 1.0)
+        else:
+            ok = 0.0 <= number <= 1.0
+        if not ok:
+            raise ValueError(f"action of {agent!r} must be {self._action_text()}, got {value!r}")
+        return number
+
+    def _for_env(self, targets: np.ndarray) -> np.ndarray:
+        # int8 takes the super-agent env's fast path for policy-made MultiBinary actions
+        return targets.astype(np.int8) if self._env.action_type == "multibinary" else targets
+
+
+def parallel_env(task: str, **kwargs: Any) -> ParticleParallelEnv:
+    """A PettingZoo ParallelEnv of ``task`` with one agent per robot (see :class:`ParticleParallelEnv`)."""
+    return ParticleParallelEnv(task, **kwargs)
+
+
+# -- Stable-Baselines3 adapter (built on first use: SB3 imports torch) -------------------------------------
+def __getattr__(name: str):
+    if name == "AgentsAsVecEnv":
+        return _agents_as_vec_env_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+@functools.cache
+def _agents_as_vec_env_class() -> type:
+    from stable_baselines3.common.vec_env import VecEnv
+
+    class AgentsAsVecEnv(VecEnv):
+        """The agents of a PettingZoo ParallelEnv as the ``num_envs`` envs of an SB3 ``VecEnv``: one
+        policy with shared parameters acts for every agent (parameter sharing, as in decentralised swarms).
+
+        Needs homogeneous agents (one observation space and one action space for all) that all act at
+        every step and end together, as :class:`ParticleParallelEnv`'s do. Observations are stacked into
+        ``(num_envs, *obs_shape)``; rewards and dones are per agent. When the episode ends, each agent's info
+        holds ``terminal_observation`` and ``TimeLimit.truncated``, and the returned observations are those
+        of the next episode (SB3's auto-reset convention). ``seed(s)`` makes the next reset use seed ``s``.
+        All envs of the vector are one env: ``get_attr``/``env_method`` act on it once and repeat the
+        result per index; ``render()`` returns its frame. Dead robots' transitions are not filtered out
+        (their infos say ``dead``).
+        """
+
+        def __init__(self, parallel_env: ParallelEnv):
+            agents = list(parallel_env.possible_agents)
+            if not agents:
+                raise ValueError("AgentsAsVecEnv needs a ParallelEnv with at least one possible agent")
+            observation_space = parallel_env.observation_space(agents[0])
+            action_space = parallel_env.action_space(agents[0])
+            for agent in agents[1:]:
+                if parallel_env.observation_space(agent) != observation_space or \
+                        parallel_env.action_space(agent) != action_space:
+                    raise ValueError(
+                        f"AgentsAsVecEnv needs one observation space and one action space for all agents; "
+                        f"{agent!r} differs from {agents[0]!r}"
+                    )
+            self.parallel_env = parallel_env
+            self.agents = agents
+            self._actions: np.ndarray | None = None
+            super().__init__(len(agents), observation_space, action_space)
+
+        def reset(self) -> np.ndarray:
+            observations, infos = self.parallel_env.reset(seed=self._seeds[0], options=self._options[0] or None)
+            self._reset_seeds()
+            self._reset_options()
+            self.reset_infos = [infos[agent] for agent in self.agents]
+            return self._stack(observations)
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = np.asarray(actions)
+
+        def step_wait(self):
+            if self._actions is None:
+                raise RuntimeError("step_async() must come before step_wait()")
+            actions, self._actions = self._actions, None
+            if len(actions) != self.num_envs:
+                raise ValueError(f"actions must have one row per agent ({self.num_envs}), got shape {actions.shape}")
+            observations, rewards, terminations, truncations, infos = self.parallel_env.step(
+                dict(zip(self.agents, actions))
+            )
+            if observations.keys() != set(self.agents):
+                raise RuntimeError("AgentsAsVecEnv needs every agent to act at every step and all to end together")
+            stacked = self._stack(observations)
+            reward = np.array([rewards[a] for a in self.agents], dtype=np.float32)
+            done = np.array([terminations[a] or truncations[a] for a in self.agents], dtype=bool)
+            info_list = [dict(infos[a]) for a in self.agents]  # own copies: SB3 adds keys
+            if done.any():
+                if not done.all():
+                    raise RuntimeError("AgentsAsVecEnv needs all agents to end their episode together")
+                for i, agent in enumerate(self.agents):
+                    info_list[i]["terminal_observation"] = stacked[i]
+                    info_list[i]["TimeLimit.truncated"] = bool(truncations[agent] and not terminations[agent])
+                observations, reset_infos = self.parallel_env.reset()
+                self.reset_infos = [reset_infos[agent] for agent in self.agents]
+                stacked = self._stack(observations)
+            return stacked, reward, done, info_list
+
+        def close(self) -> None:
+            self.parallel_env.close()
+
+        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+            value = getattr(self.parallel_env, attr_name)
+            return [value for _ in self._get_indices(indices)]
+
+        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+            setattr(self.parallel_env, attr_name, value)
+
+        def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+            result = getattr(self.parallel_env, method_name)(*method_args, **method_kwargs)
+            return [result for _ in self._get_indices(indices)]
+
+        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+            return [False for _ in self._get_indices(indices)]
+
+        def get_images(self):
+            return [self.parallel_env.render()]
+
+        def _stack(self, observations: dict) -> np.ndarray:
+            return np.stack([observations[agent] for agent in self.agents])
+
+    AgentsAsVecEnv.__module__ = __name__
+    AgentsAsVecEnv.__qualname__ = "AgentsAsVecEnv"  # pickle finds it through the module's __getattr__
+    return AgentsAsVecEnv
