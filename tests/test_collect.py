@@ -31,7 +31,7 @@ COLUMNS = ("observation.state", "action", "next.reward", "next.done", "next.succ
 
 # The subprocess runs: long enough (about 0.3 s of work per episode on 2 cores) that a kill after the first
 # committed episodes lands well before the last of the 12.
-CLI_EPISODES = 12
+CLI_EPISODES = 30  # long enough that Ctrl-C or SIGKILL always lands mid-run, even on a busy machine
 CLI_STEPS = 3000
 CLI_ARGS = [
     "--env", NAV, "--robot-model", "disk", "--n-robots", "9", "--steps", str(CLI_STEPS),
