@@ -1,7 +1,8 @@
 """Dataset recording benchmarks (the figures in BENCHMARKS.md, measured in one run).
 
 * overhead: the same episodes (same seeds) rolled out bare (env + policy, nothing kept) and recorded with
-  ``collect(..., workers=1)`` into a fresh state-only dataset; reports recorded / bare wall time.
+  ``collect`` into a fresh state-only dataset, both in 1 process and both in 2 worker processes (the
+  ``dpr collect`` default); reports recorded / bare wall time.
 * workers: the same episodes recorded with ``--workers 1`` and ``--workers 2``; reports the speed-up.
 * scale (``--scale``): a large state-only dataset (default 200 episodes x 2500 steps, N=9, disk model),
   reporting wall time, peak RSS of the recording process and of a worker, and the size on disk; then opens
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import resource
 import shutil
 import statistics
@@ -55,16 +57,25 @@ def timed_collect(spec: CollectSpec, episodes: int, workers: int) -> float:
         shutil.rmtree(folder)
 
 
-def bench_overhead(spec: CollectSpec, episodes: int, repeats: int) -> dict:
-    bare, recorded = [], []
-    for _ in range(repeats):  # interleaved, so that load changes hit both alike
-        started = time.perf_counter()
+def timed_bare(spec: CollectSpec, episodes: int, workers: int) -> float:
+    """The same episodes rolled out bare, in ``workers`` processes (started the way collect starts them)."""
+    started = time.perf_counter()
+    if workers <= 1:
         for seed in range(episodes):
             bare_rollout(spec, seed)
-        bare.append(time.perf_counter() - started)
-        recorded.append(timed_collect(spec, episodes, workers=1))
+    else:
+        with multiprocessing.get_context("spawn").Pool(workers) as pool:
+            pool.starmap(bare_rollout, [(spec, seed) for seed in range(episodes)])
+    return time.perf_counter() - started
+
+
+def bench_overhead(spec: CollectSpec, episodes: int, repeats: int, workers: int) -> dict:
+    bare, recorded = [], []
+    for _ in range(repeats):  # interleaved, so that load changes hit both alike
+        bare.append(timed_bare(spec, episodes, workers))
+        recorded.append(timed_collect(spec, episodes, workers=workers))
     b, r = statistics.median(bare), statistics.median(recorded)
-    return {"bare_s": b, "recorded_s": r, "recorded_over_bare": r / b}
+    return {"workers": workers, "bare_s": b, "recorded_s": r, "recorded_over_bare": r / b}
 
 
 def bench_workers(spec: CollectSpec, episodes: int, repeats: int) -> dict:
@@ -132,7 +143,8 @@ def main() -> int:
         results = {"scale": bench_scale(spec, args.episodes, args.out, args.workers)}
     else:
         results = {
-            "overhead": bench_overhead(spec, args.episodes, args.repeats),
+            "overhead_1_worker": bench_overhead(spec, args.episodes, args.repeats, workers=1),
+            "overhead_2_workers": bench_overhead(spec, args.episodes, args.repeats, workers=2),
             "workers": bench_workers(spec, args.episodes, args.repeats),
         }
     results["config"] = vars(args) | {"out": str(args.out), "json": str(args.json)}
