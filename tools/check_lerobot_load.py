@@ -13,7 +13,7 @@ in a scratch virtualenv that holds LeRobot beside torch 2.13 (its dataset code d
         draccus==0.10.0 "deepdiff>=7.0.1,<9" "termcolor>=2.4,<4" "einops>=0.8,<0.9" \\
         "imageio[ffmpeg]>=2.34,<3" "gymnasium>=1.1.1,<2" "accelerate>=1.10,<2"
     /tmp/lerobot-venv/bin/pip install -c constraints.txt "pandas>=2.2,<3" "pyarrow>=18,<23" "pillow>=10,<13" \\
-        "pymunk>=7.1,<8" "pygame-ce>=2.5,<3" "mcap>=1.2,<2" pyyaml tqdm pytest
+        "pymunk>=7.1,<8" "pygame-ce>=2.5,<3" "mcap>=1.2,<2" "pettingzoo>=1.25,<1.28" pyyaml tqdm pytest
 
 (pip warns that lerobot wants torch<2.11 and torchvision<0.26: expected. The torchvision wheel on PyPI is a
 CUDA build whose C ops cannot load beside the CPU torch; :func:`make_torchvision_importable` works around that.)
@@ -515,7 +515,7 @@ def _compare_item(item: dict, expected: Expected, episode: int, t: int, *, where
     for key, want in defaults.items():
         if int(item[key]) != want:
             problems.append(f"{where}[{key!r}]={int(item[key])}, expected {want}")
-    if abs(float(item["timestamp"]) - t / expected.fps) > 1e-6:
+    if float(item["timestamp"]) != float(np.float32(t / expected.fps)):  # stored as float32, like LeRobot's
         problems.append(f"{where}['timestamp']={float(item['timestamp'])}, expected {t}/fps")
     for key, ft in expected.features.items():
         want = expected.episodes[episode][key][t]
