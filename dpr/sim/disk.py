@@ -12,6 +12,9 @@ from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
 
 
+_SET_DIFF_LIMIT = 256  # pairs (old + new) above which numpy diffs magnet sets faster than Python sets
+
+
 class DiskSwarm(Swarm):
     """One body and one circle per robot, radius between 27.5 (contracted) and 52.5 (expanded), moving at
     the speed of a full paddle stroke (90 degrees at 5 rad/s, about 0.31 s).
@@ -46,7 +49,7 @@ class DiskSwarm(Swarm):
         self._shapes = shapes
         self.radius = np.full(self.n, C.DISK_CONTRACTED_RADIUS)
         self._radius_target = self.radius.copy()
-        self._magnets: dict[tuple[int, int], pymunk.PinJoint] = {}
+        self._magnets: dict[int, pymunk.PinJoint] = {}  # every rod made so far, by pair key i * N + j
         self._active = np.empty((0, 2), dtype=np.int64)
         self._active_joints: list[pymunk.PinJoint] = []  # the rods of ``_active``, row by row
         # chipmunk handles of the shapes and of the active rods, made on first use (cffi pointers do not pickle)
@@ -77,28 +80,38 @@ class DiskSwarm(Swarm):
         self._set_magnet_lengths()
 
     def update_magnets(self) -> None:
-        """Rods between the centres of every pair closer than the magnet range; kept between steps."""
+        """Rods between the centres of every pair closer than the magnet range; kept between steps.
+
+        A pair ``(i, j)`` is keyed by the integer ``i * N + j``; only the rods of pairs that appeared or went
+        away are added to or removed from the space."""
         pairs = pairs_within(self.position, self.magnet_range)
-        if pairs.tobytes() != self._active.tobytes():  # both (P, 2) int64: equal bytes, equal pairs
-            old = {tuple(p) for p in self._active.tolist()}
-            new = {tuple(p) for p in pairs.tolist()}
-            gone, added = old - new, new - old
-            if gone:
-                self.space.remove(*(self._magnets[key] for key in gone))
-            fresh = []
-            for key in added:
-                joint = self._magnets.get(key)
-                if joint is None:
-                    joint = pymunk.PinJoint(self.bodies[key[0]], self.bodies[key[1]])
-                    joint.max_force = C.MAGNET_MAX_FORCE
-                    self._magnets[key] = joint
-                fresh.append(joint)
-            if fresh:
-                self.space.add(*fresh)
-            self._active = pairs
-            self._active_joints = [self._magnets[key] for key in map(tuple, pairs.tolist())]
-            self._rod_handles = None
-            self._set_magnet_lengths()
+        if pairs.tobytes() == self._active.tobytes():  # both (P, 2) int64: equal bytes, equal pairs
+            return
+        keys = pairs[:, 0] * self.n + pairs[:, 1]
+        old = self._active[:, 0] * self.n + self._active[:, 1]
+        if len(keys) + len(old) > _SET_DIFF_LIMIT:  # large swarms: numpy's sorted set difference
+            gone = old[~np.isin(old, keys, assume_unique=True)].tolist()
+            added = keys[~np.isin(keys, old, assume_unique=True)].tolist()
+        else:  # small ones: Python sets cost less than numpy's fixed overhead
+            old_set, new_set = set(old.tolist()), set(keys.tolist())
+            gone, added = sorted(old_set - new_set), sorted(new_set - old_set)  # sorted: the numpy path's order
+        if gone:
+            self.space.remove(*(self._magnets[key] for key in gone))
+        fresh = []
+        for key in added:
+            joint = self._magnets.get(key)
+            if joint is None:
+                a, b = divmod(key, self.n)
+                joint = pymunk.PinJoint(self.bodies[a], self.bodies[b])
+                joint.max_force = C.MAGNET_MAX_FORCE
+                self._magnets[key] = joint
+            fresh.append(joint)
+        if fresh:
+            self.space.add(*fresh)
+        self._active = pairs
+        self._active_joints = [self._magnets[key] for key in keys.tolist()]
+        self._rod_handles = None
+        self._set_magnet_lengths()
 
     def _set_magnet_lengths(self) -> None:
         """Rod length = sum of the two radii (all rods: cheaper than picking those of the robots that moved)."""
