@@ -1,4 +1,4 @@
-"""`dpr` command line: record datasets, evaluate policies, benchmark the simulator."""
+"""`dpr` command line: record datasets, train and evaluate policies, benchmark the simulator."""
 
 from __future__ import annotations
 
@@ -64,6 +64,32 @@ def _check_env_kwargs(env_ids: list[str], env_kwargs: dict, parser: argparse.Arg
             parser.error(f"{env_id} with {env_kwargs}: {error}")
 
 
+def _evaluate_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser) -> dict:
+    """The env kwargs of ``dpr evaluate``: for a scripted policy the flags (N 9 and the paddle model by
+    default); for a ``.zip`` model its own kwargs, where a flag given explicitly must agree with them."""
+    from dpr.policies.sb3 import is_model_path, model_env_kwargs
+
+    given = {"n_robots": args.n_robots, "robot_model": args.robot_model}
+    flags = {"n_robots": "--n-robots", "robot_model": "--robot-model"}
+    explicit = {**{k: v for k, v in given.items() if v is not None}, **dict(args.env_kwarg or [])}
+    if not is_model_path(args.policy):
+        env_kwargs = {"n_robots": 9, "robot_model": "paddle", **explicit}
+        _check_env_kwargs(env_ids, env_kwargs, parser)
+        return env_kwargs
+    resolved = {}
+    for env_id in env_ids:
+        try:
+            resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit)
+        except ValueError as error:
+            message = str(error)
+            for name, flag in flags.items():  # name the flag the user typed, not the kwarg
+                if given[name] is not None:
+                    message = message.replace(f"; {name}={given[name]!r}", f"; {flag} {given[name]}")
+            parser.error(message)
+    _check_env_kwargs(env_ids, resolved[env_ids[0]], parser)
+    return resolved[env_ids[0]]
+
+
 def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
@@ -72,8 +98,7 @@ def cmd_evaluate(args, parser) -> int:
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
-    env_kwargs = {"n_robots": args.n_robots, "robot_model": args.robot_model, **dict(args.env_kwarg or [])}
-    _check_env_kwargs(env_ids, env_kwargs, parser)
+    env_kwargs = _evaluate_env_kwargs(args, env_ids, parser)
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
             results = evaluate(
@@ -96,6 +121,42 @@ def cmd_evaluate(args, parser) -> int:
         Path(args.json).write_text(json.dumps(payload, indent=2))
         print(f"wrote {args.json}")
     return 0
+
+
+def _hyperparam(text: str) -> tuple[str, object]:
+    """'n_steps=64' -> ('n_steps', 64); values parse as yaml (numbers, lists, 'lin_3e-4' stays a string)."""
+    import yaml
+
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"--hyperparam must look like NAME=VALUE, got {text!r}")
+    try:
+        return key, yaml.safe_load(value)
+    except yaml.YAMLError:
+        raise argparse.ArgumentTypeError(f"--hyperparam {key}: cannot parse {value!r}") from None
+
+
+def cmd_train(args, parser) -> int:
+    from dpr.rl.train import TrainConfig, train
+
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    try:
+        config = TrainConfig(
+            args.algo, args.env, n_robots=args.n_robots, robot_model=args.robot_model, timesteps=args.timesteps,
+            seed=args.seed, n_envs=args.n_envs, preset=args.preset, steps_per_episode=args.steps_per_episode,
+            env_kwargs=dict(args.env_kwarg or []), hyperparams=dict(args.hyperparam or []),
+            eval_episodes=args.eval_episodes,
+        )
+        result = train(config, args.out)
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    print(f"model: {result.model_path}")
+    if result.best_model_path:
+        print(f"best model: {result.best_model_path}")
+    print(f"config: {result.config_path}")
+    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    return 130 if result.interrupted else 0
 
 
 def cmd_bench(args, parser) -> int:
@@ -325,13 +386,14 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run a policy on one or more tasks and print projected displacement, net displacement, "
         "total distance and success (median, min, max, mean ± std over seeds).",
     )
-    ev.add_argument("--policy", default="wave", help="'wave' (the paper's hand-crafted policy) or 'random'")
+    ev.add_argument("--policy", default="wave", help="'wave' (the paper's hand-crafted policy), 'random', or a "
+                    "model file MODEL.zip written by `dpr train` (run with the env kwargs it was trained with)")
     ev.add_argument("--env", nargs="+", default=["dpr/Navigation-v0"],
                     help="env ids (dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0) or 'all'")
     ev.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-4"), help="e.g. 0-4 or 1,3,7 (default 0-4)")
-    ev.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
-    ev.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle",
-                    help="paddle: the paper's robot (default); disk: the fast single-body model")
+    ev.add_argument("--n-robots", type=positive_int, default=None, help="swarm size N (default 9, or a model's N)")
+    ev.add_argument("--robot-model", choices=("paddle", "disk"), default=None,
+                    help="paddle: the paper's robot (default, or a model's); disk: the fast single-body model")
     ev.add_argument("--steps", type=positive_int, default=2500, help="steps per episode (default 2500)")
     ev.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="episodes run in this many processes (default: up to 2)")
@@ -339,6 +401,36 @@ def build_parser() -> argparse.ArgumentParser:
                     help="extra gym.make kwarg, e.g. object_start=paper (repeatable)")
     ev.add_argument("--json", help="also write episodes and summary to this new JSON file")
     ev.set_defaults(func=cmd_evaluate)
+
+    tr = sub.add_parser(
+        "train",
+        help="train PPO, A2C or DQN from scratch with stable-baselines3",
+        description="Train an SB3 model on a task with the hyperparameters of dpr/rl/hyperparams/<algo>.yml "
+        "(the env id's entry, or --preset paper) and save model.zip, best_model.zip, checkpoints and the "
+        "resolved config.yaml into a new run folder. The model carries its env id and kwargs: "
+        "`dpr evaluate --policy RUN/model.zip --env ID` runs it on the env it was trained on.",
+    )
+    tr.add_argument("--algo", required=True, choices=("ppo", "a2c", "dqn"), help="DQN uses Discrete(2^N) actions")
+    tr.add_argument("--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, "
+                    "dpr/Manipulation-v0")
+    tr.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
+    tr.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle",
+                    help="paddle: the paper's robot (default); disk: the fast single-body model")
+    tr.add_argument("--timesteps", type=positive_int, help="env steps to train for (default: the preset's n_timesteps)")
+    tr.add_argument("--seed", type=int, default=0, help="seed of the model and the envs (default 0)")
+    tr.add_argument("--n-envs", type=positive_int, default=1,
+                    help="parallel envs (subprocesses when > 1; default 1)")
+    tr.add_argument("--preset", choices=("default", "paper"), default="default",
+                    help="default: laptop-sized entry of the env id; paper: Shen et al.'s (10M steps)")
+    tr.add_argument("--steps-per-episode", type=positive_int, default=2500, help="episode length (default 2500)")
+    tr.add_argument("--eval-episodes", type=positive_int, default=2,
+                    help="episodes per periodic evaluation (default 2)")
+    tr.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
+                    help="extra gym.make kwarg, e.g. reward=projected (repeatable)")
+    tr.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
+                    help="override a yaml hyperparameter, e.g. n_steps=256 or learning_rate=lin_1e-3 (repeatable)")
+    tr.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
+    tr.set_defaults(func=cmd_train)
 
     co = sub.add_parser(
         "collect",

@@ -1,5 +1,8 @@
 """Policies by name: what ``dpr evaluate`` and ``dpr collect`` accept as ``--policy``.
 
+A name is a scripted policy (:data:`SCRIPTED_POLICIES`) or the path of a model file ending in ``.zip``
+written by ``dpr train`` (loaded by :mod:`dpr.policies.sb3`, which imports stable-baselines3 lazily).
+
 Every policy made here is a callable ``policy(observation) -> action`` with ``reset(seed)``, called once
 per episode right after ``env.reset(seed=seed)``.
 """
@@ -36,15 +39,26 @@ class _Unseeded:
 
 
 def check_policy_name(name: str) -> str:
-    """``name`` if it names a policy, else a ValueError that lists the choices."""
+    """``name`` if it names a policy (a model file must exist and carry its env metadata), else a
+    ValueError that lists the choices."""
+    from dpr.policies.sb3 import is_model_path, read_model_info
+
+    if is_model_path(name):
+        read_model_info(name)
+        return name
     if name not in SCRIPTED_POLICIES:
-        raise ValueError(f"policy must be one of {SCRIPTED_POLICIES}, got {name!r}")
+        raise ValueError(f"policy must be one of {SCRIPTED_POLICIES} or a path to a .zip model, got {name!r}")
     return name
 
 
 def make_policy(name: str, env):
-    """The policy called ``name`` ("wave": the paper's hand-crafted policy; "random") for ``env``."""
+    """The policy called ``name`` ("wave": the paper's hand-crafted policy; "random"; or a ``.zip`` model
+    file, which must have been trained on ``env``'s id and spaces) for ``env``."""
     check_policy_name(name)
+    from dpr.policies.sb3 import is_model_path, load_model_policy
+
+    if is_model_path(name):
+        return load_model_policy(name, env)
     if name == "wave":
         from dpr.policies.wave import WavePolicy
 

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
 from dpr.envs import ENV_IDS
 from dpr.metrics import EpisodeMetrics, episode_metrics, summarize
-from dpr.policies.registry import SCRIPTED_POLICIES, make_policy
+from dpr.policies.registry import check_policy_name, make_policy
+from dpr.policies.sb3 import is_model_path, model_env_kwargs
 
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")
 
@@ -35,11 +35,19 @@ class EpisodeResult:
         return {"env_id": self.env_id, "policy": self.policy, "seed": self.seed, **self.metrics.as_dict()}
 
 
+def policy_env_kwargs(policy: str, env_id: str, env_kwargs: dict | None) -> dict:
+    """The env kwargs ``policy`` runs with on ``env_id``: a model file's own kwargs (trained-with values;
+    a conflicting one in ``env_kwargs`` is a ValueError naming both), else ``env_kwargs`` as given."""
+    if is_model_path(policy):
+        return model_env_kwargs(policy, env_id, env_kwargs)
+    return dict(env_kwargs or {})
+
+
 def run_episode(env_id: str, policy_name: str, seed: int, steps: int = 2500, env_kwargs: dict | None = None) -> EpisodeResult:
-    """One episode of at most ``steps`` steps from ``reset(seed=seed)``."""
+    """One episode of at most ``steps`` steps from ``reset(seed=seed)`` (a model file's env kwargs apply)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
 
-    env = gym.make(env_id, max_episode_steps=steps, **(env_kwargs or {}))
+    env = gym.make(env_id, max_episode_steps=steps, **policy_env_kwargs(policy_name, env_id, env_kwargs))
     policy = make_policy(policy_name, env)
     observation, _ = env.reset(seed=seed)
     policy.reset(seed)
@@ -65,17 +73,14 @@ def evaluate(
     workers: int = 1,
     progress=None,
 ) -> list[EpisodeResult]:
-    """Run ``policy`` on every env id and seed (in ``workers`` processes); results in input order."""
+    """Run ``policy`` (a scripted policy's name or a ``.zip`` model file) on every env id and seed (in
+    ``workers`` processes); results in input order. A model runs with the env kwargs it was trained with."""
     for env_id in env_ids:
         check_env_id(env_id)
-    if policy not in SCRIPTED_POLICIES:
-        if policy.endswith(".zip"):
-            path = Path(policy)
-            if not path.is_file():
-                raise ValueError(f"--policy: no model file at {path}")
-            raise ValueError(f"--policy: loading SB3 models ({path}) is not available yet; use 'wave' or 'random'")
-        raise ValueError(f"policy must be one of {SCRIPTED_POLICIES} or a path to a .zip model, got {policy!r}")
-    jobs = [(env_id, policy, seed, steps, env_kwargs) for env_id in env_ids for seed in seeds]
+    check_policy_name(policy)
+    # Resolved here, once per env id, so that a conflict is reported before any episode runs.
+    kwargs_by_env = {env_id: policy_env_kwargs(policy, env_id, env_kwargs) for env_id in env_ids}
+    jobs = [(env_id, policy, seed, steps, kwargs_by_env[env_id]) for env_id in env_ids for seed in seeds]
     results: list[EpisodeResult | None] = [None] * len(jobs)
     if workers <= 1:
         for i, job in enumerate(jobs):

@@ -1,0 +1,147 @@
+"""Hyperparameters of the SB3 algorithms, read from ``dpr/rl/hyperparams/<algo>.yml`` (rl-zoo style).
+
+Each file has one entry per env id (laptop-sized defaults, preset ``default``) and one ``paper`` entry (Shen et
+al.'s values, any env id). An entry holds ``n_timesteps``, ``policy``, ``learning_rate`` (a number or
+``"lin_X"``: linear from X to 0 over training), ``policy_kwargs`` (``net_arch``, ``activation_fn``),
+``env_kwargs`` (gym.make kwargs the algorithm needs, e.g. DQN's discrete actions) and any other keyword
+argument of the SB3 class. Everything stays plain yaml data until :meth:`Hyperparams.model_kwargs` turns it
+into the objects SB3 wants, so the resolved values can be saved as they were read.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dpr.envs import ENV_IDS
+from dpr.policies.sb3 import ALGOS, algo_class
+
+HYPERPARAMS_DIR = Path(__file__).with_name("hyperparams")
+PRESETS = ("default", "paper")
+PAPER_PRESET = "paper"
+LINEAR_PREFIX = "lin_"
+ACTIVATIONS = ("tanh", "relu")
+POLICY_KWARGS = ("net_arch", "activation_fn")
+# Set by the trainer itself, never by a yaml entry.
+RESERVED = ("env", "seed", "verbose", "tensorboard_log", "device", "_init_setup_model")
+
+
+@dataclass(frozen=True)
+class Hyperparams:
+    """The resolved hyperparameters of one run, as yaml data."""
+
+    algo: str
+    env_id: str
+    preset: str
+    n_timesteps: int
+    policy: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    algo_kwargs: dict[str, Any] = field(default_factory=dict)  # learning_rate, policy_kwargs, n_steps, ...
+
+    def model_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for the SB3 class (schedules and activation classes built here)."""
+        kwargs = dict(self.algo_kwargs)
+        if "learning_rate" in kwargs:
+            kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
+        if "policy_kwargs" in kwargs:
+            policy_kwargs = dict(kwargs["policy_kwargs"])
+            if "activation_fn" in policy_kwargs:
+                import torch
+
+                classes = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
+                policy_kwargs["activation_fn"] = classes[policy_kwargs["activation_fn"]]
+            kwargs["policy_kwargs"] = policy_kwargs
+        return kwargs
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "preset": self.preset, "n_timesteps": self.n_timesteps, "policy": self.policy,
+            "env_kwargs": dict(self.env_kwargs), **self.algo_kwargs,
+        }
+
+
+def learning_rate(value: float | str):
+    """A constant learning rate, or for ``"lin_X"`` a schedule from X (start) to 0 (end)."""
+    if isinstance(value, str):
+        from stable_baselines3.common.utils import LinearSchedule
+
+        return LinearSchedule(_linear_start(value, "learning_rate"), 0.0, 1.0)
+    return float(value)
+
+
+def _linear_start(value: str, where: str) -> float:
+    try:
+        start = float(value.removeprefix(LINEAR_PREFIX)) if value.startswith(LINEAR_PREFIX) else None
+    except ValueError:
+        start = None
+    if start is None or not start > 0:
+        raise ValueError(f"{where}: expected a number > 0 or 'lin_X' with X > 0, got {value!r}")
+    return start
+
+
+def hyperparams_file(algo: str) -> Path:
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+    return HYPERPARAMS_DIR / f"{algo}.yml"
+
+
+def read_entries(algo: str) -> dict[str, dict]:
+    """All entries of ``algo``'s yaml file, by env id or preset name."""
+    path = hyperparams_file(algo)
+    entries = yaml.safe_load(path.read_text())
+    if not isinstance(entries, dict):
+        raise ValueError(f"{path}: expected a mapping of env ids and presets to entries")
+    return entries
+
+
+def load_hyperparams(algo: str, env_id: str, preset: str = "default", overrides: dict[str, Any] | None = None) -> Hyperparams:
+    """The hyperparameters of ``algo`` on ``env_id`` for ``preset`` ("default": the env id's entry; "paper"),
+    with ``overrides`` (yaml-style values, e.g. ``{"n_steps": 64, "learning_rate": "lin_1e-3"}``) applied.
+    Unknown algo, preset, env id or key: a ValueError listing the choices."""
+    path = hyperparams_file(algo)
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
+    if env_id not in ENV_IDS.values():
+        raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
+    entries = read_entries(algo)
+    key = PAPER_PRESET if preset == PAPER_PRESET else env_id
+    if key not in entries:
+        raise ValueError(f"{path} has no entry {key!r}; it has {sorted(entries)}")
+    entry = {**entries[key], **(overrides or {})}
+    return _validate(algo, env_id, preset, entry, f"{path} [{key}]" + (" with overrides" if overrides else ""))
+
+
+def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where: str) -> Hyperparams:
+    entry = dict(entry)
+    n_timesteps = entry.pop("n_timesteps", None)
+    if isinstance(n_timesteps, bool) or not isinstance(n_timesteps, int) or n_timesteps < 1:
+        raise ValueError(f"{where}: n_timesteps must be an integer >= 1, got {n_timesteps!r}")
+    policy = entry.pop("policy", "MlpPolicy")
+    env_kwargs = entry.pop("env_kwargs", None) or {}
+    if not isinstance(env_kwargs, dict):
+        raise ValueError(f"{where}: env_kwargs must be a mapping, got {env_kwargs!r}")
+    allowed = set(inspect.signature(algo_class(algo).__init__).parameters) - {"self", "policy", *RESERVED}
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise ValueError(f"{where}: unknown hyperparameter(s) {unknown} for {algo}; choose from {sorted(allowed)}")
+    if "learning_rate" in entry:
+        value = entry["learning_rate"]
+        if isinstance(value, str):
+            _linear_start(value, f"{where}: learning_rate")
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+            raise ValueError(f"{where}: learning_rate must be a number > 0 or 'lin_X', got {value!r}")
+    policy_kwargs = entry.get("policy_kwargs") or {}
+    if not isinstance(policy_kwargs, dict) or set(policy_kwargs) - set(POLICY_KWARGS):
+        raise ValueError(f"{where}: policy_kwargs may only set {POLICY_KWARGS}, got {policy_kwargs!r}")
+    net_arch = policy_kwargs.get("net_arch", [64])
+    if not isinstance(net_arch, list) or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in net_arch):
+        raise ValueError(f"{where}: policy_kwargs.net_arch must be a list of layer sizes, got {net_arch!r}")
+    if policy_kwargs.get("activation_fn", "tanh") not in ACTIVATIONS:
+        raise ValueError(
+            f"{where}: policy_kwargs.activation_fn must be one of {ACTIVATIONS}, got {policy_kwargs['activation_fn']!r}"
+        )
+    return Hyperparams(algo, env_id, preset, n_timesteps, str(policy), dict(env_kwargs), entry)

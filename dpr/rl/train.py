@@ -1,0 +1,298 @@
+"""Train PPO, A2C or DQN from scratch on a particle-robot task (``dpr train``).
+
+A run writes into a new folder: ``model.zip`` (the final model, with its env id and kwargs inside),
+``config.yaml`` (everything the run resolved: algorithm, env, hyperparameters, seed, budget, versions),
+``best_model.zip`` (best deterministic evaluation, when there was one), ``checkpoints/``, ``eval/``
+(EvalCallback's evaluations.npz) and ``tb/`` (TensorBoard logs, when ``tensorboard`` is installed).
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import importlib.util
+import platform
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import yaml
+
+from dpr.envs import ENV_IDS
+from dpr.policies.sb3 import ALGOS, ModelInfo, algo_class, write_model_info
+from dpr.rl.hyperparams import PRESETS, Hyperparams, load_hyperparams
+from dpr.rl.models import save_model
+
+RUNS_DIR = Path("runs/train")
+EVALUATIONS = 5  # EvalCallback runs about this many times over a run
+CHECKPOINTS = 4
+VERSIONED = ("deep-particle-robot", "stable-baselines3", "torch", "gymnasium", "numpy", "pymunk")
+# Kwargs the trainer owns: they come from TrainConfig fields, not from env_kwargs.
+RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "max_episode_steps")
+
+
+@dataclass
+class TrainConfig:
+    """One training run (the ``dpr train`` flags)."""
+
+    algo: str
+    env_id: str
+    n_robots: int = 9
+    robot_model: str = "paddle"
+    timesteps: int | None = None  # None: the preset's n_timesteps
+    seed: int = 0
+    n_envs: int = 1
+    preset: str = "default"
+    steps_per_episode: int = 2500
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml entry
+    eval_episodes: int = 2
+
+    def __post_init__(self):
+        if self.algo not in ALGOS:
+            raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
+        if self.preset not in PRESETS:
+            raise ValueError(f"preset must be one of {PRESETS}, got {self.preset!r}")
+        if self.env_id not in ENV_IDS.values():
+            raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
+        for name in ("n_robots", "n_envs", "steps_per_episode", "eval_episodes"):
+            _check_positive(name, getattr(self, name))
+        if self.timesteps is not None:
+            _check_positive("timesteps", self.timesteps)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
+        if reserved:
+            raise ValueError(f"env_kwargs must not set {reserved}: use n_robots, robot_model and steps_per_episode")
+
+    def resolve(self) -> tuple[Hyperparams, dict[str, Any], int]:
+        """The hyperparameters, the env kwargs (the algorithm's, then n_robots, robot_model and env_kwargs)
+        and the step budget of this run."""
+        hyper = load_hyperparams(self.algo, self.env_id, self.preset, self.hyperparams)
+        env_kwargs = {**hyper.env_kwargs, "n_robots": self.n_robots, "robot_model": self.robot_model}
+        for name, value in self.env_kwargs.items():
+            if name in hyper.env_kwargs and hyper.env_kwargs[name] != value:
+                raise ValueError(f"{self.algo} needs {name}={hyper.env_kwargs[name]!r} (its yaml env_kwargs); got {value!r}")
+            env_kwargs[name] = value
+        return hyper, env_kwargs, self.timesteps or hyper.n_timesteps
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """Where a run's files are."""
+
+    run_dir: Path
+    model_path: Path
+    config_path: Path
+    best_model_path: Path | None
+    timesteps: int
+    seconds: float
+    interrupted: bool = False
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+
+
+def default_run_dir(config: TrainConfig) -> Path:
+    """``runs/train/<task>-<algo>-seed<S>-<timestamp>``."""
+    task = next(task for task, env_id in ENV_IDS.items() if env_id == config.env_id)
+    return RUNS_DIR / f"{task}-{config.algo}-seed{config.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
+    """A new, empty run folder: ``out`` (refused when it exists and is not an empty folder) or the default."""
+    if out is None:
+        base = default_run_dir(config)
+        path, n = base, 1
+        while path.exists():  # two runs started in the same second
+            n += 1
+            path = base.with_name(f"{base.name}-{n}")
+    else:
+        path = Path(out)
+        if path.exists() and (not path.is_dir() or any(path.iterdir())):
+            raise ValueError(f"--out: {path} already exists and is not an empty folder; runs are never overwritten")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def make_env_fn(env_id: str, env_kwargs: dict[str, Any], steps: int) -> Callable[[], gym.Env]:
+    """A factory of one Monitor-wrapped env (picklable; registers the ids in a fresh process)."""
+
+    def make() -> gym.Env:
+        import dpr  # noqa: F401
+        from stable_baselines3.common.monitor import Monitor
+
+        return Monitor(gym.make(env_id, max_episode_steps=steps, **env_kwargs))
+
+    return make
+
+
+def make_vec_env(env_id: str, env_kwargs: dict[str, Any], steps: int, n_envs: int):
+    """``n_envs`` envs in subprocesses (forked: cheap, and the ids are already registered), or in this
+    process when there is one."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    fns = [make_env_fn(env_id, env_kwargs, steps) for _ in range(n_envs)]
+    if n_envs > 1:
+        return SubprocVecEnv(fns, start_method="fork")
+    return DummyVecEnv(fns)
+
+
+def package_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for name in VERSIONED:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+def tensorboard_available() -> bool:
+    return importlib.util.find_spec("tensorboard") is not None
+
+
+def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: dict, timesteps: int, show_progress: bool):
+    """Progress bar, evaluation (best_model.zip) and checkpoints, each stamping its zips with ``info``."""
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+
+    class ProgressBar(BaseCallback):
+        """A tqdm bar over the step budget, with the mean return of the last episodes."""
+
+        def _on_training_start(self) -> None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=timesteps, desc=f"train {config.algo} {config.env_id}", unit="step",
+                            disable=not show_progress)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.model.num_timesteps - self.bar.n)
+            if self.model.ep_info_buffer and self.n_calls % 100 == 0:
+                mean = sum(e["r"] for e in self.model.ep_info_buffer) / len(self.model.ep_info_buffer)
+                self.bar.set_postfix(ep_rew_mean=f"{mean:.3g}", refresh=False)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    class StampBest(BaseCallback):
+        """Runs right after EvalCallback saved a new best_model.zip: writes the env metadata into it."""
+
+        def _on_step(self) -> bool:
+            write_model_info(run_dir / "best_model.zip", info)
+            return True
+
+    class StampingCheckpoints(CheckpointCallback):
+        """SB3's checkpoints, each made loadable by ``dpr evaluate`` as soon as it is written."""
+
+        def __init__(self, **kwargs):
+            super().__init__(**kwargs)
+            self.stamped: set[Path] = set()
+
+        def _on_step(self) -> bool:
+            result = super()._on_step()
+            for path in Path(self.save_path).glob("*.zip"):
+                if path not in self.stamped:
+                    write_model_info(path, info)
+                    self.stamped.add(path)
+            return result
+
+    per_env = max(timesteps // config.n_envs, 1)  # callbacks count vec-env steps, not env steps
+    eval_env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, 1)
+    eval_env.seed(config.seed + 10_000)  # evaluation starts differ from the training starts
+    evaluation = EvalCallback(
+        eval_env, n_eval_episodes=config.eval_episodes, eval_freq=max(per_env // EVALUATIONS, 1),
+        best_model_save_path=str(run_dir), log_path=str(run_dir / "eval"), deterministic=True, verbose=0,
+        callback_on_new_best=StampBest(),
+    )
+    checkpoints = StampingCheckpoints(save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"),
+                                      name_prefix="model", verbose=0)
+    return CallbackList([ProgressBar(), evaluation, checkpoints]), eval_env
+
+
+def _close_quietly(vec_env) -> None:
+    """Close a VecEnv whose worker processes may already be gone (Ctrl-C reaches them too)."""
+    if vec_env is None:
+        return
+    try:
+        vec_env.close()
+    except (EOFError, BrokenPipeError, ConnectionResetError):
+        pass
+
+
+def build_model(hyper: Hyperparams, env, seed: int, tensorboard_log: str | None):
+    """The SB3 model of ``hyper`` on ``env``."""
+    return algo_class(hyper.algo)(
+        hyper.policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log, **hyper.model_kwargs()
+    )
+
+
+def train(
+    config: TrainConfig,
+    out: str | Path | None = None,
+    *,
+    show_progress: bool = True,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+) -> TrainResult:
+    """Train ``config.algo`` from scratch and save the run into ``out`` (a new or empty folder; default
+    ``runs/train/<task>-<algo>-seed<S>-<timestamp>``). Bad input raises ValueError before anything is written."""
+    hyper, env_kwargs, timesteps = config.resolve()
+    gym.make(config.env_id, **env_kwargs).close()  # a bad env kwarg fails here, before the run folder exists
+    run_dir = prepare_run_dir(out, config)
+    info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
+    tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
+    if tensorboard_log is None:
+        log("dpr train: tensorboard is not installed; no TensorBoard logs (pip install tensorboard to get them)")
+    record = {
+        "algo": config.algo,
+        "env_id": config.env_id,
+        "env_kwargs": env_kwargs,
+        "steps_per_episode": config.steps_per_episode,
+        "hyperparameters": hyper.as_dict(),
+        "hyperparameter_overrides": dict(config.hyperparams),
+        "seed": config.seed,
+        "n_envs": config.n_envs,
+        "timesteps": timesteps,
+        "eval_episodes": config.eval_episodes,
+        "tensorboard_log": tensorboard_log,
+        "versions": package_versions(),
+        "config": asdict(config),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    config_path = run_dir / "config.yaml"
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    log(f"dpr train: {config.algo} on {config.env_id} {env_kwargs}, {timesteps} steps, seed {config.seed} -> {run_dir}")
+
+    env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, config.n_envs)
+    eval_env = None
+    started = time.perf_counter()
+    try:
+        model = build_model(hyper, env, config.seed, tensorboard_log)
+        callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress)
+        with warnings.catch_warnings():
+            # EvalCallback warns when the eval env is a DummyVecEnv and training runs in a SubprocVecEnv: harmless
+            # (both are Monitor-wrapped), and one env does not need a process of its own.
+            warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
+            try:
+                model.learn(total_timesteps=timesteps, callback=callbacks)
+                interrupted = False
+            except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
+                interrupted = True
+                log("dpr train: interrupted; saving the model as it is")
+        model_path = save_model(model, run_dir / "model.zip", info)
+    finally:
+        for vec_env in (env, eval_env):
+            _close_quietly(vec_env)
+    seconds = time.perf_counter() - started
+    record.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=round(seconds, 1),
+                  timesteps_done=int(model.num_timesteps), interrupted=interrupted)
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    best = run_dir / "best_model.zip"
+    log(f"dpr train: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
+    return TrainResult(run_dir, model_path, config_path, best if best.is_file() else None, timesteps, seconds, interrupted)

@@ -1,0 +1,229 @@
+"""SB3 training from scratch (`dpr train`), the hyperparameter yaml, and evaluating the saved models."""
+
+import json
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+from dpr.cli import main
+from dpr.policies.registry import check_policy_name, make_policy
+from dpr.policies.sb3 import METADATA_MEMBER, load_model_policy, read_model_info
+from dpr.rl.evaluation import evaluate, run_episode
+from dpr.rl.hyperparams import load_hyperparams
+from dpr.rl.train import TrainConfig, train
+
+ENV = "dpr/Navigation-v0"
+SMALL_ENV = {"n_robots": 4, "robot_model": "disk"}
+PAPER_NET = [64, 128, 128, 128, 64]
+# Small rollouts and replay starts so that a few hundred steps train every algorithm at least once.
+TINY = {
+    "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2},
+    "a2c": {},
+    "dqn": {"learning_starts": 32, "buffer_size": 1000, "target_update_interval": 50},
+}
+
+
+def run(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as exit_:
+        return exit_.code
+
+
+def tiny_config(algo: str, **kwargs) -> TrainConfig:
+    return TrainConfig(algo, ENV, timesteps=192, steps_per_episode=64, hyperparams=TINY[algo], **SMALL_ENV, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """One tiny run per algorithm, trained through the Python API."""
+    root = tmp_path_factory.mktemp("train")
+    return {algo: train(tiny_config(algo), root / algo, show_progress=False, log=lambda line: None) for algo in TINY}
+
+
+# -- hyperparameters --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("algo", sorted(TINY))
+def test_presets_hold_the_papers_values_and_laptop_defaults(algo):
+    paper = load_hyperparams(algo, "dpr/Gate-v0", "paper")
+    assert paper.n_timesteps == 10_000_000
+    assert paper.algo_kwargs["policy_kwargs"]["net_arch"] == PAPER_NET
+    schedule = paper.model_kwargs()["learning_rate"]
+    assert schedule(1.0) == pytest.approx(0.0075) and schedule(0.5) == pytest.approx(0.00375) and schedule(0.0) == 0.0
+    for env_id in ("dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Unresponsive-v0", "dpr/Manipulation-v0"):
+        default = load_hyperparams(algo, env_id)
+        assert default.n_timesteps <= 1_000_000
+        assert default.algo_kwargs["policy_kwargs"]["net_arch"] == PAPER_NET
+    expected = {"action_type": "discrete"} if algo == "dqn" else {}
+    assert paper.env_kwargs == expected and load_hyperparams(algo, ENV).env_kwargs == expected
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("sac", ENV), "algo must be one of"),
+        (("ppo", ENV, "huge"), "preset must be one of"),
+        (("ppo", "dpr/Nowhere-v0"), "env must be one of"),
+        (("ppo", ENV, "default", {"n_stepz": 64}), "unknown hyperparameter.*n_stepz.*n_steps"),
+        (("ppo", ENV, "default", {"learning_rate": "cos_1e-3"}), "learning_rate"),
+        (("a2c", ENV, "default", {"policy_kwargs": {"net_arch": [64, "wide"]}}), "net_arch"),
+    ],
+)
+def test_bad_hyperparameters_are_refused(args, message):
+    with pytest.raises(ValueError, match=message):
+        load_hyperparams(*args)
+
+
+def test_bad_train_config_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="algo must be one of"):
+        TrainConfig("sac", ENV)
+    with pytest.raises(ValueError, match="preset must be one of"):
+        TrainConfig("ppo", ENV, preset="huge")
+    with pytest.raises(ValueError, match="must not set"):
+        TrainConfig("ppo", ENV, env_kwargs={"n_robots": 4})
+    with pytest.raises(ValueError, match="dqn needs action_type='discrete'"):
+        train(TrainConfig("dqn", ENV, env_kwargs={"action_type": "multibinary"}), tmp_path / "run")
+    assert not (tmp_path / "run").exists()  # refused before the run folder was made
+
+
+# -- the run folder ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("algo", sorted(TINY))
+def test_run_folder_holds_models_and_the_resolved_config(runs, algo):
+    result = runs[algo]
+    names = {p.name for p in result.run_dir.iterdir()}
+    assert {"model.zip", "config.yaml", "best_model.zip", "checkpoints"} <= names
+    assert result.best_model_path == result.run_dir / "best_model.zip"
+    config = yaml.safe_load(result.config_path.read_text())
+    env_kwargs = {**SMALL_ENV, **({"action_type": "discrete"} if algo == "dqn" else {})}
+    assert config["algo"] == algo and config["env_id"] == ENV and config["env_kwargs"] == env_kwargs
+    assert config["seed"] == 0 and config["n_envs"] == 1 and config["timesteps"] == 192
+    assert config["timesteps_done"] >= 192 and config["steps_per_episode"] == 64
+    assert config["hyperparameters"]["policy_kwargs"]["net_arch"] == PAPER_NET
+    assert config["versions"]["stable-baselines3"].startswith("2.")
+    # Every model file written by the run carries its env, so each one can be evaluated as it is.
+    for path in [result.model_path, result.best_model_path, *result.run_dir.glob("checkpoints/*.zip")]:
+        info = read_model_info(path)
+        assert (info.algo, info.env_id, info.env_kwargs, info.max_episode_steps) == (algo, ENV, env_kwargs, 64)
+
+
+def test_trained_network_has_the_configured_layers(runs):
+    policy = load_model_policy(runs["ppo"].model_path, gym.make(ENV, **SMALL_ENV))
+    layers = [m.out_features for m in policy.model.policy.mlp_extractor.policy_net if hasattr(m, "out_features")]
+    assert layers == PAPER_NET
+
+
+# -- evaluating saved models ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("algo", sorted(TINY))
+def test_evaluate_runs_a_model_with_its_own_env_kwargs(runs, algo):
+    path = str(runs[algo].model_path)
+    (result,) = evaluate([ENV], path, seeds=[0], steps=64)
+    assert result.policy == path and 2 <= len(result.trajectory) <= 65
+    # The same episode by hand: the model's kwargs, its deterministic actions.
+    env = gym.make(ENV, max_episode_steps=64, **read_model_info(path).env_kwargs)
+    policy = make_policy(path, env)
+    observation, _ = env.reset(seed=0)
+    policy.reset(0)
+    positions = [env.unwrapped._agent_position()]
+    done = False
+    while not done:
+        observation, _, terminated, truncated, _ = env.step(policy(observation))
+        positions.append(env.unwrapped._agent_position())
+        done = terminated or truncated
+    np.testing.assert_array_equal(result.trajectory, np.array(positions))
+
+
+@pytest.mark.parametrize("algo", sorted(TINY))
+def test_predict_is_deterministic(runs, algo):
+    path = runs[algo].model_path
+    env = gym.make(ENV, **read_model_info(path).env_kwargs)
+    observation, _ = env.reset(seed=3)
+    first, second = load_model_policy(path, env), load_model_policy(path, env)
+    actions = [first(observation), first(observation), second(observation)]
+    for action in actions[1:]:
+        np.testing.assert_array_equal(action, actions[0])
+    assert env.action_space.contains(np.asarray(actions[0]).reshape(env.action_space.shape).astype(env.action_space.dtype))
+
+
+def test_cli_trains_in_subprocess_envs_and_evaluates(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "--algo", "ppo", "--env", ENV, "--robot-model", "disk", "--n-robots", "4", "--timesteps", "128",
+            "--n-envs", "2", "--steps-per-episode", "64", "--seed", "7", "--hyperparam", "n_steps=32",
+            "--hyperparam", "batch_size=32", "--out", str(out)]
+    assert run(argv) == 0
+    assert f"model: {out / 'model.zip'}" in capsys.readouterr().out
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    assert config["n_envs"] == 2 and config["seed"] == 7 and config["hyperparameters"]["n_steps"] == 32
+    report = tmp_path / "eval.json"
+    argv = ["evaluate", "--policy", str(out / "model.zip"), "--env", ENV, "--seeds", "0", "--steps", "32",
+            "--workers", "1", "--json", str(report)]
+    assert run(argv) == 0
+    payload = json.loads(report.read_text())
+    assert payload["env_kwargs"] == SMALL_ENV and payload["episodes"][0]["steps"] <= 32
+
+
+# -- bad models and mismatches ----------------------------------------------------------------------------------
+def test_train_refuses_an_existing_run_folder(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("earlier run")
+    with pytest.raises(ValueError, match="already exists"):
+        train(tiny_config("ppo"), out)
+    assert run(["train", "--algo", "ppo", "--env", ENV, "--out", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    assert run(["train", "--algo", "sac", "--env", ENV]) == 2
+    assert "invalid choice: 'sac'" in capsys.readouterr().err
+
+
+def test_missing_corrupt_and_foreign_zips_are_refused(tmp_path, runs):
+    env = gym.make(ENV, **SMALL_ENV)
+    with pytest.raises(ValueError, match="no model file at .*missing.zip"):
+        make_policy(str(tmp_path / "missing.zip"), env)
+    corrupt = tmp_path / "corrupt.zip"
+    corrupt.write_bytes(b"not a zip at all")
+    with pytest.raises(ValueError, match="corrupt.zip is not a readable .zip"):
+        evaluate([ENV], str(corrupt), seeds=[0], steps=8)
+    # A plain SB3 save (no dpr_env.json): the env it needs is unknown.
+    plain = tmp_path / "plain.zip"
+    with zipfile.ZipFile(runs["a2c"].model_path) as source, zipfile.ZipFile(plain, "w") as target:
+        for name in source.namelist():
+            if name != METADATA_MEMBER:
+                target.writestr(name, source.read(name))
+    with pytest.raises(ValueError, match=f"plain.zip is an SB3 model without {METADATA_MEMBER}"):
+        check_policy_name(str(plain))
+    assert check_policy_name(str(runs["a2c"].model_path)) == str(runs["a2c"].model_path)
+
+
+def test_model_for_another_swarm_or_task_is_refused(runs, capsys):
+    path = str(runs["ppo"].model_path)
+    with pytest.raises(ValueError, match=r"trained with n_robots=4; n_robots=9 makes a different observation"):
+        evaluate([ENV], path, seeds=[0], steps=8, env_kwargs={"n_robots": 9})
+    with pytest.raises(ValueError, match=r"observation space .*\(24,\).*\(54,\).*n_robots=4 \(the env has n_robots=9\)"):
+        make_policy(path, gym.make(ENV, robot_model="disk", n_robots=9))
+    with pytest.raises(ValueError, match="action space Discrete\\(16\\) vs the env's MultiBinary"):
+        make_policy(str(runs["dqn"].model_path), gym.make(ENV, **SMALL_ENV))
+    with pytest.raises(ValueError, match="trained on dpr/Navigation-v0; it cannot be run on dpr/Gate-v0"):
+        run_episode("dpr/Gate-v0", path, seed=0, steps=8)
+    assert run(["evaluate", "--policy", path, "--n-robots", "9", "--seeds", "0", "--workers", "1"]) == 2
+    assert "trained with n_robots=4; --n-robots 9 makes a different observation" in capsys.readouterr().err
+
+
+def test_saved_model_loads_for_more_training(runs, tmp_path):
+    """The fine-tuning path: load with schedules and a VecEnv, learn on, save with the same metadata."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from dpr.rl.models import load_model, save_model
+
+    info = read_model_info(runs["a2c"].model_path)
+    vec_env = DummyVecEnv([lambda: gym.make(ENV, max_episode_steps=64, **info.env_kwargs)])
+    model, loaded = load_model(runs["a2c"].model_path, vec_env, for_training=True)
+    assert loaded == info and model.lr_schedule(1.0) == pytest.approx(7.0e-4)
+    before = model.num_timesteps
+    model.learn(total_timesteps=16, reset_num_timesteps=False)
+    assert model.num_timesteps > before
+    path = save_model(model, tmp_path / "more.zip", info)
+    assert read_model_info(path) == info
+    with pytest.raises(ValueError, match="action space Discrete\\(16\\) vs the env's MultiBinary\\(4\\)"):
+        load_model(runs["dqn"].model_path, vec_env, for_training=True)
