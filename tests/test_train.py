@@ -227,3 +227,34 @@ def test_saved_model_loads_for_more_training(runs, tmp_path):
     assert read_model_info(path) == info
     with pytest.raises(ValueError, match="action space Discrete\\(16\\) vs the env's MultiBinary\\(4\\)"):
         load_model(runs["dqn"].model_path, vec_env, for_training=True)
+
+
+# -- saved models in the other commands ---------------------------------------------------------------------------
+def test_collect_records_a_model_with_its_env_kwargs(runs, tmp_path):
+    from dpr.datasets.collect import CollectSpec, collect
+    from dpr.datasets.lerobot import LeRobotReader
+
+    model = str(runs["ppo"].model_path)
+    spec = CollectSpec(ENV, policy=model, steps=20, **SMALL_ENV)
+    summary = collect(tmp_path / "ds", spec, episodes=2, workers=1)
+    assert summary.episodes_added == 2
+    reader = LeRobotReader(tmp_path / "ds")
+    assert reader.episodes[0]["policy"] == model
+    assert reader.episode(0)["action"].shape == (20, 4)
+    with pytest.raises(ValueError, match="n_robots=4"):  # the model's N, named before any work
+        CollectSpec(ENV, policy=model, steps=20, n_robots=9, robot_model="disk")
+    with pytest.raises(ValueError, match="cannot be run on dpr/Gate-v0"):
+        CollectSpec("dpr/Gate-v0", policy=model, steps=20, **SMALL_ENV)
+
+
+def test_view_rolls_out_a_model_beside_the_wave_policy(runs, tmp_path, capsys):
+    model = str(runs["a2c"].model_path)
+    out = tmp_path / "view.rrd"
+    argv = ["view", "--env", ENV, "--policies", f"wave,{model}", "--seed", "0", "--n-robots", "4",
+            "--robot-model", "disk", "--steps", "20", "--save", str(out)]
+    assert run(argv) == 0, capsys.readouterr().err
+    assert out.is_file() and out.stat().st_size > 0
+    bad = ["view", "--env", ENV, "--policies", model, "--seed", "0", "--steps", "20", "--save", str(tmp_path / "x.rrd")]
+    assert run(bad) == 2  # the CLI's default N=9 is not the model's
+    assert "n_robots=4" in capsys.readouterr().err
+    assert not (tmp_path / "x.rrd").exists()

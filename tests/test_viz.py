@@ -204,7 +204,7 @@ def no_viewer(monkeypatch):
         (["{ds}/mcap/seed-000000.mcap", "--episode", "0"], "an MCAP file holds one episode"),
         (["{ds}", "--policies", "wave"], "--policies rolls policies out with --env"),
         (["--env", "dpr/Navigation-v0", "--policies", "wave,expert"], "policy must be one of"),
-        (["--env", "dpr/Navigation-v0", "--policies", "models/ppo.zip"], "not supported yet"),
+        (["--env", "dpr/Navigation-v0", "--policies", "models/ppo.zip"], "models/ppo.zip"),
         (["--env", "dpr/Navigation-v0", "--policies", "wave,wave"], "lists a policy twice"),
         (["--env", "dpr/Navigation-v0", "--env-kwarg", "bogus=1"], "unexpected keyword argument 'bogus'"),
         (["--env", "dpr/Navigation-v0", "--env-kwarg", "n_robots=3"], "--env-kwarg must not set ['n_robots']"),

@@ -59,6 +59,11 @@ class CollectSpec:
         reserved = {"n_robots", "robot_model", "render_mode", "render_size", "max_episode_steps"} & set(self.env_kwargs)
         if reserved:
             raise ValueError(f"env_kwargs must not set {sorted(reserved)}: they are CollectSpec fields")
+        if self.policy.endswith(".zip"):  # a model records on the env it was trained on, with the same kwargs
+            from dpr.policies.sb3 import model_env_kwargs
+
+            model_env_kwargs(self.policy, self.env_id,
+                             {"n_robots": self.n_robots, "robot_model": self.robot_model, **self.env_kwargs})
 
     def make_kwargs(self) -> dict:
         """The ``gym.make`` kwargs that reproduce an episode (stored with every episode)."""

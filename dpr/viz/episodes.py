@@ -275,14 +275,15 @@ def episode_from_dataset(reader, index: int, name: str | None = None) -> Episode
 
 # -- live rollouts ----------------------------------------------------------------------------------------------
 def check_view_policy(name: str) -> str:
-    """``name`` if ``dpr view`` can roll it out; :class:`ViewError` otherwise (SB3 ``.zip`` models are not
-    supported yet, unknown names list the choices)."""
+    """``name`` if ``dpr view`` can roll it out (a scripted policy, or a model file written by ``dpr train``);
+    :class:`ViewError` otherwise: unknown names list the choices, unreadable model files are named."""
     from dpr.policies.registry import check_policy_name
+    from dpr.policies.sb3 import read_model_info
 
-    if name.endswith(SB3_SUFFIX):
-        raise ViewError(f"--policies: {name}: SB3 .zip models are not supported yet by dpr view; "
-                        "use a scripted policy (wave, random)")
     try:
+        if name.endswith(SB3_SUFFIX):
+            read_model_info(name)
+            return name
         return check_policy_name(name)
     except ValueError as error:
         raise ViewError(f"--policies: {error}") from error
@@ -309,8 +310,15 @@ def rollout_episode(
     reserved = sorted({"n_robots", "robot_model", "max_episode_steps", *_RENDER_KWARGS} & set(env_kwargs or {}))
     if reserved:
         raise ViewError(f"--env-kwarg must not set {reserved}: use --n-robots, --robot-model and --steps")
-    kwargs = {"n_robots": n_robots, "robot_model": robot_model, **dict(env_kwargs or {}), "max_episode_steps": steps}
-    env = _make_env(env_id, kwargs, "--env")
+    kwargs = {"n_robots": n_robots, "robot_model": robot_model, **dict(env_kwargs or {})}
+    if policy.endswith(SB3_SUFFIX):  # a model runs with the env kwargs it was trained with
+        from dpr.policies.sb3 import model_env_kwargs
+
+        try:
+            kwargs = model_env_kwargs(policy, env_id, kwargs)
+        except ValueError as error:
+            raise ViewError(f"--policies: {error}") from error
+    env = _make_env(env_id, {**kwargs, "max_episode_steps": steps}, "--env")
     try:
         observation, _ = env.reset(seed=seed)
         agent = make_policy(policy, env)
