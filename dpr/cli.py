@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 ALL_ENVS = "all"
+ROBOT_MODEL_NAMES = ("paddle", "disk")
 
 
 def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
@@ -376,6 +377,21 @@ def cmd_view(args, parser) -> int:
     return 0
 
 
+def _swarm_arguments(parser: argparse.ArgumentParser, *, model_default: bool = False) -> None:
+    """--n-robots and --robot-model. With ``model_default`` they default to None: a saved model's own values
+    apply, else 9 and paddle."""
+    parser.add_argument("--n-robots", type=positive_int, default=None if model_default else 9,
+                        help="swarm size N (default 9" + (", or a model's N)" if model_default else ")"))
+    parser.add_argument("--robot-model", choices=ROBOT_MODEL_NAMES, default=None if model_default else "paddle",
+                        help="paddle: the paper's robot (default" + (", or a model's" if model_default else "")
+                        + "); disk: the fast single-body model")
+
+
+def _env_kwarg_argument(parser: argparse.ArgumentParser, example: str) -> None:
+    parser.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
+                        help=f"extra gym.make kwarg, e.g. {example} (repeatable)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dpr", description="Deep Particle Robot: particle-robot swarms for robot learning.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -391,14 +407,11 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--env", nargs="+", default=["dpr/Navigation-v0"],
                     help="env ids (dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0) or 'all'")
     ev.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-4"), help="e.g. 0-4 or 1,3,7 (default 0-4)")
-    ev.add_argument("--n-robots", type=positive_int, default=None, help="swarm size N (default 9, or a model's N)")
-    ev.add_argument("--robot-model", choices=("paddle", "disk"), default=None,
-                    help="paddle: the paper's robot (default, or a model's); disk: the fast single-body model")
+    _swarm_arguments(ev, model_default=True)
     ev.add_argument("--steps", type=positive_int, default=2500, help="steps per episode (default 2500)")
     ev.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="episodes run in this many processes (default: up to 2)")
-    ev.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
-                    help="extra gym.make kwarg, e.g. object_start=paper (repeatable)")
+    _env_kwarg_argument(ev, "object_start=paper")
     ev.add_argument("--json", help="also write episodes and summary to this new JSON file")
     ev.set_defaults(func=cmd_evaluate)
 
@@ -413,9 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--algo", required=True, choices=("ppo", "a2c", "dqn"), help="DQN uses Discrete(2^N) actions")
     tr.add_argument("--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, "
                     "dpr/Manipulation-v0")
-    tr.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
-    tr.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle",
-                    help="paddle: the paper's robot (default); disk: the fast single-body model")
+    _swarm_arguments(tr)
     tr.add_argument("--timesteps", type=positive_int, help="env steps to train for (default: the preset's n_timesteps)")
     tr.add_argument("--seed", type=int, default=0, help="seed of the model and the envs (default 0)")
     tr.add_argument("--n-envs", type=positive_int, default=1,
@@ -425,8 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--steps-per-episode", type=positive_int, default=2500, help="episode length (default 2500)")
     tr.add_argument("--eval-episodes", type=positive_int, default=2,
                     help="episodes per periodic evaluation (default 2)")
-    tr.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
-                    help="extra gym.make kwarg, e.g. reward=projected (repeatable)")
+    _env_kwarg_argument(tr, "reward=projected")
     tr.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
                     help="override a yaml hyperparameter, e.g. n_steps=256 or learning_rate=lin_1e-3 (repeatable)")
     tr.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
@@ -445,16 +455,14 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--episodes", type=positive_int, default=10, help="number of episodes (seeds) to hold (default 10)")
     co.add_argument("--out", required=True, help="dataset folder (created, or resumed if it holds the same dataset)")
     co.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    co.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
-    co.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle", help="robot model (default paddle)")
+    _swarm_arguments(co)
     co.add_argument("--steps", type=positive_int, default=2500, help="max steps per episode (default 2500)")
     co.add_argument("--pixels", action="store_true", help="also record render() frames as observation.image (PNG)")
     co.add_argument("--image-size", type=positive_int, default=96, help="frame size for --pixels (default 96)")
     co.add_argument("--mcap", action="store_true", help="also write one MCAP log per episode into OUT/mcap/")
     co.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="rollout processes (default: up to 2)")
-    co.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
-                    help="extra gym.make kwarg, e.g. object_type=box (repeatable)")
+    _env_kwarg_argument(co, "object_type=box")
     co.add_argument("--json", help="also write the summary to this new JSON file")
     co.set_defaults(func=cmd_collect)
 
@@ -474,7 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Time env.step with random actions against the pymunk part of the same steps "
         "(see dpr.bench); prints a markdown table for BENCHMARKS.md.",
     )
-    be.add_argument("--models", nargs="+", choices=("paddle", "disk"), default=["paddle", "disk"])
+    be.add_argument("--models", nargs="+", choices=ROBOT_MODEL_NAMES, default=list(ROBOT_MODEL_NAMES))
     be.add_argument("--sizes", nargs="+", type=positive_int, default=[9, 25, 49, 100])
     be.add_argument("--steps", type=positive_int, default=200, help="env steps per timed block at N=9 (default 200)")
     be.add_argument("--repeats", type=positive_int, default=5, help="timed blocks; medians are reported (default 5)")
@@ -497,11 +505,9 @@ def build_parser() -> argparse.ArgumentParser:
     vi.add_argument("--policies", type=_policy_names, help="comma-separated policies for --env (default wave), "
                     "e.g. wave,random")
     vi.add_argument("--seed", type=int, default=0, help="reset seed of every rollout (default 0)")
-    vi.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N for --env (default 9)")
-    vi.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle", help="robot model for --env")
+    _swarm_arguments(vi)
     vi.add_argument("--steps", type=positive_int, default=2500, help="max steps per rollout (default 2500)")
-    vi.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
-                    help="extra gym.make kwarg for --env, e.g. object_type=box (repeatable)")
+    _env_kwarg_argument(vi, "object_type=box")
     vi.add_argument("--save", metavar="OUT.rrd", help="write a new .rrd file instead of starting a viewer")
     vi.add_argument("--serve", action="store_true", help="serve over gRPC (connect with `rerun URL`) until Ctrl-C")
     vi.set_defaults(func=cmd_view)
