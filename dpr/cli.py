@@ -99,6 +99,9 @@ def cmd_evaluate(args, parser) -> int:
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
+    _check_output(args.rerun, parser, "--rerun")
+    if args.rerun and not args.rerun.endswith(".rrd"):
+        parser.error(f"--rerun: {args.rerun} must end in .rrd")
     env_kwargs = _evaluate_env_kwargs(args, env_ids, parser)
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
@@ -121,7 +124,29 @@ def cmd_evaluate(args, parser) -> int:
         }
         Path(args.json).write_text(json.dumps(payload, indent=2))
         print(f"wrote {args.json}")
+    if args.rerun:
+        _log_evaluation_to_rerun(args, env_ids, env_kwargs)
     return 0
+
+
+def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None:
+    """Replay the evaluated episodes (the simulator is deterministic, so they are the same episodes) with
+    every robot's state recorded, and save them side by side in a new .rrd file."""
+    from tqdm import tqdm
+
+    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.rerun_log import save_rrd
+
+    swarm = {key: env_kwargs[key] for key in ("n_robots", "robot_model") if key in env_kwargs}
+    extra = {k: v for k, v in env_kwargs.items() if k not in swarm}
+    episodes = []
+    for env_id in tqdm(env_ids, desc="log to rerun", unit="env"):
+        for seed in args.seeds:
+            task = env_id.split("/")[-1].removesuffix("-v0").lower()
+            episodes.append(rollout_episode(env_id, args.policy, seed, steps=args.steps, env_kwargs=extra,
+                                            name=f"{task}_seed{seed}", **swarm))
+    save_rrd(episodes, args.rerun, title=f"dpr evaluate {args.policy}")
+    print(f"wrote {args.rerun}")
 
 
 def _hyperparam(text: str) -> tuple[str, object]:
@@ -413,6 +438,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="episodes run in this many processes (default: up to 2)")
     _env_kwarg_argument(ev, "object_start=paper")
     ev.add_argument("--json", help="also write episodes and summary to this new JSON file")
+    ev.add_argument("--rerun", metavar="OUT.rrd",
+                    help="also save every evaluated episode (replayed with full state) to this new rerun file")
     ev.set_defaults(func=cmd_evaluate)
 
     tr = sub.add_parser(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 
 import numpy as np
@@ -251,3 +252,29 @@ def test_dataset_without_dpr_metadata_is_refused(dataset):
     del reader.episodes[0]["env_id"]  # as in a dataset recorded by another tool
     with pytest.raises(dpr.viz.ViewError, match="not recorded by dpr collect"):
         episode_from_dataset(reader, 0)
+
+
+# -- dpr evaluate --rerun -----------------------------------------------------------------------------------------
+def test_evaluate_saves_every_episode_to_rerun(tmp_path, capsys):
+    out = tmp_path / "eval.rrd"
+    argv = ["evaluate", "--env", "dpr/Navigation-v0", "dpr/Gate-v0", "--seeds", "0-1", "--robot-model", "disk",
+            "--n-robots", "4", "--steps", str(STEPS), "--workers", "1", "--json", str(tmp_path / "eval.json"),
+            "--rerun", str(out)]
+    assert run(argv) == 0, capsys.readouterr().err
+    entities, origins = read_rrd(out)
+    names = ["/navigation_seed0", "/navigation_seed1", "/gate_seed0", "/gate_seed1"]
+    assert set(names) <= set(origins)
+    episodes = {e["env_id"] + str(e["seed"]): e for e in json.loads((tmp_path / "eval.json").read_text())["episodes"]}
+    for name, env_id in zip(names, ["dpr/Navigation-v0"] * 2 + ["dpr/Gate-v0"] * 2):
+        seed = name[-1]
+        assert_timelines(entities[f"{name}/scene/robots"], 0, STEPS)
+        logged = entities[f"{name}/metrics/projected_displacement"]["Scalars:scalars"][-1][0]
+        assert logged == pytest.approx(episodes[env_id + seed]["projected_displacement"], rel=1e-9, abs=1e-12)
+
+
+def test_evaluate_refuses_an_existing_rerun_file(tmp_path, capsys):
+    out = tmp_path / "eval.rrd"
+    out.write_bytes(b"earlier")
+    assert run(["evaluate", "--seeds", "0", "--steps", "5", "--rerun", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert out.read_bytes() == b"earlier"
