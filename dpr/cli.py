@@ -240,6 +240,13 @@ def cmd_collect(args, parser) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         parser.error(f"--out: {out} exists and is not a folder")
+    if args.address and args.backend != "ray":
+        parser.error("--address is the Ray cluster for --backend ray")
+    if args.backend == "ray":
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            parser.error("--backend ray needs Ray: pip install -e '.[distributed]'")
     bar = tqdm(total=args.episodes, desc=f"collect {spec.policy} {spec.env_id}", unit="episode")
     frames = [0]
     started = [None]
@@ -255,7 +262,7 @@ def cmd_collect(args, parser) -> int:
 
     try:
         summary = collect(out, spec, episodes=args.episodes, seed=args.seed, workers=args.workers, mcap=args.mcap,
-                          progress=progress)
+                          progress=progress, backend=args.backend, address=args.address)
     except DatasetError as error:
         bar.close()
         print(f"dpr collect: error: {error}", file=sys.stderr)
@@ -490,6 +497,9 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="rollout processes (default: up to 2)")
     _env_kwarg_argument(co, "object_type=box")
+    co.add_argument("--backend", choices=("processes", "ray"), default="processes",
+                    help="run rollouts in local worker processes (default) or as Ray tasks (pip install -e '.[distributed]')")
+    co.add_argument("--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)")
     co.add_argument("--json", help="also write the summary to this new JSON file")
     co.set_defaults(func=cmd_collect)
 

@@ -1,7 +1,8 @@
 """Record policy rollouts as a LeRobot v3.0 dataset (and optionally one MCAP log per episode).
 
 ``collect`` rolls out a policy on one task for ``episodes`` seeds (``seed``, ``seed + 1``, ...), in worker
-processes, and the main process appends each finished episode to the dataset in seed order. Frames follow
+processes or as Ray tasks (``backend="ray"``, local or on a cluster), and the main process appends each
+finished episode to the dataset in seed order: one valid dataset whatever ran the rollouts. Frames follow
 LeRobot's convention: frame ``t`` holds the observation the policy saw, the action it took, and the reward,
 done and success flags that action produced (``next.*``); an episode of ``T`` steps has ``T`` frames.
 
@@ -284,7 +285,43 @@ def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
     return rollout(*job)
 
 
-def _results(jobs: list, workers: int) -> Iterator[EpisodeRecord]:
+BACKENDS = ("processes", "ray")
+
+
+def _ray_results(jobs: list, workers: int, address: str | None) -> Iterator[EpisodeRecord]:
+    """The rollouts as Ray tasks, yielded in job order, with at most ``2 * workers`` in flight (memory stays
+    bounded). Starts a local Ray cluster of ``workers`` CPUs unless ``address`` names a running one; on a
+    multi-node cluster, MCAP paths must lie on a filesystem every node shares."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("--backend ray needs Ray: pip install -e '.[distributed]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=address, num_cpus=None if address else workers, include_dashboard=False,
+                 log_to_driver=False, configure_logging=False)
+    rollout_task = ray.remote(num_cpus=1)(_rollout_job)
+    window = max(2, 2 * workers)
+    pending: list = []
+    try:
+        queued = iter(jobs)
+        for job in queued:
+            pending.append(rollout_task.remote(job))
+            if len(pending) >= window:
+                yield ray.get(pending.pop(0))
+        while pending:
+            yield ray.get(pending.pop(0))
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
+
+
+def _results(jobs: list, workers: int, backend: str = "processes", address: str | None = None) -> Iterator[EpisodeRecord]:
+    if backend == "ray":
+        yield from _ray_results(jobs, workers, address)
+        return
     if workers <= 1 or len(jobs) <= 1:
         for job in jobs:
             yield _rollout_job(job)
@@ -308,6 +345,8 @@ def collect(
     workers: int = 1,
     mcap: bool = False,
     progress: Callable[[EpisodeRecord, int], None] | None = None,
+    backend: str = "processes",
+    address: str | None = None,
 ) -> CollectSummary:
     """Record ``episodes`` episodes of seeds ``seed .. seed + episodes - 1`` into the dataset at ``root``,
     skipping seeds it already holds. ``progress(record, episode_index)`` is called after each saved episode.
@@ -316,6 +355,15 @@ def collect(
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if address is not None and backend != "ray":
+        raise ValueError("address is for backend='ray' (the Ray cluster to run on)")
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError("backend 'ray' needs Ray: pip install -e '.[distributed]'") from None
     root = Path(root)
     probe = spec.make_env()
     features = dataset_features(probe, spec.pixels, spec.image_size)
@@ -360,7 +408,7 @@ def collect(
         try:
             try:
                 saver.submit(int).result()  # start the thread now, not inside a later submit()
-                for record in _results(jobs, workers):
+                for record in _results(jobs, workers, backend, address):
                     settle()
                     mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if mcap else None
                     with _sigint_deferred():
