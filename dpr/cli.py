@@ -185,6 +185,32 @@ def cmd_train(args, parser) -> int:
     return 130 if result.interrupted else 0
 
 
+def cmd_bc(args, parser) -> int:
+    from dpr.imitation.bc import behaviour_clone
+
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if not args.lr > 0:
+        parser.error(f"--lr must be > 0, got {args.lr}")
+    requested = {name: value for name, value in (("n_robots", args.n_robots), ("robot_model", args.robot_model))
+                 if value is not None}
+    try:
+        result = behaviour_clone(
+            args.dataset, args.env, algo=args.algo, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+            val_fraction=args.val_fraction, patience=args.patience, seed=args.seed, out=args.out,
+            env_kwargs=requested, show_progress=True,
+        )
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    print(f"model: {result.model_path}")
+    print(f"log: {result.log_path}")
+    print(f"config: {result.config_path}")
+    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    print(f"best validation accuracy {result.best_val_accuracy:.3f} (epoch {result.best_epoch} of "
+          f"{result.epochs_run}, validation NLL {result.best_val_nll:.4f})")
+    return 0
+
+
 def cmd_bench(args, parser) -> int:
     from dpr.bench import format_table, run_benchmarks
 
@@ -475,6 +501,31 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a yaml hyperparameter, e.g. n_steps=256 or learning_rate=lin_1e-3 (repeatable)")
     tr.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
     tr.set_defaults(func=cmd_train)
+
+    bc = sub.add_parser(
+        "bc",
+        help="behaviour-clone a recorded dataset into a PPO/A2C model",
+        description="Train the policy of a new SB3 model (built as `dpr train` builds it, with the env kwargs the "
+        "dataset was recorded with) to maximise the likelihood of the dataset's actions; whole episodes are held "
+        "out for validation, training stops early on the validation log-likelihood and the best weights are kept. "
+        "Saves model.zip, bc_log.json and config.yaml into a new run folder; "
+        "`dpr evaluate --policy RUN/model.zip --env ID` runs the model.",
+    )
+    bc.add_argument("--dataset", required=True, help="dataset folder written by `dpr collect`")
+    bc.add_argument("--env", required=True, help="env id the dataset was recorded on, e.g. dpr/Navigation-v0")
+    bc.add_argument("--algo", choices=("ppo", "a2c"), default="ppo", help="model to clone into (default ppo)")
+    bc.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
+    bc.add_argument("--robot-model", choices=ROBOT_MODEL_NAMES, help="only checked: it must be the dataset's")
+    bc.add_argument("--epochs", type=positive_int, default=20, help="maximum epochs (default 20)")
+    bc.add_argument("--batch-size", type=positive_int, default=256, help="frames per gradient step (default 256)")
+    bc.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
+    bc.add_argument("--val-fraction", type=float, default=0.2,
+                    help="fraction of episodes held out for validation (default 0.2)")
+    bc.add_argument("--patience", type=positive_int, default=3,
+                    help="stop after this many epochs without a better validation log-likelihood (default 3)")
+    bc.add_argument("--seed", type=int, default=0, help="seed of the model, the split and the shuffling (default 0)")
+    bc.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
+    bc.set_defaults(func=cmd_bc)
 
     co = sub.add_parser(
         "collect",

@@ -1,0 +1,396 @@
+"""Behaviour cloning of a recorded dataset into the same stable-baselines3 model that ``dpr train`` builds.
+
+The model is built exactly as ``dpr train`` would build it for ``algo`` on ``env_id`` (the yaml entry of
+:mod:`dpr.rl.hyperparams`, the env kwargs the dataset was recorded with), then ``model.policy`` is trained in
+plain torch to maximise the log-likelihood of the recorded actions under the policy's own action distribution
+(MultiBinary -> one Bernoulli per robot). What is trained, and what is not:
+
+- the actor only: the features extractor, ``mlp_extractor.policy_net`` and ``action_net``. The value head
+  (``mlp_extractor.value_net``, ``value_net``) is left at its initialisation: the dataset holds no returns worth
+  regressing on for a policy other than the demonstrator, and PPO/A2C fit the critic in their first updates;
+- no normalisation beyond what SB3's policy does itself (for a Box observation: none; the state observation is
+  already scaled by 1/1000 in the env), so the cloned model runs unchanged in ``dpr evaluate`` and in PPO/A2C;
+- the policy's own optimizer (saved with the model, used by ``learn``) is not touched: BC uses a fresh Adam.
+
+Validation holds out whole episodes (frames of one episode are strongly correlated, so a frame-level split would
+overstate generalisation). Training stops early when the validation log-likelihood has not improved for
+``patience`` epochs, and the best-validation weights are restored before saving.
+
+A run writes into a new folder: ``model.zip`` (with the env id and kwargs inside, see :mod:`dpr.policies.sb3`),
+``bc_log.json`` (per-epoch metrics) and ``config.yaml`` (everything the run resolved).
+
+DQN is not supported yet: its Q-network needs Discrete(2^N) actions, which wave datasets do not record.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import yaml
+from torch.utils.data import DataLoader
+
+from dpr.datasets.frames import EpisodeBlockSampler, FrameDataset
+from dpr.datasets.lerobot import LeRobotReader
+from dpr.envs import ENV_IDS
+from dpr.policies.sb3 import ModelInfo, write_model_info
+
+__all__ = ["BC_ALGOS", "BCResult", "behaviour_clone", "check_features", "dataset_env"]
+
+BC_ALGOS = ("ppo", "a2c")  # actor-critic policies with an action distribution to maximise the likelihood of
+RUNS_DIR = Path("runs/bc")
+OBSERVATION_KEY = "observation.state"
+ACTION_KEY = "action"
+# Recording-only env kwargs: they change how a dataset was rendered, not what the model sees or does.
+RECORDING_KWARGS = ("render_mode", "render_size")
+BLOCK_EPISODES = 8  # EpisodeBlockSampler block; the FrameDataset cache holds as many episodes
+
+
+@dataclass(frozen=True)
+class BCResult:
+    """Where a BC run's files are, and how it ended."""
+
+    run_dir: Path
+    model_path: Path
+    log_path: Path
+    config_path: Path
+    best_epoch: int
+    best_val_nll: float
+    best_val_accuracy: float
+    epochs_run: int
+    stopped_early: bool
+    train_episodes: list[int] = field(default_factory=list)
+    val_episodes: list[int] = field(default_factory=list)
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+
+# ------------------------------------------------------------------------------------------------ arguments
+
+
+def _check_int(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _check_arguments(env_id: str, algo: str, epochs: int, batch_size: int, lr: float, val_fraction: float,
+                     patience: int, seed: int) -> None:
+    if env_id not in ENV_IDS.values():
+        raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
+    if algo == "dqn":
+        raise ValueError("algo 'dqn': behaviour cloning into DQN is not implemented (its Discrete(2^N) Q-network "
+                         f"does not match MultiBinary demonstrations); choose one of {BC_ALGOS}")
+    if algo not in BC_ALGOS:
+        raise ValueError(f"algo must be one of {BC_ALGOS}, got {algo!r}")
+    _check_int("epochs", epochs, 1)
+    _check_int("batch_size", batch_size, 1)
+    _check_int("patience", patience, 1)
+    _check_int("seed", seed, 0)
+    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0 or not math.isfinite(lr):
+        raise ValueError(f"lr must be a number > 0, got {lr!r}")
+    if isinstance(val_fraction, bool) or not isinstance(val_fraction, (int, float)) or not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction must be a number in (0, 1), got {val_fraction!r}")
+
+
+# ------------------------------------------------------------------------------------------------ dataset -> env
+
+
+def dataset_env(reader: LeRobotReader, env_id: str, requested: dict[str, Any] | None = None) -> tuple[dict[str, Any], int | None]:
+    """The env kwargs (without recording-only kwargs and ``max_episode_steps``) and the episode length that every
+    episode of the dataset was recorded with. ValueError naming both values when an episode was recorded on
+    another env id, when episodes disagree, or when a ``requested`` kwarg differs from the dataset's."""
+    root = reader.root
+    if reader.num_episodes == 0:
+        raise ValueError(f"--dataset: {root} holds no episodes")
+    recorded: dict[str, Any] | None = None
+    for index, meta in enumerate(reader.episodes):
+        if "env_id" not in meta or not isinstance(meta.get("env_kwargs"), dict):
+            raise ValueError(f"--dataset: episode {index} of {root} has no env_id/env_kwargs metadata; "
+                             "use a dataset recorded by `dpr collect`")
+        if meta["env_id"] != env_id:
+            raise ValueError(f"--dataset: {root} was recorded on {meta['env_id']} (episode {index}), not on --env "
+                             f"{env_id}; use --env {meta['env_id']} or a dataset of {env_id}")
+        if recorded is None:
+            recorded = dict(meta["env_kwargs"])
+        elif meta["env_kwargs"] != recorded:
+            raise ValueError(f"--dataset: {root}: episode {index} was recorded with env kwargs {meta['env_kwargs']}, "
+                             f"episode 0 with {recorded}; a dataset must hold one env configuration")
+    assert recorded is not None
+    steps = recorded.pop("max_episode_steps", None)
+    for name in RECORDING_KWARGS:
+        recorded.pop(name, None)
+    for name, value in (requested or {}).items():
+        if name in recorded and recorded[name] != value:
+            raise ValueError(f"--dataset: {root} was recorded with {name}={recorded[name]!r}; the requested "
+                             f"{name}={value!r} differs (leave it out to use the dataset's value)")
+        recorded[name] = value
+    return recorded, steps
+
+
+def _space_text(space: gym.Space) -> str:
+    return f"Box(shape={space.shape})" if isinstance(space, gym.spaces.Box) else str(space)
+
+
+def check_features(reader: LeRobotReader, observation_space: gym.Space, action_space: gym.Space, env_text: str) -> None:
+    """ValueError naming both sides when the dataset's observation or action feature does not fit the spaces."""
+    problems = []
+    observation = reader.features.get(OBSERVATION_KEY)
+    if observation is None or not isinstance(observation_space, gym.spaces.Box) \
+            or tuple(observation.get("shape", ())) != observation_space.shape:
+        shape = None if observation is None else observation.get("shape")
+        problems.append(f"{OBSERVATION_KEY} has shape {shape}, the env's observation space is "
+                        f"{_space_text(observation_space)}")
+    action = reader.features.get(ACTION_KEY)
+    if not isinstance(action_space, gym.spaces.MultiBinary):
+        problems.append(f"the env's action space {_space_text(action_space)} is not MultiBinary (BC supports "
+                        "action_type='multibinary' only)")
+    elif action is None or list(action.get("shape", ())) != [int(action_space.n)]:
+        shape = None if action is None else action.get("shape")
+        problems.append(f"{ACTION_KEY} has shape {shape}, the env's action space is {action_space}")
+    if problems:
+        raise ValueError(f"--dataset: {reader.root} does not fit {env_text}: " + "; ".join(problems))
+
+
+def split_episodes(num_episodes: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Dataset episode indices for training and validation (at least one each, disjoint, chosen by ``seed``)."""
+    if num_episodes < 2:
+        raise ValueError(f"--dataset: behaviour cloning needs at least 2 episodes (one held out), got {num_episodes}")
+    n_val = min(max(1, round(val_fraction * num_episodes)), num_episodes - 1)
+    order = np.random.default_rng(seed).permutation(num_episodes).tolist()
+    return sorted(order[n_val:]), sorted(order[:n_val])
+
+
+# ------------------------------------------------------------------------------------------------ training
+
+
+def actor_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
+    """The parameters that decide the action distribution: everything but the value head."""
+    return [p for name, p in policy.named_parameters()
+            if not name.startswith(("mlp_extractor.value_net.", "value_net.", "vf_features_extractor."))]
+
+
+def _batch_stats(policy, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-frame negative log-likelihood [B] and per-robot correctness of the deterministic action [B, N]."""
+    distribution = policy.get_distribution(observation)
+    nll = -distribution.log_prob(action)  # Bernoulli log-probs summed over robots
+    correct = distribution.mode() == action
+    return nll, correct
+
+
+class _Meter:
+    """Running sums of NLL and correctness over an epoch. Per-robot accuracy alone flatters a policy that never
+    expands (the wave contracts most robots most of the time), so the whole-action match rate and the recall of
+    recorded expansions are kept too."""
+
+    def __init__(self, n_actions: int):
+        self.frames = 0
+        self.nll = 0.0
+        self.correct = np.zeros(n_actions, dtype=np.float64)
+        self.exact = 0
+        self.expansions = 0
+        self.expansions_hit = 0
+
+    def add(self, nll: torch.Tensor, correct: torch.Tensor, action: torch.Tensor) -> None:
+        correct = correct.detach()
+        self.frames += len(nll)
+        self.nll += float(nll.detach().sum())
+        self.correct += correct.double().sum(0).numpy()
+        self.exact += int(correct.all(dim=1).sum())
+        expanded = action > 0.5
+        self.expansions += int(expanded.sum())
+        self.expansions_hit += int((correct & expanded).sum())
+
+    def result(self, prefix: str) -> dict[str, Any]:
+        frames = max(self.frames, 1)
+        per_robot = self.correct / frames
+        return {f"{prefix}_nll": self.nll / frames, f"{prefix}_accuracy": float(per_robot.mean()),
+                f"{prefix}_exact_match": self.exact / frames,
+                f"{prefix}_expand_recall": self.expansions_hit / max(self.expansions, 1),
+                f"{prefix}_accuracy_per_robot": [round(float(a), 6) for a in per_robot]}
+
+
+def _loader(dataset: FrameDataset, batch_size: int, sampler: EpisodeBlockSampler) -> DataLoader:
+    return DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=0)
+
+
+@torch.no_grad()
+def measure(policy, dataset: FrameDataset, batch_size: int, prefix: str) -> dict[str, Any]:
+    """NLL and accuracy of ``policy`` on every frame of ``dataset`` (eval mode, no gradients)."""
+    policy.set_training_mode(False)
+    meter = _Meter(dataset.action_dim)
+    for batch in _loader(dataset, batch_size, EpisodeBlockSampler(dataset, shuffle=False)):
+        meter.add(*_batch_stats(policy, batch["observation"], batch["action"]), batch["action"])
+    return meter.result(prefix)
+
+
+def _train_epoch(policy, optimizer, loader: DataLoader, n_actions: int, bar) -> dict[str, Any]:
+    policy.set_training_mode(True)
+    meter = _Meter(n_actions)
+    for batch in loader:
+        nll, correct = _batch_stats(policy, batch["observation"], batch["action"])
+        loss = nll.mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        meter.add(nll, correct, batch["action"])
+        bar.update(len(nll))
+    return meter.result("train")
+
+
+# ------------------------------------------------------------------------------------------------ run folder
+
+
+def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
+    """``runs/bc/<task>-<algo>-seed<S>-<timestamp>`` (a suffix when two runs start in the same second)."""
+    task = next(task for task, known in ENV_IDS.items() if known == env_id)
+    base = RUNS_DIR / f"{task}-{algo}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return path
+
+
+def _check_out(out: str | Path | None) -> None:
+    if out is not None:
+        path = Path(out)
+        if path.exists() and (not path.is_dir() or any(path.iterdir())):
+            raise ValueError(f"--out: {path} already exists and is not an empty folder; runs are never overwritten")
+
+
+def behaviour_clone(
+    dataset_dir: str | Path,
+    env_id: str,
+    *,
+    algo: str = "ppo",
+    epochs: int = 20,
+    batch_size: int = 256,
+    lr: float = 1e-3,
+    val_fraction: float = 0.2,
+    patience: int = 3,
+    seed: int = 0,
+    out: str | Path | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    show_progress: bool = False,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+) -> BCResult:
+    """Behaviour-clone the dataset at ``dataset_dir`` (recorded by ``dpr collect`` on ``env_id``) into a new
+    ``algo`` model built as ``dpr train`` builds it; save it with ``bc_log.json`` and ``config.yaml`` into ``out``
+    (a new or empty folder; default ``runs/bc/<task>-<algo>-seed<S>-<timestamp>``).
+
+    ``env_kwargs`` may restate kwargs (e.g. ``{"n_robots": 9}``); any that differ from the dataset's are an error.
+    Bad input raises ValueError (DatasetError for an unreadable dataset) before anything is written."""
+    from dpr.rl.hyperparams import load_hyperparams
+    from dpr.rl.train import build_model, make_vec_env, package_versions
+
+    _check_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
+    _check_out(out)
+    reader = LeRobotReader(dataset_dir)  # DatasetError (a ValueError) naming the folder when it is not a dataset
+    kwargs, steps = dataset_env(reader, env_id, env_kwargs)
+    hyper = load_hyperparams(algo, env_id)
+    for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
+        if name in kwargs and kwargs[name] != value:
+            raise ValueError(f"{algo} needs {name}={value!r} (its yaml env_kwargs); --dataset {reader.root} was "
+                             f"recorded with {name}={kwargs[name]!r}")
+    kwargs = {**hyper.env_kwargs, **kwargs}
+    steps = int(steps) if steps else 2500
+    env_text = f"{env_id} {kwargs}"
+    probe = gym.make(env_id, **kwargs)  # a bad kwarg fails here, before the run folder exists
+    try:
+        check_features(reader, probe.observation_space, probe.action_space, env_text)
+    finally:
+        probe.close()
+    train_ids, val_ids = split_episodes(reader.num_episodes, val_fraction, seed)
+
+    run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    record: dict[str, Any] = {
+        "algo": algo, "env_id": env_id, "env_kwargs": kwargs, "steps_per_episode": steps,
+        "dataset": str(reader.root.resolve()), "dataset_episodes": reader.num_episodes,
+        "dataset_frames": reader.num_frames, "train_episodes": train_ids, "val_episodes": val_ids,
+        "bc": {"epochs": epochs, "batch_size": batch_size, "lr": lr, "val_fraction": val_fraction,
+               "patience": patience, "seed": seed, "optimizer": "Adam", "loss": "mean per-frame NLL of the "
+               "recorded action (Bernoulli per robot, summed over robots)", "trained": "actor only"},
+        "hyperparameters": hyper.as_dict(), "versions": package_versions(),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    config_path = run_dir / "config.yaml"
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    log(f"dpr bc: {algo} on {env_id} {kwargs} from {reader.root} ({len(train_ids)} train / {len(val_ids)} "
+        f"validation episodes) -> {run_dir}")
+
+    torch.manual_seed(seed)
+    env = make_vec_env(env_id, kwargs, steps, 1)
+    try:
+        model = build_model(hyper, env, seed, None)
+    finally:
+        env.close()
+    policy = model.policy
+    train_set = FrameDataset(reader.root, episodes=train_ids, cache_episodes=BLOCK_EPISODES)
+    val_set = FrameDataset(reader.root, episodes=val_ids, cache_episodes=BLOCK_EPISODES)
+    sampler = EpisodeBlockSampler(train_set, block_episodes=BLOCK_EPISODES, seed=seed)
+    loader = _loader(train_set, batch_size, sampler)
+    optimizer = torch.optim.Adam(actor_parameters(policy), lr=lr)
+
+    # Epoch 0 is the untrained policy: the baseline every later epoch is compared with.
+    history = [{"epoch": 0, **measure(policy, train_set, batch_size, "train"),
+                **measure(policy, val_set, batch_size, "val"), "seconds": 0.0}]
+    best = history[0]
+    best_state = copy.deepcopy(policy.state_dict())
+    stale = 0
+    stopped_early = False
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    with tqdm(total=epochs * len(train_set), desc=f"bc {algo} {env_id}", unit="frame", disable=not show_progress) as bar:
+        for epoch in range(1, epochs + 1):
+            sampler.set_epoch(epoch)
+            tick = time.perf_counter()
+            row = {"epoch": epoch, **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar),
+                   **measure(policy, val_set, batch_size, "val")}
+            row["seconds"] = round(time.perf_counter() - tick, 3)
+            history.append(row)
+            bar.set_postfix(val_nll=f"{row['val_nll']:.3f}", val_acc=f"{row['val_accuracy']:.3f}", refresh=False)
+            if row["val_nll"] < best["val_nll"]:
+                best, stale = row, 0
+                best_state = copy.deepcopy(policy.state_dict())
+            else:
+                stale += 1
+                if stale >= patience:
+                    stopped_early = True
+                    break
+    policy.load_state_dict(best_state)
+    policy.set_training_mode(False)
+    seconds = time.perf_counter() - started
+
+    info = ModelInfo(algo, env_id, kwargs, steps)
+    model_path = run_dir / "model.zip"
+    model.save(model_path)
+    write_model_info(model_path, info)
+    summary = {"best_epoch": best["epoch"], "best_val_nll": best["val_nll"], "best_val_accuracy": best["val_accuracy"],
+               "epochs_run": len(history) - 1, "stopped_early": stopped_early, "train_episodes": train_ids,
+               "val_episodes": val_ids, "seconds": round(seconds, 1)}
+    log_path = run_dir / "bc_log.json"
+    log_path.write_text(json.dumps({**summary, "epochs": history}, indent=2))
+    record.update(summary, finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    log(f"dpr bc: wrote {model_path} (best epoch {best['epoch']}: validation per-robot accuracy "
+        f"{best['val_accuracy']:.3f}, whole-action match {best['val_exact_match']:.3f}, expansion recall "
+        f"{best['val_expand_recall']:.3f}; {seconds:.0f} s)")
+    return BCResult(run_dir, model_path, log_path, config_path, best["epoch"], best["val_nll"], best["val_accuracy"],
+                    len(history) - 1, stopped_early, train_ids, val_ids, history)
+
+
+def result_dict(result: BCResult) -> dict[str, Any]:
+    """A :class:`BCResult` as plain data (paths as strings)."""
+    return {k: str(v) if isinstance(v, Path) else v for k, v in asdict(result).items()}

@@ -1,0 +1,161 @@
+"""Behaviour cloning (`dpr bc`): run folder, episode split, learning, evaluation of the cloned model, bad input."""
+
+import json
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from dpr.cli import main
+from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.frames import FrameDataset
+from dpr.datasets.lerobot import LeRobotReader
+from dpr.imitation import behaviour_clone
+from dpr.imitation.bc import check_features, measure
+from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
+from dpr.rl.evaluation import evaluate
+
+ENV = "dpr/Navigation-v0"
+# Full-batch steps (two 64-frame training episodes) learn this tiny set; small noisy batches barely move it.
+FAST = {"batch_size": 128, "lr": 3e-3}
+
+
+def run(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as exit_:
+        return exit_.code
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Three 64-step wave episodes of 4 disk robots."""
+    root = tmp_path_factory.mktemp("bc") / "wave4"
+    collect(root, CollectSpec(ENV, robot_model="disk", n_robots=4, steps=64), episodes=3, workers=1)
+    return root
+
+
+@pytest.fixture(scope="module")
+def cloned(dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bc_run") / "run"
+    return behaviour_clone(dataset, ENV, epochs=40, patience=40, out=out, log=lambda line: None, **FAST)
+
+
+def test_run_folder_holds_model_log_and_config(cloned, dataset):
+    assert sorted(p.name for p in cloned.run_dir.iterdir()) == ["bc_log.json", "config.yaml", "model.zip"]
+    info = read_model_info(cloned.model_path)
+    assert (info.algo, info.env_id, info.max_episode_steps) == ("ppo", ENV, 64)
+    assert info.env_kwargs == {"n_robots": 4, "robot_model": "disk"}  # max_episode_steps is kept apart
+    with zipfile.ZipFile(cloned.model_path) as archive:
+        assert METADATA_MEMBER in archive.namelist()
+    log = json.loads(cloned.log_path.read_text())
+    assert [row["epoch"] for row in log["epochs"]] == list(range(41))
+    for row in log["epochs"]:
+        assert {"train_nll", "val_nll", "val_accuracy", "train_accuracy", "val_exact_match", "val_expand_recall"} <= set(row)
+        assert 0 <= row["val_exact_match"] <= row["val_accuracy"] <= 1
+        assert len(row["val_accuracy_per_robot"]) == 4 and 0 <= row["val_accuracy"] <= 1
+    config = yaml.safe_load(cloned.config_path.read_text())
+    assert config["env_kwargs"] == {"n_robots": 4, "robot_model": "disk"}
+    assert config["hyperparameters"]["policy_kwargs"]["net_arch"] == [64, 128, 128, 128, 64]
+    assert config["dataset"] == str(dataset.resolve()) and config["best_epoch"] == log["best_epoch"]
+
+
+def test_validation_holds_out_whole_episodes(cloned):
+    assert cloned.val_episodes and cloned.train_episodes
+    assert set(cloned.val_episodes).isdisjoint(cloned.train_episodes)
+    assert sorted(cloned.val_episodes + cloned.train_episodes) == [0, 1, 2]
+
+
+def test_cloning_learns_the_training_actions_and_keeps_the_best_validation_weights(cloned, dataset):
+    first, last = cloned.history[0], cloned.history[-1]
+    assert last["train_nll"] < first["train_nll"] - 0.05
+    assert last["train_accuracy"] > first["train_accuracy"] + 0.03
+    # The saved model carries the best-validation weights, not the last epoch's.
+    model, _ = load_model(cloned.model_path)
+    val_set = FrameDataset(dataset, episodes=cloned.val_episodes)
+    measured = measure(model.policy, val_set, 256, "val")
+    assert measured["val_nll"] == pytest.approx(cloned.best_val_nll, rel=1e-5)
+    assert measured["val_nll"] == pytest.approx(min(row["val_nll"] for row in cloned.history), rel=1e-5)
+
+
+def test_value_head_is_left_alone(dataset, tmp_path):
+    from dpr.rl.hyperparams import load_hyperparams
+    from dpr.rl.train import build_model, make_vec_env
+
+    result = behaviour_clone(dataset, ENV, epochs=2, out=tmp_path / "run", log=lambda line: None, **FAST)
+    model, _ = load_model(result.model_path)
+    env = make_vec_env(ENV, {"n_robots": 4, "robot_model": "disk"}, 64, 1)
+    torch.manual_seed(0)
+    fresh = build_model(load_hyperparams("ppo", ENV), env, 0, None)  # what behaviour_clone started from
+    env.close()
+    trained, initial = model.policy.state_dict(), fresh.policy.state_dict()
+    for name in trained:
+        same = torch.equal(trained[name], initial[name])
+        assert same == name.startswith(("value_net.", "mlp_extractor.value_net.")), name
+
+
+def test_early_stopping_stops_after_patience_epochs(dataset, tmp_path):
+    result = behaviour_clone(dataset, ENV, epochs=60, patience=2, out=tmp_path / "run", log=lambda line: None, **FAST)
+    assert result.stopped_early and result.epochs_run < 60
+    assert result.epochs_run == result.best_epoch + 2
+
+
+def test_saved_model_evaluates_unchanged(cloned):
+    (result,) = evaluate([ENV], str(cloned.model_path), seeds=[100], steps=64)
+    assert result.metrics.steps == 64 and np.isfinite(result.metrics.projected_displacement)
+
+
+def test_cli_bc_then_evaluate(dataset, tmp_path, capsys):
+    out = tmp_path / "cli"
+    assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--algo", "a2c", "--epochs", "2",
+                "--batch-size", "64", "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1].startswith("best validation accuracy ")
+    assert read_model_info(out / "model.zip").algo == "a2c"
+    assert run(["evaluate", "--policy", str(out / "model.zip"), "--env", ENV, "--seeds", "100", "--steps", "32",
+                "--workers", "1"]) == 0
+
+
+# -- bad input -----------------------------------------------------------------------------------------------------
+def test_missing_dataset_is_named(tmp_path):
+    with pytest.raises(ValueError, match="no_such_dataset"):
+        behaviour_clone(tmp_path / "no_such_dataset", ENV, out=tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+def test_dataset_of_another_env_names_both(dataset, tmp_path):
+    with pytest.raises(ValueError, match=r"recorded on dpr/Navigation-v0.*dpr/Gate-v0"):
+        behaviour_clone(dataset, "dpr/Gate-v0", out=tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+def test_dataset_of_another_n_names_both(dataset, tmp_path, capsys):
+    with pytest.raises(ValueError, match=r"n_robots=4.*n_robots=9"):
+        behaviour_clone(dataset, ENV, env_kwargs={"n_robots": 9}, out=tmp_path / "run")
+    assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--n-robots", "9", "--out", str(tmp_path / "r")]) == 2
+    assert "n_robots=4" in capsys.readouterr().err
+
+
+def test_features_that_do_not_fit_the_env_name_both(dataset):
+    env = gym.make(ENV, n_robots=9, robot_model="disk")
+    with pytest.raises(ValueError, match=r"shape \[24\].*Box\(shape=\(54,\)\).*shape \[4\].*MultiBinary\(9\)"):
+        check_features(LeRobotReader(dataset), env.observation_space, env.action_space, "N=9")
+    env.close()
+
+
+def test_existing_out_and_bad_arguments_are_refused(dataset, tmp_path, capsys):
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "file").write_text("x")
+    with pytest.raises(ValueError, match="already exists"):
+        behaviour_clone(dataset, ENV, out=out)
+    assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--out", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="dqn"):
+        behaviour_clone(dataset, ENV, algo="dqn", out=tmp_path / "dqn")
+    with pytest.raises(ValueError, match="val_fraction"):
+        behaviour_clone(dataset, ENV, val_fraction=1.0, out=tmp_path / "v")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
