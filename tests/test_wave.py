@@ -4,7 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from dpr.policies.wave import MODEL_DEFAULTS, WavePolicy
+from dpr.policies.wave import MODEL_DEFAULTS, MarkovWavePolicy, WavePolicy
 
 # Robots along the goal direction (+x before rotation), y summing to 0 so that the swarm centre lies on it.
 XS = np.array([440.0, 470.0, 520.0, 590.0, 650.0, 700.0])
@@ -214,3 +214,60 @@ def test_wave_moves_the_swarm_in_gate_and_unresponsive(robot_model):
     for env_id in ("dpr/Gate-v0", "dpr/Unresponsive-v0"):
         results = [_wave_episode(robot_model, seed, 1000, env_id=env_id) for seed in range(3)]
         assert np.median(results) > 0.0, (env_id, results)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The Markov wave: phase read from the observation
+
+
+def test_markov_wave_depends_on_the_observation_only():
+    env = gym.make("dpr/Navigation-v0", robot_model="disk", n_robots=9)
+    obs, _ = env.reset(seed=3)
+    a, b = MarkovWavePolicy.from_env(env), MarkovWavePolicy.from_env(env)
+    history = []
+    for _ in range(25):
+        history.append(obs)
+        obs, *_ = env.step(a(obs))
+    for seen in history[::-1]:  # b sees the same observations in another order: same answers
+        np.testing.assert_array_equal(a(seen), b(seen))
+
+
+def test_markov_wave_starts_with_the_first_bin_and_moves_through_the_bins():
+    env = gym.make("dpr/Navigation-v0", robot_model="paddle", n_robots=9)
+    obs, _ = env.reset(seed=0)
+    policy = MarkovWavePolicy.from_env(env)
+    wave = WavePolicy.from_env(env)
+    np.testing.assert_array_equal(policy(obs), wave(obs))  # from rest: the first bin, as the paper's wave
+    expanded_sets = []
+    for _ in range(60):
+        action = policy(obs)
+        expanded_sets.append(tuple(np.flatnonzero(action)))
+        obs, *_ = env.step(action)
+    phases = [s for i, s in enumerate(expanded_sets) if i == 0 or s != expanded_sets[i - 1]]
+    assert len(set(phases)) >= 3  # 3 bins at N=9 near the axis: every one gets its turn
+    lengths = np.diff([i for i, s in enumerate(expanded_sets) if i == 0 or s != expanded_sets[i - 1]])
+    assert np.median(lengths) >= 2  # phases mostly last a stroke (bins are re-planned every step, so a robot
+    # near a bin edge can switch bins and cut a phase short)
+
+
+def test_markov_wave_encodes_every_action_type():
+    for action_type in ("multibinary", "continuous", "discrete"):
+        env = gym.make("dpr/Navigation-v0", robot_model="disk", n_robots=4, action_type=action_type)
+        obs, _ = env.reset(seed=0)
+        action = MarkovWavePolicy.from_env(env)(obs)
+        assert env.action_space.contains(action if action_type != "continuous" else np.asarray(action, np.float32))
+
+
+@pytest.mark.parametrize("kwargs, message", [({"stroke_done": 0.4}, "stroke_done"), ({"expanded": 1.0}, "expanded")])
+def test_markov_wave_refuses_bad_levels(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        MarkovWavePolicy(9, **kwargs)
+
+
+def test_markov_wave_moves_the_paddle_swarm_toward_the_goal():
+    env = gym.make("dpr/Navigation-v0", robot_model="paddle", n_robots=9)
+    obs, info = env.reset(seed=0)
+    policy = MarkovWavePolicy.from_env(env)
+    for _ in range(400):
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+    assert info["projected_displacement"] > 0.0

@@ -9,7 +9,7 @@ per episode right after ``env.reset(seed=seed)``.
 
 from __future__ import annotations
 
-SCRIPTED_POLICIES = ("wave", "random")
+SCRIPTED_POLICIES = ("wave", "wave-markov", "random")
 
 
 class RandomPolicy:
@@ -52,8 +52,9 @@ def check_policy_name(name: str) -> str:
 
 
 def make_policy(name: str, env):
-    """The policy called ``name`` ("wave": the paper's hand-crafted policy; "random"; or a ``.zip`` model
-    file, which must have been trained on ``env``'s id and spaces) for ``env``."""
+    """The policy called ``name`` for ``env``: "wave" (the paper's hand-crafted policy, phases held a fixed
+    number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
+    can reproduce), "random", or a ``.zip`` model file trained on ``env``'s id and spaces."""
     check_policy_name(name)
     from dpr.policies.sb3 import is_model_path, load_model_policy
 
@@ -63,4 +64,8 @@ def make_policy(name: str, env):
         from dpr.policies.wave import WavePolicy
 
         return _Unseeded(WavePolicy.from_env(env))
+    if name == "wave-markov":
+        from dpr.policies.wave import MarkovWavePolicy
+
+        return _Unseeded(MarkovWavePolicy.from_env(env))
     return RandomPolicy(env)
