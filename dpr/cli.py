@@ -460,8 +460,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run a policy on one or more tasks and print projected displacement, net displacement, "
         "total distance and success (median, min, max, mean ± std over seeds).",
     )
-    ev.add_argument("--policy", default="wave", help="'wave' (the paper's hand-crafted policy), 'random', or a "
-                    "model file MODEL.zip written by `dpr train` (run with the env kwargs it was trained with)")
+    ev.add_argument("--policy", default="wave", help="'wave' (the paper's hand-crafted policy), 'wave-markov' "
+                    "(its phase read from the observation), 'random', or a model file MODEL.zip written by "
+                    "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)")
     ev.add_argument("--env", nargs="+", default=["dpr/Navigation-v0"],
                     help="env ids (dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0) or 'all'")
     ev.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-4"), help="e.g. 0-4 or 1,3,7 (default 0-4)")
@@ -536,7 +537,8 @@ def build_parser() -> argparse.ArgumentParser:
         "kwargs or features is refused and left untouched.",
     )
     co.add_argument("--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0")
-    co.add_argument("--policy", default="wave", help="'wave' (default) or 'random': any policy `dpr evaluate` accepts")
+    co.add_argument("--policy", default="wave",
+                    help="'wave' (default), 'wave-markov', 'random' or a model .zip: any policy `dpr evaluate` accepts")
     co.add_argument("--episodes", type=positive_int, default=10, help="number of episodes (seeds) to hold (default 10)")
     co.add_argument("--out", required=True, help="dataset folder (created, or resumed if it holds the same dataset)")
     co.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
