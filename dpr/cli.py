@@ -149,13 +149,19 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
     print(f"wrote {args.rerun}")
 
 
+def _name_and_value(text: str, flag: str) -> tuple[str, str]:
+    """'NAME=VALUE' -> (NAME, VALUE text), NAME a Python identifier (a keyword argument)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"{flag} must look like NAME=VALUE, got {text!r}")
+    return key, value
+
+
 def _hyperparam(text: str) -> tuple[str, object]:
     """'n_steps=64' -> ('n_steps', 64); values parse as yaml (numbers, lists, 'lin_3e-4' stays a string)."""
     import yaml
 
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"--hyperparam must look like NAME=VALUE, got {text!r}")
+    key, value = _name_and_value(text, "--hyperparam")
     try:
         return key, yaml.safe_load(value)
     except yaml.YAMLError:
@@ -232,9 +238,7 @@ def cmd_bench(args, parser) -> int:
 
 def _env_kwarg(text: str) -> tuple[str, object]:
     """'object_type=box' -> ('object_type', 'box'); values parse as JSON when they can (numbers, true, [..])."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"--env-kwarg must look like NAME=VALUE, got {text!r}")
+    key, value = _name_and_value(text, "--env-kwarg")
     try:
         return key, json.loads(value)
     except ValueError:

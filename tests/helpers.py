@@ -51,3 +51,13 @@ def expansions(obs, n_robots: int) -> np.ndarray:
 def positions(obs, n_robots: int) -> np.ndarray:
     state = obs["state"] if isinstance(obs, dict) else obs
     return np.asarray(state)[: 6 * n_robots].reshape(n_robots, 6)[:, 0:2]
+
+
+def run_cli(argv: list[str]) -> int:
+    """dpr.cli.main's exit status, whether it returns it or argparse raises SystemExit."""
+    from dpr.cli import main
+
+    try:
+        return main(argv)
+    except SystemExit as exit_:
+        return exit_.code

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import run_cli as run
 
-from dpr.cli import main
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.frames import FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
@@ -21,13 +21,6 @@ from dpr.rl.evaluation import evaluate
 ENV = "dpr/Navigation-v0"
 # Full-batch steps (two 64-frame training episodes) learn this tiny set; small noisy batches barely move it.
 FAST = {"batch_size": 128, "lr": 3e-3}
-
-
-def run(argv: list[str]) -> int:
-    try:
-        return main(argv)
-    except SystemExit as exit_:
-        return exit_.code
 
 
 @pytest.fixture(scope="module")

@@ -3,15 +3,7 @@
 import json
 
 import pytest
-
-from dpr.cli import main
-
-
-def run(argv: list[str]) -> int:
-    try:
-        return main(argv)
-    except SystemExit as exit_:
-        return exit_.code
+from helpers import run_cli as run
 
 
 SMALL = ["--robot-model", "disk", "--n-robots", "4", "--steps", "20", "--workers", "1"]

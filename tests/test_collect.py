@@ -14,9 +14,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import run_cli
 
 import dpr.datasets.collect as collect_module
-from dpr.cli import main as cli_main
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.datasets.mcap import read_mcap
@@ -97,14 +97,6 @@ def committed_episodes(root: Path) -> int:
         return json.loads((root / "meta" / "info.json").read_text())["total_episodes"]
     except (FileNotFoundError, json.JSONDecodeError, KeyError):
         return 0
-
-
-def run_cli(argv: list[str]) -> int:
-    """dpr.cli.main's exit status, whether it returns it or argparse raises SystemExit."""
-    try:
-        return cli_main(argv)
-    except SystemExit as exit_:
-        return exit_.code
 
 
 def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:

@@ -7,8 +7,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from helpers import run_cli as run
 
-from dpr.cli import main
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import METADATA_MEMBER, load_model_policy, read_model_info
 from dpr.rl.evaluation import evaluate, run_episode
@@ -24,13 +24,6 @@ TINY = {
     "a2c": {},
     "dqn": {"learning_starts": 32, "buffer_size": 1000, "target_update_interval": 50},
 }
-
-
-def run(argv: list[str]) -> int:
-    try:
-        return main(argv)
-    except SystemExit as exit_:
-        return exit_.code
 
 
 def tiny_config(algo: str, **kwargs) -> TrainConfig:

@@ -8,9 +8,9 @@ from collections import defaultdict
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
+from helpers import run_cli as run
 
 import dpr.viz
-from dpr.cli import main
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.datasets.mcap import read_mcap
@@ -20,13 +20,6 @@ from dpr.viz import episode_from_dataset, episode_from_mcap, rollout_episode, ru
 
 STEPS = 50
 SMALL = ["--robot-model", "disk", "--n-robots", "4"]
-
-
-def run(argv: list[str]) -> int:
-    try:
-        return main(argv)
-    except SystemExit as exit_:
-        return exit_.code
 
 
 @pytest.fixture(scope="module")
