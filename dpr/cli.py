@@ -95,7 +95,7 @@ def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
     from dpr.envs import ENV_IDS
-    from dpr.rl.evaluation import evaluate, format_table, summary
+    from dpr.rl.evaluation import evaluate, evaluation_json, format_table, summary
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
@@ -119,10 +119,10 @@ def cmd_evaluate(args, parser) -> int:
             "env_kwargs": env_kwargs,
             "steps": args.steps,
             "seeds": args.seeds,
-            "episodes": [r.as_dict() for r in results],
+            "episodes": [r.as_dict(trajectory=True) for r in results],  # the path too, for `dpr report`
             "summary": summary(results) if len(env_ids) > 1 else summary(results)[env_ids[0]],
         }
-        Path(args.json).write_text(json.dumps(payload, indent=2))
+        Path(args.json).write_text(evaluation_json(payload))
         print(f"wrote {args.json}")
     if args.rerun:
         _log_evaluation_to_rerun(args, env_ids, env_kwargs)
@@ -147,6 +147,27 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
                                             name=f"{task}_seed{seed}", **swarm))
     save_rrd(episodes, args.rerun, title=f"dpr evaluate {args.policy}")
     print(f"wrote {args.rerun}")
+
+
+def cmd_report(args, parser) -> int:
+    import warnings
+
+    from dpr.rl.report import write_report
+
+    if args.label is not None and len(args.label) != len(args.evaluations):
+        parser.error(f"--label: give one name per file ({len(args.evaluations)} file(s), {len(args.label)} label(s))")
+    with warnings.catch_warnings(record=True) as caught:  # policies left out of a figure: say so plainly
+        warnings.simplefilter("always")
+        try:
+            written = write_report(args.evaluations, args.out, labels=args.label, seed=args.seed)
+        except (ValueError, FileExistsError) as error:
+            parser.error(str(error))
+    for warning in caught:
+        print(f"dpr report: warning: {warning.message}", file=sys.stderr)
+    print(written[0].read_text())
+    for path in written:
+        print(f"wrote {path}")
+    return 0
 
 
 def _name_and_value(text: str, flag: str) -> tuple[str, str]:
@@ -479,6 +500,22 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--rerun", metavar="OUT.rrd",
                     help="also save every evaluated episode (replayed with full state) to this new rerun file")
     ev.set_defaults(func=cmd_evaluate)
+
+    rep = sub.add_parser(
+        "report",
+        help="markdown results table and the paper's figures from `dpr evaluate --json` files",
+        description="Results table (markdown) and figures (bars per task and policy; trajectories from one start) "
+        "from `dpr evaluate --json` files. Files are merged: one policy evaluated task by task, or several "
+        "policies, give one row per (task, policy), with \"% of wave\" where the wave policy was evaluated on "
+        "the same seeds. Writes results.md, bars.png and trajectories.png into --out (never overwritten).",
+    )
+    rep.add_argument("evaluations", nargs="+", metavar="EVAL.json", help="files written by `dpr evaluate --json`")
+    rep.add_argument("--out", required=True, metavar="DIR", help="folder for the report (created if missing)")
+    rep.add_argument("--label", nargs="+", metavar="NAME", help="display name of each file's policy, one per file "
+                     "in order (default: the policy's name; a model file's stem, e.g. navigation-bc-ppo)")
+    rep.add_argument("--seed", type=int, help="seed of the episodes drawn in trajectories.png (default: per task, "
+                     "the smallest seed every policy has)")
+    rep.set_defaults(func=cmd_report)
 
     tr = sub.add_parser(
         "train",

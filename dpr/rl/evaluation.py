@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import re
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 
@@ -14,6 +16,10 @@ from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import is_model_path, model_env_kwargs
 
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")
+# The trajectory stored in `dpr evaluate --json`: every 10th position to 0.1 units is plenty for a figure
+# (2500 steps -> 251 points) and keeps the file small.
+TRAJECTORY_EVERY = 10
+TRAJECTORY_DECIMALS = 1
 
 
 def check_env_id(env_id: str) -> str:
@@ -31,8 +37,36 @@ class EpisodeResult:
     trajectory: np.ndarray = field(repr=False)
     goal: np.ndarray = field(repr=False)
 
-    def as_dict(self) -> dict:
-        return {"env_id": self.env_id, "policy": self.policy, "seed": self.seed, **self.metrics.as_dict()}
+    def as_dict(self, trajectory: bool = False) -> dict:
+        """The metrics; with ``trajectory`` also the goal and the subsampled path (see subsample_trajectory)."""
+        row = {"env_id": self.env_id, "policy": self.policy, "seed": self.seed, **self.metrics.as_dict()}
+        if trajectory:
+            row["goal"] = [float(v) for v in self.goal]
+            row["trajectory"] = subsample_trajectory(self.trajectory)
+        return row
+
+
+def subsample_trajectory(
+    trajectory: np.ndarray, every: int = TRAJECTORY_EVERY, decimals: int = TRAJECTORY_DECIMALS
+) -> list[list[float]]:
+    """Every ``every``-th position of a (T+1, 2) trajectory and always the last one, rounded to ``decimals``,
+    as a list of [x, y] (JSON-ready)."""
+    trajectory = np.asarray(trajectory, dtype=float)
+    indices = np.arange(0, len(trajectory), every)
+    if indices[-1] != len(trajectory) - 1:  # the end position is what the metrics are computed from
+        indices = np.append(indices, len(trajectory) - 1)
+    return np.round(trajectory[indices], decimals).tolist()
+
+
+# An [x, y] pair that json.dumps(indent=...) spread over four lines. Raw newlines never occur inside a JSON
+# string, so matching them cannot touch string contents.
+_SPREAD_PAIR = re.compile(r"\[\n\s*([^\s,\[\]{}]+),\n\s*([^\s,\[\]{}]+)\n\s*\]")
+
+
+def evaluation_json(payload: dict) -> str:
+    """``payload`` as indented JSON with each [x, y] pair on one line (a trajectory is then a line per point,
+    not four)."""
+    return _SPREAD_PAIR.sub(r"[\1, \2]", json.dumps(payload, indent=2))
 
 
 def policy_env_kwargs(policy: str, env_id: str, env_kwargs: dict | None) -> dict:

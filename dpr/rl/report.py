@@ -1,0 +1,357 @@
+"""Results table (markdown) and the paper's two figures from `dpr evaluate --json` files.
+
+Each file holds one policy on one or more tasks; several files are merged, so that the same policy evaluated
+task by task, or several policies, end up in one table and one pair of figures:
+
+- the table: one row per (task, policy) with the projected displacement's median, min, max, mean ± std,
+  the success rate and the median as a percentage of the wave policy's on the same seeds;
+- ``bars.png``: per task, one bar per policy (median, min-max error bars), as in the paper;
+- ``trajectories.png``: per task, every policy's path from the same start (one seed).
+
+matplotlib is imported only when a figure is drawn, through its object-oriented API with the Agg canvas,
+so that importing this module stays cheap and the process's pyplot backend is left alone.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dpr.metrics import summarize
+
+TASK_ORDER = ("Navigation", "Gate", "Unresponsive", "Manipulation")
+WAVE_POLICY = "wave"
+MODEL_SUFFIX = ".zip"
+REPORT_FILES = ("results.md", "bars.png", "trajectories.png")
+REQUIRED_KEYS = {"policy": str, "env_ids": list, "steps": int, "seeds": list, "episodes": list}
+EPISODE_KEYS = {"env_id": str, "seed": int, "projected_displacement": (int, float), "success": (bool, int)}
+NO_VALUE = "—"
+
+
+def task_name(env_id: str) -> str:
+    """'dpr/Navigation-v0' -> 'Navigation'."""
+    return env_id.split("/")[-1].rsplit("-v", 1)[0]
+
+
+def policy_label(policy: str) -> str:
+    """Display name of a policy: a model file's stem (models/navigation-bc-ppo.zip -> navigation-bc-ppo), else
+    the policy's name."""
+    return Path(policy).stem if policy.endswith(MODEL_SUFFIX) else policy
+
+
+def _is_a(value, kind) -> bool:
+    # bool is an int in Python; a seed or a step count given as true/false is still wrong.
+    return isinstance(value, kind) and not (isinstance(value, bool) and kind in (int, (int, float)))
+
+
+def _check_points(value, shape: tuple[int | None, int], where: str) -> None:
+    """``value`` must be numbers of ``shape`` (None: any length >= 1)."""
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where} must be numbers") from None
+    if array.ndim != len(shape) or array.shape[-1] != shape[-1] or (len(shape) == 2 and len(array) == 0):
+        expected = "[x, y]" if len(shape) == 1 else "a non-empty list of [x, y]"
+        raise ValueError(f"{where} must be {expected}, got shape {array.shape}")
+
+
+def load_evaluation(path, label: str | None = None) -> dict:
+    """The payload of a `dpr evaluate --json` file, checked, with ``source`` (the path) and ``label`` (``label``,
+    else policy_label of its policy) added. A ValueError names the file and what is wrong."""
+    path = Path(path)
+    try:
+        payload = json.loads(path.read_text())
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not a JSON file ({error})") from None
+    if not isinstance(payload, dict):
+        kind = type(payload).__name__
+        raise ValueError(f"{path}: expected a JSON object written by `dpr evaluate --json`, got a {kind}")
+    missing = [key for key in REQUIRED_KEYS if key not in payload]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {missing}; is it a `dpr evaluate --json` file?")
+    for key, kind in REQUIRED_KEYS.items():
+        if not _is_a(payload[key], kind):
+            raise ValueError(f"{path}: '{key}' must be a {kind.__name__}, got {payload[key]!r:.60}")
+    if not payload["episodes"]:
+        raise ValueError(f"{path}: no episodes")
+    for i, episode in enumerate(payload["episodes"]):
+        where = f"{path}: episode {i}"
+        if not isinstance(episode, dict):
+            raise ValueError(f"{where} must be an object, got {episode!r:.60}")
+        missing = [key for key in EPISODE_KEYS if key not in episode]
+        if missing:
+            raise ValueError(f"{where} lacks {missing}")
+        for key, kind in EPISODE_KEYS.items():
+            if not _is_a(episode[key], kind):
+                raise ValueError(f"{where}: '{key}' has a wrong type: {episode[key]!r:.60}")
+        if "trajectory" in episode:  # absent from files written before trajectories were recorded
+            if "goal" not in episode:
+                raise ValueError(f"{where} has a trajectory but no goal")
+            _check_points(episode["goal"], (2,), f"{where}: 'goal'")
+            _check_points(episode["trajectory"], (None, 2), f"{where}: 'trajectory'")
+    return {**payload, "source": str(path), "label": label or policy_label(payload["policy"])}
+
+
+@dataclass
+class _Group:
+    """The episodes of one policy (a display label) on one task, from one file."""
+
+    task: str
+    label: str
+    policy: str
+    source: str
+    steps: int
+    file_index: int  # which of the evaluations given it comes from
+    episodes: list[dict] = field(default_factory=list)
+
+    @property
+    def seeds(self) -> list[int]:
+        return sorted(episode["seed"] for episode in self.episodes)
+
+
+def _label(evaluation: dict) -> str:
+    return evaluation.get("label") or policy_label(evaluation["policy"])
+
+
+def _labels_in_order(evaluations: list[dict]) -> list[str]:
+    return list(dict.fromkeys(_label(evaluation) for evaluation in evaluations))
+
+
+def _task_key(task: str) -> tuple[int, str]:
+    # The paper's order; a task this module does not know comes last, by name.
+    return (TASK_ORDER.index(task), "") if task in TASK_ORDER else (len(TASK_ORDER), task)
+
+
+def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
+    """task -> label -> its episodes, tasks in the paper's order and policies in the order given. The same
+    label on the same task in two files is a ValueError (which one would the row be?)."""
+    if not evaluations:
+        raise ValueError("no evaluations to report")
+    by_task: dict[str, dict[str, _Group]] = {}
+    for index, evaluation in enumerate(evaluations):
+        label, source = _label(evaluation), evaluation.get("source", f"evaluation {index}")
+        for episode in evaluation["episodes"]:
+            task = task_name(episode["env_id"])
+            groups = by_task.setdefault(task, {})
+            group = groups.get(label)
+            if group is None:
+                group = groups[label] = _Group(task, label, evaluation["policy"], source, evaluation["steps"], index)
+            elif group.file_index != index:
+                raise ValueError(
+                    f"policy {label!r} on {task} is in both {group.source} and {source}; "
+                    "give them different labels (--label) or report them separately"
+                )
+            group.episodes.append(episode)
+    order = _labels_in_order(evaluations)
+    return {
+        task: {label: by_task[task][label] for label in order if label in by_task[task]}
+        for task in sorted(by_task, key=_task_key)
+    }
+
+
+def _format_seeds(seeds: list[int]) -> str:
+    """[0, 1, 2, 3, 5] -> '0-3,5'."""
+    runs: list[list[int]] = []
+    for seed in sorted(set(seeds)):
+        if runs and seed == runs[-1][1] + 1:
+            runs[-1][1] = seed
+        else:
+            runs.append([seed, seed])
+    return ",".join(str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in runs)
+
+
+def _median(group: _Group) -> float:
+    return float(np.median([episode["projected_displacement"] for episode in group.episodes]))
+
+
+def _wave_reference(groups: dict[str, _Group]) -> _Group | None:
+    """The first group of the wave policy on a task (by policy name, whatever its label)."""
+    return next((group for group in groups.values() if group.policy == WAVE_POLICY), None)
+
+
+def _percent_of_wave(group: _Group, wave: _Group | None) -> str:
+    # Only a like-for-like comparison: the same starts (seeds) and episode length; and a ratio to a median
+    # that is not positive says nothing.
+    if wave is None or wave.seeds != group.seeds or wave.steps != group.steps:
+        return NO_VALUE
+    reference = _median(wave)
+    if reference <= 0:
+        return NO_VALUE
+    return f"{100 * _median(group) / reference:.0f}%"
+
+
+def results_table(evaluations: list[dict]) -> str:
+    """Markdown table: one row per (task, policy) of the projected displacement's statistics over episodes,
+    the success rate, the episode count and seeds, and the median as a percentage of the wave policy's."""
+    lines = [
+        "| task | policy | median | min | max | mean ± std | success | n | seeds | % of wave |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for task, groups in _groups(evaluations).items():
+        wave = _wave_reference(groups)
+        for label, group in groups.items():
+            s = summarize(episode["projected_displacement"] for episode in group.episodes)
+            success = float(np.mean([bool(episode["success"]) for episode in group.episodes]))
+            lines.append(
+                f"| {task} | {label} | {s['median']:.1f} | {s['min']:.1f} | {s['max']:.1f} | "
+                f"{s['mean']:.1f} ± {s['std']:.1f} | {100 * success:.0f}% | {s['n']} | "
+                f"{_format_seeds(group.seeds)} | {_percent_of_wave(group, wave)} |"
+            )
+    return "\n".join(lines)
+
+
+def _new_figure(width: float, height: float, columns: int = 1):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(figure)  # attaches itself: the figure renders with Agg whatever the pyplot backend
+    axes = figure.subplots(1, columns, squeeze=False)[0]
+    return figure, axes
+
+
+def _colours(labels: list[str]) -> dict[str, str]:
+    """One colour per policy, the same in both figures."""
+    return {label: f"C{i % 10}" for i, label in enumerate(labels)}
+
+
+def bar_figure(evaluations: list[dict], path) -> Path:
+    """The paper's bar chart: per task a group of bars, one per policy, of the median projected displacement
+    with min-max error bars. Saved to ``path`` (PNG)."""
+    by_task = _groups(evaluations)
+    labels = _labels_in_order(evaluations)
+    colours = _colours(labels)
+    figure, (axes,) = _new_figure(max(6.0, 1.5 + len(by_task) * (0.5 + 0.35 * len(labels))), 4.5)
+    width = 0.8 / len(labels)
+    for i, label in enumerate(labels):
+        positions, medians, below, above = [], [], [], []
+        for x, groups in enumerate(by_task.values()):
+            if label in groups:
+                s = summarize(episode["projected_displacement"] for episode in groups[label].episodes)
+                positions.append(x - 0.4 + width * (i + 0.5))
+                medians.append(s["median"])
+                below.append(s["median"] - s["min"])
+                above.append(s["max"] - s["median"])
+        axes.bar(positions, medians, width, yerr=[below, above], capsize=3, color=colours[label], label=label)
+    axes.axhline(0.0, color="black", linewidth=0.8)
+    axes.set_xticks(range(len(by_task)), list(by_task))
+    axes.set_ylabel("projected displacement (units)")
+    axes.set_title("Projected displacement per task\n(median over seeds; error bars: min to max)")
+    axes.legend(loc="best")
+    figure.savefig(path, dpi=150)
+    return Path(path)
+
+
+@dataclass
+class _Path:
+    label: str
+    trajectory: np.ndarray
+    goal: np.ndarray
+
+
+def _trajectory_plan(evaluations: list[dict], seed: int | None) -> dict[str, tuple[int, list[_Path]]]:
+    """task -> (seed, the paths to draw): every policy with recorded trajectories, from the given seed or the
+    smallest seed all of them have on that task. Warns about each policy skipped; a ValueError when nothing
+    is left to draw."""
+    plan: dict[str, tuple[int, list[_Path]]] = {}
+    for task, groups in _groups(evaluations).items():
+        with_paths = {label: g for label, g in groups.items() if all("trajectory" in e for e in g.episodes)}
+        for label in [label for label in groups if label not in with_paths]:
+            warnings.warn(f"{groups[label].source}: {label} on {task} has no trajectories (written by an older "
+                          "`dpr evaluate`); left out of the trajectory figure", stacklevel=3)
+        if not with_paths:
+            continue
+        if seed is None:
+            common = set.intersection(*(set(g.seeds) for g in with_paths.values()))
+            if not common:
+                raise ValueError(f"{task}: no seed was evaluated for all of {list(with_paths)}; pick one with --seed")
+            chosen = min(common)
+        else:
+            chosen = seed
+            lacking = [label for label, g in with_paths.items() if chosen not in g.seeds]
+            for label in lacking:
+                warnings.warn(f"{with_paths[label].source}: {label} on {task} has no episode of seed {chosen}; "
+                              "left out of the trajectory figure", stacklevel=3)
+                del with_paths[label]
+            if not with_paths:
+                continue
+        paths = []
+        for label, group in with_paths.items():
+            episode = next(e for e in group.episodes if e["seed"] == chosen)
+            paths.append(_Path(label, np.asarray(episode["trajectory"], float), np.asarray(episode["goal"], float)))
+        plan[task] = (chosen, paths)
+    if not plan:
+        which = "has" if seed is None else f"has seed {seed} with"
+        raise ValueError(f"no evaluation {which} trajectories; run `dpr evaluate --json` again to record them")
+    return plan
+
+
+def _draw_trajectories(plan: dict[str, tuple[int, list[_Path]]], labels: list[str], path) -> Path:
+    colours = _colours(labels)
+    figure, all_axes = _new_figure(4.5 * len(plan), 4.8, columns=len(plan))
+    for axes, (task, (seed, paths)) in zip(all_axes, plan.items()):
+        start, goal = paths[0].trajectory[0], paths[0].goal
+        # Hollow start marker under the paths: a short path must stay visible on top of it.
+        markers = axes.plot(*start, "s", color="black", markerfacecolor="none", markersize=9, label="start", zorder=1)
+        markers += axes.plot(*goal, "*", color="gold", markeredgecolor="black", markersize=14, label="goal", zorder=1)
+        lines = []
+        for p in paths:
+            lines += axes.plot(p.trajectory[:, 0], p.trajectory[:, 1], color=colours[p.label], linewidth=1.5,
+                               label=p.label, zorder=2)
+            axes.plot(*p.trajectory[-1], "o", color=colours[p.label], markersize=4, zorder=2)  # where it ended
+        axes.set_aspect("equal", adjustable="datalim")
+        axes.set_title(f"{task} (seed {seed})")
+        axes.set_xlabel("x (units)")
+        axes.set_ylabel("y (units)")
+        axes.legend(handles=lines + markers, loc="best", fontsize="small")  # policies first
+    figure.savefig(path, dpi=150)
+    return Path(path)
+
+
+def trajectory_figure(evaluations: list[dict], path, seed: int | None = None) -> Path:
+    """One panel per task with every policy's path from the same start (``seed``, default the smallest seed
+    all policies have on that task), the start and the goal. Policies without recorded trajectories are left
+    out with a warning; a ValueError when none has any. Saved to ``path`` (PNG)."""
+    return _draw_trajectories(_trajectory_plan(evaluations, seed), _labels_in_order(evaluations), path)
+
+
+def _sources_line(evaluations: list[dict]) -> str:
+    parts = [
+        f"`{e['source']}` ({_label(e)}: {', '.join(task_name(env_id) for env_id in e['env_ids'])}; "
+        f"seeds {_format_seeds(e['seeds'])}, {e['steps']} steps)"
+        for e in evaluations
+    ]
+    return "Sources: " + "; ".join(parts) + "."
+
+
+def write_report(json_paths, out_dir, labels: list[str] | None = None, seed: int | None = None) -> list[Path]:
+    """Write ``out_dir``/results.md (the table and its sources), bars.png and trajectories.png from
+    `dpr evaluate --json` files; ``labels``: one display name per file. Checks everything first and writes
+    nothing when a file is bad or an output already exists (FileExistsError). Returns the paths written."""
+    json_paths = list(json_paths)
+    if labels is not None and len(labels) != len(json_paths):
+        raise ValueError(f"give one label per file: {len(json_paths)} file(s), {len(labels)} label(s)")
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"{out_dir} exists and is not a folder")
+    outputs = [out_dir / name for name in REPORT_FILES]
+    for output in outputs:
+        if output.exists():
+            raise FileExistsError(f"{output} already exists; choose another folder (reports are never overwritten)")
+    evaluations = [load_evaluation(p, label) for p, label in zip(json_paths, labels or [None] * len(json_paths))]
+    table = results_table(evaluations)
+    plan = _trajectory_plan(evaluations, seed)  # before writing anything: it may find nothing to draw
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results_md, bars_png, trajectories_png = outputs
+    results_md.write_text(
+        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n{_sources_line(evaluations)}\n"
+    )
+    bar_figure(evaluations, bars_png)
+    _draw_trajectories(plan, _labels_in_order(evaluations), trajectories_png)
+    return outputs
