@@ -15,12 +15,11 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet -e '.[dev]' -c constraints.txt
 	touch $(STAMP)
 
-# Main job at its small default: the wave policy on all four tasks (metrics table), then a small demonstration
-# dataset (resumed, not rewritten, when it is already there) and its bit-exact replay check.
+# Main job at its small default: the learning pipeline on Navigation, N=9 (demonstrations of the Markov wave ->
+# behaviour cloning -> PPO fine-tuning, beside PPO from scratch for the same env steps, all evaluated against
+# the wave policy on unseen seeds), then its table; figures in runs/pipeline/report. Run again, it resumes.
 run: $(STAMP)
-	$(BIN)/dpr evaluate --policy wave --env all --seeds 0-2
-	$(BIN)/dpr collect --env dpr/Navigation-v0 --policy wave --episodes 2 --steps 500 --out runs/datasets/nav9-demo --mcap
-	$(BIN)/dpr replay runs/datasets/nav9-demo
+	$(BIN)/dpr pipeline --out runs/pipeline
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

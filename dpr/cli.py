@@ -10,6 +10,7 @@ from pathlib import Path
 
 ALL_ENVS = "all"
 ROBOT_MODEL_NAMES = ("paddle", "disk")
+TASK_NAMES = ("navigation", "gate", "unresponsive", "manipulation")  # the keys of dpr.envs.ENV_IDS (kept light: no env import for --help)
 
 
 def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
@@ -95,7 +96,7 @@ def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
     from dpr.envs import ENV_IDS
-    from dpr.rl.evaluation import evaluate, evaluation_json, format_table, summary
+    from dpr.rl.evaluation import evaluate, evaluation_json, evaluation_payload, format_table
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
@@ -113,15 +114,7 @@ def cmd_evaluate(args, parser) -> int:
         parser.error(str(error))
     print(format_table(results))
     if args.json:
-        payload = {
-            "policy": args.policy,
-            "env_ids": env_ids,
-            "env_kwargs": env_kwargs,
-            "steps": args.steps,
-            "seeds": args.seeds,
-            "episodes": [r.as_dict(trajectory=True) for r in results],  # the path too, for `dpr report`
-            "summary": summary(results) if len(env_ids) > 1 else summary(results)[env_ids[0]],
-        }
+        payload = evaluation_payload(args.policy, env_ids, env_kwargs, args.steps, args.seeds, results)
         Path(args.json).write_text(evaluation_json(payload))
         print(f"wrote {args.json}")
     if args.rerun:
@@ -210,6 +203,57 @@ def cmd_train(args, parser) -> int:
     print(f"config: {result.config_path}")
     print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
     return 130 if result.interrupted else 0
+
+
+def cmd_finetune(args, parser) -> int:
+    from dpr.policies.sb3 import model_env_kwargs, read_model_info
+    from dpr.rl.train import TrainConfig, train
+
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    try:
+        info = read_model_info(args.source)
+        if info.env_id != args.env:
+            raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
+        env_kwargs = model_env_kwargs(args.source, args.env, dict(args.env_kwarg or []))
+        config = TrainConfig(
+            args.algo or info.algo, args.env, n_robots=env_kwargs.pop("n_robots", 9),
+            robot_model=env_kwargs.pop("robot_model", "paddle"), timesteps=args.timesteps, seed=args.seed,
+            n_envs=args.n_envs, preset="finetune", steps_per_episode=info.max_episode_steps or 2500, env_kwargs=env_kwargs,
+            hyperparams=dict(args.hyperparam or []), eval_episodes=args.eval_episodes, init_from=args.source,
+            critic_warmup=args.critic_warmup,
+        )
+        result = train(config, args.out)
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    print(f"model: {result.model_path}")
+    if result.best_model_path:
+        print(f"best model: {result.best_model_path}")
+    print(f"config: {result.config_path}")
+    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    return 130 if result.interrupted else 0
+
+
+def cmd_pipeline(args, parser) -> int:
+    from dpr.envs import ENV_IDS
+    from dpr.rl.pipeline import PipelineConfig, run_pipeline
+
+    tasks = list(ENV_IDS) if args.tasks == [ALL_ENVS] else args.tasks
+    try:
+        config = PipelineConfig(
+            tasks=tasks, n_robots=args.n_robots, episodes=args.episodes, demo_seed=args.demo_seed,
+            bc_epochs=args.bc_epochs, critic_warmup=args.critic_warmup, finetune_steps=args.finetune_steps,
+            finetune_algos=args.finetune_algos, scratch_algos=args.scratch_algos, eval_seeds=args.eval_seeds,
+            seed=args.seed, workers=args.workers, steps=args.steps,
+        )
+        report = run_pipeline(config, args.out)
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    except KeyboardInterrupt:
+        print(f"dpr pipeline: interrupted; run the same command again to resume {args.out}", file=sys.stderr)
+        return 130
+    print((report / "results.md").read_text())
+    return 0
 
 
 def cmd_bc(args, parser) -> int:
@@ -544,6 +588,61 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
     tr.set_defaults(func=cmd_train)
 
+    ft = sub.add_parser(
+        "finetune",
+        help="fine-tune a behaviour-cloned model with PPO or A2C",
+        description="Start PPO or A2C from the weights of a model written by `dpr bc` (or `dpr train`) and train "
+        "it on the env it was made for, with the `finetune` entry of dpr/rl/hyperparams/<algo>.yml on top of the "
+        "env id's entry: small, clipped updates, so the cloned behaviour is not forgotten. First, --critic-warmup "
+        "steps train only the value head on rollouts of the unchanged actor. Writes a run folder as `dpr train` does.",
+    )
+    ft.add_argument("--from", dest="source", required=True, metavar="MODEL.zip", help="the model to start from")
+    ft.add_argument("--env", required=True, help="env id the model was trained on, e.g. dpr/Navigation-v0")
+    ft.add_argument("--algo", choices=("ppo", "a2c"), help="algorithm to fine-tune with (default: the model's)")
+    ft.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
+    ft.add_argument("--critic-warmup", type=int, default=20_000,
+                    help="env steps that train only the value head first (default 20000; 0 to skip)")
+    ft.add_argument("--seed", type=int, default=0, help="seed of the run and its envs (default 0)")
+    ft.add_argument("--n-envs", type=positive_int, default=min(2, os.cpu_count() or 1),
+                    help="parallel envs (subprocesses when > 1; default: min(2, CPUs))")
+    ft.add_argument("--eval-episodes", type=positive_int, default=2,
+                    help="episodes per periodic evaluation (default 2)")
+    _env_kwarg_argument(ft, "reward=projected")
+    ft.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
+                    help="override a yaml hyperparameter, e.g. learning_rate=1e-5 (repeatable)")
+    ft.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
+    ft.set_defaults(func=cmd_finetune)
+
+    pi = sub.add_parser(
+        "pipeline",
+        help="demonstrations -> BC -> fine-tuning, beside RL from scratch, evaluated against the wave",
+        description="Per task: record demonstrations of the Markov wave, clone them (BC), fine-tune the clone "
+        "with PPO/A2C, train RL from scratch for the same total env steps, evaluate everything and the wave policy "
+        "on unseen seeds, and write OUT/report/results.md with bars.png and trajectories.png. Every stage is "
+        "skipped when its output exists: the same command resumes an interrupted run. The defaults are the "
+        "small budget of `make run` (Navigation, N=9, about 10 minutes on 2 CPU cores).",
+    )
+    pi.add_argument("--out", default="runs/pipeline", help="run folder (default runs/pipeline; resumed if present)")
+    pi.add_argument("--tasks", nargs="+", default=["navigation"], choices=(*TASK_NAMES, ALL_ENVS),
+                    help="tasks to run (default navigation; 'all' for the four)")
+    pi.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
+    pi.add_argument("--episodes", type=positive_int, default=10, help="demonstration episodes per task (default 10)")
+    pi.add_argument("--demo-seed", type=int, default=1000, help="first demonstration seed (default 1000)")
+    pi.add_argument("--bc-epochs", type=positive_int, default=10, help="behaviour-cloning epochs (default 10)")
+    pi.add_argument("--critic-warmup", type=int, default=10_000, help="value-only steps before fine-tuning (default 10000)")
+    pi.add_argument("--finetune-steps", type=positive_int, default=30_000, help="fine-tuning steps (default 30000)")
+    pi.add_argument("--finetune-algos", nargs="+", default=["ppo"], choices=("ppo", "a2c"),
+                    help="algorithms that fine-tune the clone (default ppo)")
+    pi.add_argument("--scratch-algos", nargs="*", default=["ppo"], choices=("ppo", "a2c", "dqn"),
+                    help="algorithms trained from scratch for the same total env steps (default ppo)")
+    pi.add_argument("--eval-seeds", type=lambda text: parse_seeds(text, "--eval-seeds"), default=parse_seeds("100-104"),
+                    help="evaluation seeds, never used for training (default 100-104)")
+    pi.add_argument("--seed", type=int, default=0, help="seed of BC and RL (default 0)")
+    pi.add_argument("--steps", type=positive_int, default=2500, help="steps per episode, everywhere (default 2500)")
+    pi.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
+                    help="worker processes for collection, RL envs and evaluation (default: min(2, CPUs))")
+    pi.set_defaults(func=cmd_pipeline)
+
     bc = sub.add_parser(
         "bc",
         help="behaviour-clone a recorded dataset into a PPO/A2C model",
@@ -555,7 +654,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bc.add_argument("--dataset", required=True, help="dataset folder written by `dpr collect`")
     bc.add_argument("--env", required=True, help="env id the dataset was recorded on, e.g. dpr/Navigation-v0")
-    bc.add_argument("--algo", choices=("ppo", "a2c"), default="ppo", help="model to clone into (default ppo)")
+    bc.add_argument("--algo", choices=("ppo", "a2c", "dqn"), default="ppo",
+                    help="model to clone into (default ppo; dqn: its Q-network as a classifier over 2^N actions)")
     bc.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
     bc.add_argument("--robot-model", choices=ROBOT_MODEL_NAMES, help="only checked: it must be the dataset's")
     bc.add_argument("--epochs", type=positive_int, default=20, help="maximum epochs (default 20)")

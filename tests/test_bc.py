@@ -147,8 +147,32 @@ def test_existing_out_and_bad_arguments_are_refused(dataset, tmp_path, capsys):
         behaviour_clone(dataset, ENV, out=out)
     assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--out", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
-    with pytest.raises(ValueError, match="dqn"):
-        behaviour_clone(dataset, ENV, algo="dqn", out=tmp_path / "dqn")
+    with pytest.raises(ValueError, match="algo must be one of"):
+        behaviour_clone(dataset, ENV, algo="sac", out=tmp_path / "sac")
     with pytest.raises(ValueError, match="val_fraction"):
         behaviour_clone(dataset, ENV, val_fraction=1.0, out=tmp_path / "v")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
+
+
+def test_dqn_clone_classifies_the_recorded_actions_as_integers(dataset, tmp_path):
+    """DQN: the Q-network learns the demonstrated MultiBinary actions as Discrete(2^N) classes, its target
+    network is the trained Q-network, and the model runs on the discrete-action env."""
+    result = behaviour_clone(dataset, ENV, algo="dqn", epochs=150, patience=150, out=tmp_path / "dqn",
+                             log=lambda line: None, **FAST)
+    info = read_model_info(result.model_path)
+    assert info.algo == "dqn" and info.env_kwargs["action_type"] == "discrete"
+    first, last = result.history[0], result.history[-1]
+    assert last["train_nll"] < 0.7 * first["train_nll"]  # the cross-entropy over the 16 joint actions falls
+    assert last["train_accuracy"] > first["train_accuracy"]
+    model, _ = load_model(result.model_path)
+    for name, value in model.policy.q_net.state_dict().items():
+        assert torch.equal(value, model.policy.q_net_target.state_dict()[name])
+    frames = FrameDataset(dataset)
+    sample = frames[0]
+    with torch.no_grad():
+        chosen = int(model.policy.q_net(sample["observation"][None]).argmax())
+    bits = [(chosen >> (3 - i)) & 1 for i in range(4)]  # robot 0 is the most significant bit
+    expected = model.predict(sample["observation"].numpy(), deterministic=True)[0]
+    assert int(expected) == chosen and len(bits) == 4
+    results = evaluate([ENV], str(result.model_path), [0], steps=20)
+    assert results[0].metrics.steps == 20

@@ -86,9 +86,7 @@ def dataset_features(env: gym.Env, pixels: bool = False, image_size: int = 96) -
     if base.obs_type != "state":
         raise ValueError(f"datasets record the state observation; make the env with obs_type='state', got {base.obs_type!r}")
     n = base.n_robots
-    state_names = [f"robot{i}.{part}" for i in range(n) for part in ("x", "y", "vx", "vy", "omega", "expansion")]
-    if base.has_object:
-        state_names += ["object.x", "object.y", "object.vx", "object.vy"]
+    state_names = base.state_names
     if base.action_type == "discrete":
         action = {"dtype": "int64", "shape": [1], "names": ["action"]}
     else:

@@ -45,7 +45,7 @@ class ManipulationEnv(ParticleSwarmEnv):
 
     ## Observation Space
     Navigation's ``6N`` robot features followed by the object's x, y (goal frame), vx, vy, all / 1000:
-    ``Box(6N + 4,)``.
+    ``Box(6N + 4,)``; with ``obs_last_action=True`` the previous action and its held steps follow (N + 1).
 
     ## Rewards
     As Navigation, computed on the object's position.

@@ -21,6 +21,9 @@ class NavigationEnv(ParticleSwarmEnv):
     ## Observation Space
     ``obs_type="state"`` (default): ``Box(6N,)`` float32, robot-major: for each robot x, y (goal frame), vx,
     vy (all / 1000), angular velocity (rad/s) and expansion in [0, 1]. It is the state after the step.
+    With ``obs_last_action=True`` it ends with N + 1 more values in [0, 1]: the previous action's expansion
+    targets and how many consecutive steps that action has been applied (up to 20, divided by 20); zeros after
+    reset. A policy that holds actions for some steps, as the wave does, is then a function of the observation.
     ``"pixels"``: ``Box(0, 255, (image_size, image_size, 3), uint8)``, a fixed top-down camera on the goal.
     ``"pixels_state"``: ``Dict(pixels=..., state=...)``.
 
@@ -47,7 +50,7 @@ class NavigationEnv(ParticleSwarmEnv):
     ## Arguments
     ``gymnasium.make("dpr/Navigation-v0", n_robots=9, robot_model="paddle", action_type="multibinary",
     obs_type="state", reward="piecewise", reward_threshold_d=450.0, start_radius=(450, 550),
-    image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"`` (the paper's robot,
+    obs_last_action=False, image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"`` (the paper's robot,
     16 motor-driven paddles) or ``"disk"`` (one body whose radius changes; tens of times faster).
     ``render_mode="rgb_array"`` draws robots, paddles, magnets, walls, object and goal, headless.
     ``env.unwrapped.world.space`` is the pymunk Space.

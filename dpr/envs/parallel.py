@@ -195,6 +195,8 @@ class ParticleParallelEnv(ParallelEnv):
         obs_type = env_kwargs.get("obs_type", "state")
         if obs_type != "state":
             raise ValueError(f"parallel_env supports obs_type='state' only, got {obs_type!r}")
+        if env_kwargs.get("obs_last_action"):
+            raise ValueError("parallel_env does not support obs_last_action (each agent sees local observations)")
         self.max_episode_steps = _check_count("max_episode_steps", max_episode_steps)
         self.local_obs = _check_flag("local_obs", local_obs)
         self.shared_reward = _check_flag("shared_reward", shared_reward)

@@ -20,6 +20,7 @@ REWARDS = ("piecewise", "projected", "inverse_distance")
 MAX_DISCRETE_ROBOTS = 16  # Discrete(2^N) beyond 65536 actions is of no use to a learner
 ROBOT_FEATURES = 6  # x, y, vx, vy, angular velocity, expansion
 OBJECT_FEATURES = 4  # x, y, vx, vy
+HELD_STEPS_CAP = 20  # obs_last_action: steps an action has been held, counted up to twice the paper's hold
 LENGTH_SCALE = 1.0 / 1000.0
 GOAL = np.zeros(2)
 
@@ -53,6 +54,7 @@ class ParticleSwarmEnv(gym.Env):
         reward: str = "piecewise",
         reward_threshold_d: float = 450.0,
         start_radius: tuple[float, float] = (450.0, 550.0),
+        obs_last_action: bool = False,
         image_size: int = 96,
         render_size: int = 512,
         render_mode: str | None = None,
@@ -74,6 +76,10 @@ class ParticleSwarmEnv(gym.Env):
         low, high = start_radius
         if not 0 < low <= high:
             raise ValueError(f"start_radius must be (low, high) with 0 < low <= high, got {start_radius!r}")
+        if not isinstance(obs_last_action, (bool, np.bool_)):
+            raise ValueError(f"obs_last_action must be True or False, got {obs_last_action!r}")
+        if obs_last_action and obs_type == "pixels":
+            raise ValueError("obs_last_action=True extends the state vector: use obs_type 'state' or 'pixels_state'")
         for name, size in (("image_size", image_size), ("render_size", render_size)):
             if not isinstance(size, (int, np.integer)) or size < 16:
                 raise ValueError(f"{name} must be an integer >= 16, got {size!r}")
@@ -85,6 +91,7 @@ class ParticleSwarmEnv(gym.Env):
         self.reward_type = reward
         self.reward_threshold_d = float(reward_threshold_d)
         self.start_radius = (float(low), float(high))
+        self.obs_last_action = bool(obs_last_action)
         self.image_size = int(image_size)
         self.render_size = int(render_size)
         self.render_mode = render_mode
@@ -98,10 +105,13 @@ class ParticleSwarmEnv(gym.Env):
         else:
             self.action_space = spaces.Box(0.0, 1.0, (n,), dtype=np.float32)
 
-        self.state_size = ROBOT_FEATURES * n + (OBJECT_FEATURES if self.has_object else 0)
+        self.object_offset = ROBOT_FEATURES * n  # where the object's features start, when there is one
+        self.memory_offset = self.object_offset + (OBJECT_FEATURES if self.has_object else 0)
+        self.state_size = self.memory_offset + (n + 1 if self.obs_last_action else 0)
         low_state = np.full(self.state_size, -np.inf, dtype=np.float32)
         high_state = np.full(self.state_size, np.inf, dtype=np.float32)
         low_state[5 : 6 * n : 6], high_state[5 : 6 * n : 6] = 0.0, 1.0  # expansion
+        low_state[self.memory_offset :], high_state[self.memory_offset :] = 0.0, 1.0  # last action, held steps
         state_space = spaces.Box(low_state, high_state, dtype=np.float32)
         pixel_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
         self.observation_space = {
@@ -148,6 +158,8 @@ class ParticleSwarmEnv(gym.Env):
             obj=self._object(self.start, centres),
         )
         self._tracker = MetricTracker(self._agent_position(), self.goal)
+        self._last_targets = np.zeros(self.n_robots)
+        self._held_steps = 0
         self._last_obs = self._observation()
         info = self._info()
         info["dead_robots"] = np.flatnonzero(self.world.dead)
@@ -157,6 +169,10 @@ class ParticleSwarmEnv(gym.Env):
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         targets = self._targets(action)
+        if np.array_equal(targets, self._last_targets):
+            self._held_steps += 1
+        else:
+            self._last_targets, self._held_steps = targets, 1
         previous = self._tracker.last_position
         self.world.step(targets)
         if not self.world.is_sane():
@@ -179,6 +195,17 @@ class ParticleSwarmEnv(gym.Env):
     def close(self):
         self._renderer = None
         self._image_renderer = None
+
+    @property
+    def state_names(self) -> list[str]:
+        """One name per value of the state vector, in order."""
+        n = self.n_robots
+        names = [f"robot{i}.{part}" for i in range(n) for part in ("x", "y", "vx", "vy", "omega", "expansion")]
+        if self.has_object:
+            names += ["object.x", "object.y", "object.vx", "object.vy"]
+        if self.obs_last_action:
+            names += [f"last_action.robot{i}" for i in range(n)] + ["last_action.held_steps"]
+        return names
 
     # -- pieces -------------------------------------------------------------------------------------------
     def _agent_position(self) -> np.ndarray:
@@ -242,8 +269,13 @@ class ParticleSwarmEnv(gym.Env):
         robots[:, 5] = swarm.expansion
         if self.has_object:
             world = self.world
-            state[-4:-2] = (world.object_pose[0:2] - self.goal) * LENGTH_SCALE
-            state[-2:] = world.object_velocity * LENGTH_SCALE
+            at = self.object_offset
+            state[at : at + 2] = (world.object_pose[0:2] - self.goal) * LENGTH_SCALE
+            state[at + 2 : at + 4] = world.object_velocity * LENGTH_SCALE
+        if self.obs_last_action:
+            at = self.memory_offset
+            state[at : at + n] = self._last_targets
+            state[at + n] = min(self._held_steps, HELD_STEPS_CAP) / HELD_STEPS_CAP
         return state
 
     def _observation(self):

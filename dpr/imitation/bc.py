@@ -19,7 +19,10 @@ overstate generalisation). Training stops early when the validation log-likeliho
 A run writes into a new folder: ``model.zip`` (with the env id and kwargs inside, see :mod:`dpr.policies.sb3`),
 ``bc_log.json`` (per-epoch metrics) and ``config.yaml`` (everything the run resolved).
 
-DQN is not supported yet: its Q-network needs Discrete(2^N) actions, which wave datasets do not record.
+DQN (``algo="dqn"``) learns over Discrete(2^N) actions: each recorded MultiBinary action becomes the integer
+whose most significant bit is robot 0 (the env's own encoding), and the Q-network is trained as a classifier,
+its Q-values the logits of a softmax over the 2^N actions (cross-entropy); the target network is then set to
+the trained Q-network. The model runs on the same env with ``action_type="discrete"``.
 """
 
 from __future__ import annotations
@@ -47,7 +50,7 @@ from dpr.policies.sb3 import ModelInfo, write_model_info
 
 __all__ = ["BC_ALGOS", "BCResult", "behaviour_clone", "check_features", "dataset_env"]
 
-BC_ALGOS = ("ppo", "a2c")  # actor-critic policies with an action distribution to maximise the likelihood of
+BC_ALGOS = ("ppo", "a2c", "dqn")  # actor-critics (an action distribution) and DQN (Q-values as logits)
 RUNS_DIR = Path("runs/bc")
 OBSERVATION_KEY = "observation.state"
 ACTION_KEY = "action"
@@ -87,9 +90,6 @@ def _check_arguments(env_id: str, algo: str, epochs: int, batch_size: int, lr: f
                      patience: int, seed: int) -> None:
     if env_id not in ENV_IDS.values():
         raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
-    if algo == "dqn":
-        raise ValueError("algo 'dqn': behaviour cloning into DQN is not implemented (its Discrete(2^N) Q-network "
-                         f"does not match MultiBinary demonstrations); choose one of {BC_ALGOS}")
     if algo not in BC_ALGOS:
         raise ValueError(f"algo must be one of {BC_ALGOS}, got {algo!r}")
     _check_int("epochs", epochs, 1)
@@ -151,12 +151,17 @@ def check_features(reader: LeRobotReader, observation_space: gym.Space, action_s
         problems.append(f"{OBSERVATION_KEY} has shape {shape}, the env's observation space is "
                         f"{_space_text(observation_space)}")
     action = reader.features.get(ACTION_KEY)
-    if not isinstance(action_space, gym.spaces.MultiBinary):
-        problems.append(f"the env's action space {_space_text(action_space)} is not MultiBinary (BC supports "
-                        "action_type='multibinary' only)")
-    elif action is None or list(action.get("shape", ())) != [int(action_space.n)]:
+    if isinstance(action_space, gym.spaces.MultiBinary):
+        n_robots = int(action_space.n)
+    elif isinstance(action_space, gym.spaces.Discrete):  # DQN: the recorded bits become one integer
+        n_robots = int(action_space.n).bit_length() - 1
+    else:
+        n_robots = None
+        problems.append(f"the env's action space {_space_text(action_space)} is neither MultiBinary nor Discrete(2^N)")
+    if n_robots is not None and (action is None or list(action.get("shape", ())) != [n_robots]):
         shape = None if action is None else action.get("shape")
-        problems.append(f"{ACTION_KEY} has shape {shape}, the env's action space is {action_space}")
+        problems.append(f"{ACTION_KEY} has shape {shape}, expected [{n_robots}] (one 0/1 per robot) for the env's "
+                        f"action space {action_space}")
     if problems:
         raise ValueError(f"--dataset: {reader.root} does not fit {env_text}: " + "; ".join(problems))
 
@@ -179,8 +184,23 @@ def actor_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
             if not name.startswith(("mlp_extractor.value_net.", "value_net.", "vf_features_extractor."))]
 
 
+def trained_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
+    """What BC trains: an actor-critic's actor, or a DQN policy's Q-network (its target is copied after)."""
+    if hasattr(policy, "q_net"):
+        return list(policy.q_net.parameters())
+    return actor_parameters(policy)
+
+
 def _batch_stats(policy, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-frame negative log-likelihood [B] and per-robot correctness of the deterministic action [B, N]."""
+    if hasattr(policy, "q_net"):  # DQN: Q-values as the logits of a softmax over the 2^N joint actions
+        n = action.shape[1]
+        bits = 1 << torch.arange(n - 1, -1, -1)
+        logits = policy.q_net(observation)
+        nll = torch.nn.functional.cross_entropy(logits, (action.long() * bits).sum(1), reduction="none")
+        chosen = logits.argmax(dim=1, keepdim=True)
+        correct = ((chosen & bits) > 0).to(action.dtype) == action
+        return nll, correct
     distribution = policy.get_distribution(observation)
     nll = -distribution.log_prob(action)  # Bernoulli log-probs summed over robots
     correct = distribution.mode() == action
@@ -299,10 +319,12 @@ def behaviour_clone(
     kwargs, steps = dataset_env(reader, env_id, env_kwargs)
     hyper = load_hyperparams(algo, env_id)
     for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
-        if name in kwargs and kwargs[name] != value:
+        # DQN's Discrete(2^N) actions are the recorded MultiBinary ones, encoded as integers
+        converted = algo == "dqn" and name == "action_type" and kwargs.get(name) == "multibinary"
+        if name in kwargs and kwargs[name] != value and not converted:
             raise ValueError(f"{algo} needs {name}={value!r} (its yaml env_kwargs); --dataset {reader.root} was "
                              f"recorded with {name}={kwargs[name]!r}")
-    kwargs = {**hyper.env_kwargs, **kwargs}
+    kwargs = {**kwargs, **hyper.env_kwargs}
     steps = int(steps) if steps else 2500
     env_text = f"{env_id} {kwargs}"
     probe = gym.make(env_id, **kwargs)  # a bad kwarg fails here, before the run folder exists
@@ -340,7 +362,7 @@ def behaviour_clone(
     val_set = FrameDataset(reader.root, episodes=val_ids, cache_episodes=BLOCK_EPISODES)
     sampler = EpisodeBlockSampler(train_set, block_episodes=BLOCK_EPISODES, seed=seed)
     loader = _loader(train_set, batch_size, sampler)
-    optimizer = torch.optim.Adam(actor_parameters(policy), lr=lr)
+    optimizer = torch.optim.Adam(trained_parameters(policy), lr=lr)
 
     # Epoch 0 is the untrained policy: the baseline every later epoch is compared with.
     history = [{"epoch": 0, **measure(policy, train_set, batch_size, "train"),
@@ -370,6 +392,8 @@ def behaviour_clone(
                     stopped_early = True
                     break
     policy.load_state_dict(best_state)
+    if hasattr(policy, "q_net_target"):  # DQN bootstraps from its target network: start it at the clone
+        policy.q_net_target.load_state_dict(policy.q_net.state_dict())
     policy.set_training_mode(False)
     seconds = time.perf_counter() - started
 

@@ -19,7 +19,7 @@ METADATA_MEMBER = "dpr_env.json"
 METADATA_FORMAT = 1
 ALGOS = ("ppo", "a2c", "dqn")
 # Env kwargs whose value decides the observation or action space: a different value can never run the model.
-SPACE_KWARGS = ("n_robots", "action_type", "obs_type", "image_size")
+SPACE_KWARGS = ("n_robots", "action_type", "obs_type", "obs_last_action", "image_size")
 
 
 def is_model_path(name: str) -> bool:
@@ -183,6 +183,11 @@ class ModelPolicy:
 
 
 def load_model_policy(path: str | Path, env) -> ModelPolicy:
-    """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env)."""
+    """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env).
+    Predictions run on one torch thread: one small MLP per step gains nothing from more, and evaluation runs
+    one process per core."""
+    import torch
+
+    torch.set_num_threads(1)
     model, info = load_model(path, env)
     return ModelPolicy(model, info, Path(path))

@@ -63,6 +63,18 @@ def subsample_trajectory(
 _SPREAD_PAIR = re.compile(r"\[\n\s*([^\s,\[\]{}]+),\n\s*([^\s,\[\]{}]+)\n\s*\]")
 
 
+def evaluation_payload(policy: str, env_ids: list[str], env_kwargs: dict, steps: int, seeds: list[int],
+                       results: list[EpisodeResult]) -> dict:
+    """What ``dpr evaluate --json`` writes: the run's arguments, every episode with its path (for ``dpr report``)
+    and the summary per env id (unnested for one env id)."""
+    per_env = summary(results)
+    return {
+        "policy": policy, "env_ids": list(env_ids), "env_kwargs": env_kwargs, "steps": steps, "seeds": list(seeds),
+        "episodes": [r.as_dict(trajectory=True) for r in results],
+        "summary": per_env if len(env_ids) > 1 else per_env[env_ids[0]],
+    }
+
+
 def evaluation_json(payload: dict) -> str:
     """``payload`` as indented JSON with each [x, y] pair on one line (a trajectory is then a line per point,
     not four)."""

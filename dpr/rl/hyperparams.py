@@ -21,8 +21,9 @@ from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import ALGOS, algo_class
 
 HYPERPARAMS_DIR = Path(__file__).with_name("hyperparams")
-PRESETS = ("default", "paper")
+PRESETS = ("default", "paper", "finetune")
 PAPER_PRESET = "paper"
+FINETUNE_PRESET = "finetune"  # the env id's entry with the yaml's `finetune` entry on top (dpr finetune)
 LINEAR_PREFIX = "lin_"
 ACTIVATIONS = ("tanh", "relu")
 POLICY_KWARGS = ("net_arch", "activation_fn")
@@ -99,7 +100,8 @@ def read_entries(algo: str) -> dict[str, dict]:
 
 
 def load_hyperparams(algo: str, env_id: str, preset: str = "default", overrides: dict[str, Any] | None = None) -> Hyperparams:
-    """The hyperparameters of ``algo`` on ``env_id`` for ``preset`` ("default": the env id's entry; "paper"),
+    """The hyperparameters of ``algo`` on ``env_id`` for ``preset`` ("default": the env id's entry; "paper";
+    "finetune": the env id's entry updated with the ``finetune`` entry),
     with ``overrides`` (yaml-style values, e.g. ``{"n_steps": 64, "learning_rate": "lin_1e-3"}``) applied.
     Unknown algo, preset, env id or key: a ValueError listing the choices."""
     path = hyperparams_file(algo)
@@ -109,9 +111,13 @@ def load_hyperparams(algo: str, env_id: str, preset: str = "default", overrides:
         raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
     entries = read_entries(algo)
     key = PAPER_PRESET if preset == PAPER_PRESET else env_id
-    if key not in entries:
-        raise ValueError(f"{path} has no entry {key!r}; it has {sorted(entries)}")
-    entry = {**entries[key], **(overrides or {})}
+    keys = [key, FINETUNE_PRESET] if preset == FINETUNE_PRESET else [key]
+    for name in keys:
+        if name not in entries:
+            raise ValueError(f"{path} has no entry {name!r}; it has {sorted(entries)}")
+    entry = {k: v for name in keys for k, v in entries[name].items()}
+    entry.update(overrides or {})
+    key = " + ".join(keys)
     return _validate(algo, env_id, preset, entry, f"{path} [{key}]" + (" with overrides" if overrides else ""))
 
 

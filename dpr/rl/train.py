@@ -1,4 +1,10 @@
-"""Train PPO, A2C or DQN from scratch on a particle-robot task (``dpr train``).
+"""Train PPO, A2C or DQN on a particle-robot task: from scratch (``dpr train``), or starting from a
+behaviour-cloned policy (``dpr finetune``).
+
+Fine-tuning loads the cloned actor-critic's weights into a new model built with the ``finetune`` preset
+(small, clipped updates: see the yaml), then, for ``critic_warmup`` steps, trains only the value head on
+rollouts of the unchanged cloned actor (its parameters are frozen), so that the first actor updates follow
+advantages from a fitted critic rather than from a random one. Then all parameters train.
 
 A run writes into a new folder: ``model.zip`` (the final model, with its env id and kwargs inside),
 ``config.yaml`` (everything the run resolved: algorithm, env, hyperparameters, seed, budget, versions),
@@ -28,6 +34,7 @@ from dpr.rl.hyperparams import PRESETS, Hyperparams, load_hyperparams
 from dpr.rl.models import save_model
 
 RUNS_DIR = Path("runs/train")
+FINETUNE_ALGOS = ("ppo", "a2c")  # actor-critic models, which `dpr bc` clones into
 EVALUATIONS = 5  # EvalCallback runs about this many times over a run
 CHECKPOINTS = 4
 VERSIONED = ("deep-particle-robot", "stable-baselines3", "torch", "gymnasium", "numpy", "pymunk")
@@ -51,6 +58,8 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml entry
     eval_episodes: int = 2
+    init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
+    critic_warmup: int = 0  # with init_from: steps that train the value head only, before the actor moves
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -65,6 +74,12 @@ class TrainConfig:
             _check_positive("timesteps", self.timesteps)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if isinstance(self.critic_warmup, bool) or not isinstance(self.critic_warmup, int) or self.critic_warmup < 0:
+            raise ValueError(f"critic_warmup must be an integer >= 0, got {self.critic_warmup!r}")
+        if self.critic_warmup and self.init_from is None:
+            raise ValueError("critic_warmup needs init_from: a critic warm-up keeps a trained actor unchanged")
+        if self.init_from is not None and self.algo not in FINETUNE_ALGOS:
+            raise ValueError(f"algo {self.algo!r} cannot start from a cloned policy; choose one of {FINETUNE_ALGOS}")
         reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
             raise ValueError(f"env_kwargs must not set {reserved}: use n_robots, robot_model and steps_per_episode")
@@ -168,11 +183,12 @@ def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: 
         def _on_training_start(self) -> None:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=timesteps, desc=f"train {config.algo} {config.env_id}", unit="step",
-                            disable=not show_progress)
+            self.bar = tqdm(total=timesteps, desc=f"{'finetune' if config.init_from else 'train'} {config.algo} "
+                            f"{config.env_id}", unit="step", disable=not show_progress)
+            self.first_step = self.model.num_timesteps  # after a critic warm-up, the count goes on from it
 
         def _on_step(self) -> bool:
-            self.bar.update(self.model.num_timesteps - self.bar.n)
+            self.bar.update(self.model.num_timesteps - self.first_step - self.bar.n)
             if self.model.ep_info_buffer and self.n_calls % 100 == 0:
                 mean = sum(e["r"] for e in self.model.ep_info_buffer) / len(self.model.ep_info_buffer)
                 self.bar.set_postfix(ep_rew_mean=f"{mean:.3g}", refresh=False)
@@ -226,11 +242,67 @@ def _close_quietly(vec_env) -> None:
         pass
 
 
+def single_thread_torch() -> None:
+    """One torch thread in this process. The networks are small MLPs, which more threads do not speed up;
+    the envs run in other processes on the same cores, and torch's spinning worker threads competing with them
+    slowed training and evaluation down tenfold and more on 2 cores."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 def build_model(hyper: Hyperparams, env, seed: int, tensorboard_log: str | None):
     """The SB3 model of ``hyper`` on ``env``."""
+    single_thread_torch()
     return algo_class(hyper.algo)(
         hyper.policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log, **hyper.model_kwargs()
     )
+
+
+def load_initial_policy(model, path: str | Path) -> None:
+    """Copy the policy weights of the model file at ``path`` into ``model`` (same spaces and network).
+    ValueError naming the file when they do not fit."""
+    from dpr.policies.sb3 import load_model
+
+    source, info = load_model(path)
+    for name in ("observation_space", "action_space"):
+        if getattr(source, name) != getattr(model, name):
+            raise ValueError(f"--from: {path}: its {name} {getattr(source, name)} differs from this run's "
+                             f"{getattr(model, name)}")
+    try:
+        model.policy.load_state_dict(source.policy.state_dict())
+    except RuntimeError as error:
+        raise ValueError(f"--from: {path} ({info.algo}) has another network than this run's "
+                         f"{model.policy.net_arch}: {str(error).splitlines()[0]}") from None
+
+
+def warm_up_critic(model, steps: int, show_progress: bool) -> None:
+    """``steps`` steps of ``model.learn`` with every actor parameter frozen: only the value head moves."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from dpr.imitation.bc import actor_parameters
+
+    class Progress(BaseCallback):
+        def _on_training_start(self) -> None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=steps, desc="critic warm-up", unit="step", disable=not show_progress)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.model.num_timesteps - self.bar.n)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    actor = actor_parameters(model.policy)
+    for parameter in actor:
+        parameter.requires_grad_(False)
+    try:
+        model.learn(total_timesteps=steps, callback=Progress(), tb_log_name="critic_warmup")
+    finally:
+        for parameter in actor:
+            parameter.requires_grad_(True)
 
 
 def train(
@@ -244,6 +316,10 @@ def train(
     ``runs/train/<task>-<algo>-seed<S>-<timestamp>``). Bad input raises ValueError before anything is written."""
     hyper, env_kwargs, timesteps = config.resolve()
     gym.make(config.env_id, **env_kwargs).close()  # a bad env kwarg fails here, before the run folder exists
+    if config.init_from is not None:
+        from dpr.policies.sb3 import read_model_info
+
+        read_model_info(config.init_from)  # a missing or foreign file fails here, before the run folder exists
     run_dir = prepare_run_dir(out, config)
     info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
@@ -260,6 +336,8 @@ def train(
         "n_envs": config.n_envs,
         "timesteps": timesteps,
         "eval_episodes": config.eval_episodes,
+        "init_from": None if config.init_from is None else str(Path(config.init_from).resolve()),
+        "critic_warmup": config.critic_warmup,
         "tensorboard_log": tensorboard_log,
         "versions": package_versions(),
         "config": asdict(config),
@@ -267,20 +345,26 @@ def train(
     }
     config_path = run_dir / "config.yaml"
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    log(f"dpr train: {config.algo} on {config.env_id} {env_kwargs}, {timesteps} steps, seed {config.seed} -> {run_dir}")
+    start = f" from {config.init_from} ({config.critic_warmup} critic warm-up steps first)" if config.init_from else ""
+    log(f"dpr train: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, seed {config.seed} "
+        f"-> {run_dir}")
 
     env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, config.n_envs)
     eval_env = None
     started = time.perf_counter()
     try:
         model = build_model(hyper, env, config.seed, tensorboard_log)
+        if config.init_from is not None:
+            load_initial_policy(model, config.init_from)
         callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress)
         with warnings.catch_warnings():
             # EvalCallback warns when the eval env is a DummyVecEnv and training runs in a SubprocVecEnv: harmless
             # (both are Monitor-wrapped), and one env does not need a process of its own.
             warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
             try:
-                model.learn(total_timesteps=timesteps, callback=callbacks)
+                if config.critic_warmup:
+                    warm_up_critic(model, config.critic_warmup, show_progress)
+                model.learn(total_timesteps=timesteps, callback=callbacks, reset_num_timesteps=not config.critic_warmup)
                 interrupted = False
             except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
                 interrupted = True

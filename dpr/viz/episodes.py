@@ -239,7 +239,7 @@ def episode_from_dataset(reader, index: int, name: str | None = None) -> Episode
     state = np.asarray(data["observation.state"], dtype=np.float64)
     n = scene["n"]
     width = ROBOT_FEATURES * n + (OBJECT_FEATURES if scene["has_object"] else 0)
-    if state.ndim != 2 or state.shape[1] != width:
+    if state.ndim != 2 or state.shape[1] not in (width, width + n + 1):  # + the last action, with obs_last_action
         raise ViewError(f"{where}: observation.state has shape {state.shape}, expected [T, {width}] for {n} robots")
     if len(state) == 0:
         raise ViewError(f"{where}: the episode has no frames")
@@ -250,7 +250,8 @@ def episode_from_dataset(reader, index: int, name: str | None = None) -> Episode
     spec = scene["object"]
     object_poses = None
     if scene["has_object"]:
-        xy = state[:, -OBJECT_FEATURES:-OBJECT_FEATURES + 2] / LENGTH_SCALE + goal
+        at = ROBOT_FEATURES * n
+        xy = state[:, at : at + 2] / LENGTH_SCALE + goal
         object_poses = np.column_stack([xy, np.zeros(len(state))])  # the observation holds no object angle
     rewards = np.asarray(data["next.reward"], dtype=np.float64).reshape(-1)[: len(state) - 1]
     return EpisodeLog(

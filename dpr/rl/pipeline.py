@@ -1,0 +1,223 @@
+"""The whole learning pipeline, task by task: demonstrations -> behaviour cloning -> fine-tuning, beside RL
+from scratch, all evaluated against the wave policy, then a results table and figures (``dpr pipeline``).
+
+For each task:
+
+1. ``datasets/<task>``: ``episodes`` demonstrations of the Markov wave (:class:`dpr.policies.wave.MarkovWavePolicy`,
+   the expert whose action is a function of the observation), recorded as a LeRobot dataset;
+2. ``models/<task>-bc.zip``: behaviour cloning of those demonstrations into a PPO actor-critic;
+3. ``models/<task>-bc-<algo>.zip``: fine-tuning of the clone with each of ``finetune_algos``
+   (a critic warm-up, then ``finetune_steps`` steps of the ``finetune`` hyperparameters);
+4. ``models/<task>-<algo>.zip``: each of ``scratch_algos`` trained from scratch for as many env steps as the
+   fine-tuned models used in all (demonstration frames + warm-up + fine-tuning), so the comparison is fair;
+5. ``eval/<task>-<method>.json``: the wave policy and every model on the evaluation seeds (never seen in
+   training: demonstrations use seeds from ``demo_seed``, RL its own seeded resets);
+6. ``report/``: ``results.md``, ``bars.png`` and ``trajectories.png`` (:mod:`dpr.rl.report`).
+
+Every env runs with ``obs_last_action=True`` (the previous action and how long it has been held are part of
+the observation), which the Markov wave needs and which every learner gets too. Each stage writes into its
+own file or folder under ``out`` and is skipped when that already exists, so an interrupted pipeline resumes
+where it stopped and nothing written is replaced.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dpr.envs import ENV_IDS
+
+PIPELINE_ENV_KWARGS = {"obs_last_action": True}
+EXPERT = "wave-markov"
+BASELINE = "wave"
+STEPS_PER_EPISODE = 2500
+FINETUNE_ALGOS = ("ppo", "a2c")
+SCRATCH_ALGOS = ("ppo", "a2c", "dqn")
+
+
+@dataclass
+class PipelineConfig:
+    """Budgets of one pipeline run (the ``dpr pipeline`` flags); the defaults are ``make run``'s."""
+
+    tasks: list[str] = field(default_factory=lambda: ["navigation"])
+    n_robots: int = 9
+    episodes: int = 10  # demonstrations per task
+    demo_seed: int = 1000
+    bc_epochs: int = 10
+    critic_warmup: int = 10_000
+    finetune_steps: int = 30_000
+    finetune_algos: list[str] = field(default_factory=lambda: ["ppo"])
+    scratch_algos: list[str] = field(default_factory=lambda: ["ppo"])
+    eval_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
+    seed: int = 0
+    workers: int = 2
+    steps: int = STEPS_PER_EPISODE  # per episode, in demonstrations, training and evaluation
+
+    def __post_init__(self):
+        unknown = [task for task in self.tasks if task not in ENV_IDS]
+        if not self.tasks or unknown:
+            raise ValueError(f"tasks must be among {tuple(ENV_IDS)}, got {self.tasks!r}")
+        for name, allowed in (("finetune_algos", FINETUNE_ALGOS), ("scratch_algos", SCRATCH_ALGOS)):
+            bad = [algo for algo in getattr(self, name) if algo not in allowed]
+            if bad:
+                raise ValueError(f"{name} must be among {allowed}, got {bad}")
+        for name in ("n_robots", "episodes", "bc_epochs", "finetune_steps", "workers", "steps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("critic_warmup", "demo_seed", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        if self.episodes < 2:
+            raise ValueError(f"episodes must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}")
+        if not self.eval_seeds:
+            raise ValueError("eval_seeds must name at least one seed")
+        demo_seeds = set(range(self.demo_seed, self.demo_seed + self.episodes))
+        seen = sorted(demo_seeds & set(self.eval_seeds))
+        if seen:
+            raise ValueError(f"eval_seeds {seen} are demonstration seeds too; evaluate on seeds the models never saw")
+
+    @property
+    def rl_steps(self) -> int:
+        """Env steps of a fine-tuned model in all: demonstration frames, critic warm-up and fine-tuning (the
+        budget RL from scratch gets)."""
+        return self.episodes * self.steps + self.critic_warmup + self.finetune_steps
+
+    def methods(self) -> list[str]:
+        """Names of the policies evaluated on each task, the wave first."""
+        return [BASELINE, "bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
+
+
+def _stage(done: Path, what: str, log: Callable[[str], None]) -> bool:
+    """Whether to run a stage whose output is ``done`` (logged either way)."""
+    if done.exists():
+        log(f"dpr pipeline: {what}: {done} exists, skipped")
+        return False
+    log(f"dpr pipeline: {what} -> {done}")
+    return True
+
+
+def _copy_new(source: Path, target: Path) -> None:
+    """Copy through a temporary name, so that ``target`` exists only once it is complete."""
+    partial = target.with_name(target.name + ".partial")
+    shutil.copyfile(source, partial)
+    partial.replace(target)
+
+
+def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool = True,
+                 log: Callable[[str], None] = lambda line: print(line, file=sys.stderr)) -> Path:
+    """Run (or resume) the pipeline into ``out``; returns the report folder."""
+    from tqdm import tqdm
+
+    from dpr.datasets.collect import CollectSpec, collect
+    from dpr.imitation.bc import behaviour_clone
+    from dpr.rl.evaluation import evaluate, evaluation_json, evaluation_payload
+    from dpr.rl.report import REPORT_FILES, write_report
+    from dpr.rl.train import TrainConfig, train
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out: {out} exists and is not a folder")
+    for folder in ("datasets", "runs", "models", "eval"):
+        (out / folder).mkdir(parents=True, exist_ok=True)
+    config_path = out / "pipeline.yaml"
+    if config_path.exists():
+        previous = yaml.safe_load(config_path.read_text()).get("config")
+        if previous != asdict(config):
+            raise ValueError(f"--out: {out} holds a pipeline run with other settings ({config_path}); "
+                             "use a new folder, or the same settings to resume it")
+    else:
+        config_path.write_text(yaml.safe_dump({"config": asdict(config), "rl_steps": config.rl_steps,
+                                               "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}, sort_keys=False))
+    started = time.perf_counter()
+    evaluations: list[tuple[Path, str]] = []  # (file, method)
+    for task in config.tasks:
+        env_id = ENV_IDS[task]
+        env_kwargs = dict(PIPELINE_ENV_KWARGS)
+        dataset = out / "datasets" / task
+        if _stage(dataset / "meta" / "info.json", f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
+            spec = CollectSpec(env_id, policy=EXPERT, n_robots=config.n_robots, steps=config.steps,
+                               env_kwargs=env_kwargs)
+            with tqdm(total=config.episodes, desc=f"collect {task}", unit="episode", disable=not show_progress) as bar:
+                summary = collect(dataset, spec, config.episodes, seed=config.demo_seed, workers=config.workers,
+                                  progress=lambda record, index: bar.update(1))
+            if summary.interrupted:
+                raise KeyboardInterrupt
+        bc_model = out / "models" / f"{task}-bc.zip"
+        if _stage(bc_model, f"{task}: behaviour cloning", log):
+            result = behaviour_clone(dataset, env_id, algo="ppo", epochs=config.bc_epochs, seed=config.seed,
+                                     out=_fresh(out / "runs" / f"{task}-bc"), show_progress=show_progress, log=log)
+            _copy_new(result.model_path, bc_model)
+
+        runs: list[tuple[str, dict[str, Any]]] = [
+            (f"bc-{algo}", {"algo": algo, "preset": "finetune", "timesteps": config.finetune_steps,
+                            "init_from": str(bc_model), "critic_warmup": config.critic_warmup})
+            for algo in config.finetune_algos
+        ] + [(algo, {"algo": algo, "timesteps": config.rl_steps}) for algo in config.scratch_algos]
+        for method, settings in runs:
+            model = out / "models" / f"{task}-{method}.zip"
+            if _stage(model, f"{task}: {method} ({settings['timesteps']} steps"
+                      + (f" after {config.critic_warmup} warm-up steps)" if "init_from" in settings else ")"), log):
+                train_config = TrainConfig(env_id=env_id, n_robots=config.n_robots, seed=config.seed,
+                                           n_envs=config.workers, steps_per_episode=config.steps,
+                                           env_kwargs=env_kwargs, **settings)
+                result = train(train_config, _fresh(out / "runs" / f"{task}-{method}"), show_progress=show_progress,
+                               log=log)
+                if result.interrupted:
+                    raise KeyboardInterrupt
+                _copy_new(result.model_path, model)
+
+        for method in config.methods():
+            policy = BASELINE if method == BASELINE else str(out / "models" / f"{task}-{method}.zip")
+            path = out / "eval" / f"{task}-{method}.json"
+            evaluations.append((path, method))
+            if not _stage(path, f"{task}: evaluate {method} on seeds {_seed_text(config.eval_seeds)}", log):
+                continue
+            # the wave runs on the pipeline's env; a model on the env kwargs stored in it
+            kwargs = ({"n_robots": config.n_robots, **env_kwargs} if method == BASELINE
+                      else _model_kwargs(policy, env_id))
+            with tqdm(total=len(config.eval_seeds), desc=f"evaluate {task}-{method}", unit="episode",
+                      disable=not show_progress) as bar:
+                results = evaluate([env_id], policy, config.eval_seeds, steps=config.steps, env_kwargs=kwargs,
+                                   workers=config.workers, progress=lambda r: bar.update(1))
+            payload = evaluation_payload(policy, [env_id], kwargs, config.steps, config.eval_seeds, results)
+            partial = path.with_name(path.name + ".partial")
+            partial.write_text(evaluation_json(payload))
+            partial.replace(path)
+
+    report = out / "report"
+    if (report / REPORT_FILES[0]).exists():
+        log(f"dpr pipeline: report: {report} exists, skipped")
+    else:
+        write_report([path for path, _ in evaluations], report, labels=[method for _, method in evaluations])
+    log(f"dpr pipeline: done in {time.perf_counter() - started:.0f} s; report in {report}")
+    return report
+
+
+def _model_kwargs(policy: str, env_id: str) -> dict:
+    from dpr.policies.sb3 import model_env_kwargs
+
+    return model_env_kwargs(policy, env_id)
+
+
+def _fresh(path: Path) -> Path:
+    """``path``, or ``path-2``, ``path-3``... when an earlier, interrupted attempt left it behind."""
+    candidate, n = path, 1
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f"{path.name}-{n}")
+    return candidate
+
+
+def _seed_text(seeds: list[int]) -> str:
+    if len(seeds) > 1 and seeds == list(range(seeds[0], seeds[0] + len(seeds))):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ",".join(map(str, seeds))
