@@ -177,9 +177,15 @@ def _hyperparam(text: str) -> tuple[str, object]:
 
     key, value = _name_and_value(text, "--hyperparam")
     try:
-        return key, yaml.safe_load(value)
+        parsed = yaml.safe_load(value)
     except yaml.YAMLError:
         raise argparse.ArgumentTypeError(f"--hyperparam {key}: cannot parse {value!r}") from None
+    if isinstance(parsed, str):  # yaml 1.1 reads 1e-4 (no dot) as text; a number is meant
+        try:
+            return key, float(parsed)
+        except ValueError:
+            pass
+    return key, parsed
 
 
 def cmd_train(args, parser) -> int:

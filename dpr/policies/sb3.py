@@ -111,7 +111,7 @@ def model_env_kwargs(path: str | Path, env_id: str, requested: dict[str, Any] | 
     return kwargs
 
 
-def _describe(space) -> str:
+def describe_space(space) -> str:
     """A space in one short line (a Box's repr lists every bound)."""
     shape = getattr(space, "shape", None)
     if type(space).__name__ == "Box":
@@ -124,10 +124,10 @@ def _space_mismatch(path: Path, info: ModelInfo, model, env) -> str | None:
     problems = []
     if model.observation_space != env.observation_space:
         problems.append(
-            f"observation space {_describe(model.observation_space)} vs the env's {_describe(env.observation_space)}"
+            f"observation space {describe_space(model.observation_space)} vs the env's {describe_space(env.observation_space)}"
         )
     if model.action_space != env.action_space:
-        problems.append(f"action space {_describe(model.action_space)} vs the env's {_describe(env.action_space)}")
+        problems.append(f"action space {describe_space(model.action_space)} vs the env's {describe_space(env.action_space)}")
     if not problems:
         return None
     base = getattr(env, "unwrapped", None)  # a VecEnv has none: then only the spaces are named

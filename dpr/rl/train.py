@@ -262,13 +262,13 @@ def build_model(hyper: Hyperparams, env, seed: int, tensorboard_log: str | None)
 def load_initial_policy(model, path: str | Path) -> None:
     """Copy the policy weights of the model file at ``path`` into ``model`` (same spaces and network).
     ValueError naming the file when they do not fit."""
-    from dpr.policies.sb3 import load_model
+    from dpr.policies.sb3 import describe_space, load_model
 
     source, info = load_model(path)
     for name in ("observation_space", "action_space"):
         if getattr(source, name) != getattr(model, name):
-            raise ValueError(f"--from: {path}: its {name} {getattr(source, name)} differs from this run's "
-                             f"{getattr(model, name)}")
+            raise ValueError(f"--from: {path}: its {name} {describe_space(getattr(source, name))} differs from this "
+                             f"run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs})")
     try:
         model.policy.load_state_dict(source.policy.state_dict())
     except RuntimeError as error:

@@ -1,0 +1,323 @@
+"""Fine-tuning a behaviour-cloned model (`dpr finetune`: the finetune preset, init_from, the critic warm-up), and
+the whole pipeline (`dpr pipeline`: demonstrations -> BC -> fine-tuning beside RL from scratch -> evaluation ->
+report, resumable)."""
+
+import json
+import re
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+import yaml
+from helpers import run_cli as run
+
+import dpr.rl.train as train_module
+from dpr.datasets.collect import CollectSpec, collect
+from dpr.envs import ENV_IDS
+from dpr.imitation import behaviour_clone
+from dpr.imitation.bc import actor_parameters
+from dpr.policies.registry import make_policy
+from dpr.policies.sb3 import load_model, read_model_info
+from dpr.rl.evaluation import evaluate
+from dpr.rl.hyperparams import load_hyperparams
+from dpr.rl.pipeline import PipelineConfig, run_pipeline
+from dpr.rl.train import TrainConfig, build_model, load_initial_policy, make_vec_env, train, warm_up_critic
+
+ENV = "dpr/Navigation-v0"
+SMALL_ENV = {"n_robots": 4, "robot_model": "disk"}
+MEMORY = {"obs_last_action": True}
+ENV_KWARGS = {**SMALL_ENV, **MEMORY}
+STEPS = 40
+# One 32-step rollout per update, so that 64 steps of warm-up and 64 of fine-tuning are a few updates, not a
+# rollout of the yaml's 1024 steps.
+TINY_PPO = {"n_steps": 32, "batch_size": 32}
+PAPER_NET = [64, 128, 128, 128, 64]
+QUIET = {"show_progress": False, "log": lambda line: None}
+
+
+@pytest.fixture(scope="module")
+def cloned(tmp_path_factory):
+    """A PPO actor-critic cloned (one epoch) from three 40-step Markov-wave episodes of 4 disk robots."""
+    root = tmp_path_factory.mktemp("finetune")
+    spec = CollectSpec(ENV, policy="wave-markov", steps=STEPS, env_kwargs=MEMORY, **SMALL_ENV)
+    collect(root / "demos", spec, episodes=3, workers=1)
+    return behaviour_clone(root / "demos", ENV, epochs=1, batch_size=128, out=root / "bc", log=lambda line: None)
+
+
+def finetune_config(init_from, **kwargs) -> TrainConfig:
+    settings = dict(preset="finetune", timesteps=64, critic_warmup=64, steps_per_episode=STEPS, env_kwargs=MEMORY,
+                    hyperparams=TINY_PPO, **SMALL_ENV)
+    settings.update(kwargs)
+    return TrainConfig("ppo", ENV, init_from=str(init_from), **settings)
+
+
+@pytest.fixture(scope="module")
+def finetuned(cloned, tmp_path_factory):
+    # seed 1: the run's own initial network is not the one BC started from (seed 0)
+    return train(finetune_config(cloned.model_path, seed=1), tmp_path_factory.mktemp("ft") / "run", **QUIET)
+
+
+def fresh_model(hyperparams=TINY_PPO, env_kwargs=ENV_KWARGS, seed=1):
+    """A new PPO model as `dpr finetune` builds it, before any weights are loaded (seed 1: not the network
+    behaviour_clone started from, which one epoch hardly moved)."""
+    env = make_vec_env(ENV, env_kwargs, STEPS, 1)
+    return build_model(load_hyperparams("ppo", ENV, "finetune", hyperparams), env, seed, None)
+
+
+def _is_value_head(name: str) -> bool:
+    return name.startswith(("value_net.", "mlp_extractor.value_net."))
+
+
+# -- the finetune preset -----------------------------------------------------------------------------------------
+def test_finetune_preset_is_the_env_entry_with_the_finetune_entry_on_top():
+    default = load_hyperparams("ppo", ENV)
+    ppo = load_hyperparams("ppo", ENV, "finetune")
+    assert ppo.preset == "finetune" and ppo.n_timesteps == 100_000
+    assert ppo.model_kwargs()["learning_rate"] == pytest.approx(3e-5)  # a constant, not the env entry's lin_3e-4
+    assert ppo.algo_kwargs["policy_kwargs"]["net_arch"] == PAPER_NET  # from the env id's entry
+    expected = {"n_steps": 1024, "batch_size": 256, "n_epochs": 5, "clip_range": 0.1, "target_kl": 0.02}
+    assert {key: ppo.algo_kwargs[key] for key in expected} == expected
+    for key in ("gamma", "gae_lambda", "ent_coef"):  # not in the finetune entry: the env entry's
+        assert ppo.algo_kwargs[key] == default.algo_kwargs[key]
+    a2c = load_hyperparams("a2c", "dpr/Manipulation-v0", "finetune")
+    assert a2c.model_kwargs()["learning_rate"] == pytest.approx(1e-5) and a2c.algo_kwargs["n_steps"] == 32
+    assert a2c.algo_kwargs["gae_lambda"] == 1.0 and a2c.algo_kwargs["policy_kwargs"]["net_arch"] == PAPER_NET
+    # overrides go on top of both
+    assert load_hyperparams("ppo", ENV, "finetune", {"n_steps": 64}).algo_kwargs["n_steps"] == 64
+    # the yaml itself is not changed by merging
+    assert load_hyperparams("ppo", ENV).model_kwargs()["learning_rate"](1.0) == pytest.approx(3e-4)
+
+
+def test_dqn_has_no_finetune_preset():
+    with pytest.raises(ValueError, match="'finetune'"):
+        load_hyperparams("dqn", ENV, "finetune")
+
+
+# -- loading the cloned weights and warming up the critic --------------------------------------------------------
+def test_initial_policy_is_the_cloned_one(cloned):
+    model = fresh_model()
+    source, _ = load_model(cloned.model_path)
+    assert any(not torch.equal(value, source.policy.state_dict()[name])
+               for name, value in model.policy.state_dict().items())  # a new model's weights are its own
+    load_initial_policy(model, cloned.model_path)
+    for name, value in source.policy.state_dict().items():
+        assert torch.equal(model.policy.state_dict()[name], value), name
+
+
+def test_critic_warmup_changes_the_value_head_only(cloned):
+    model = fresh_model()
+    load_initial_policy(model, cloned.model_path)
+    before = {name: value.clone() for name, value in model.policy.state_dict().items()}
+    warm_up_critic(model, 64, show_progress=False)
+    after = model.policy.state_dict()
+    assert model.num_timesteps >= 64
+    changed = {name for name in before if not torch.equal(before[name], after[name])}
+    assert changed and all(_is_value_head(name) for name in changed), sorted(changed)
+    assert "value_net.weight" in changed
+    # the actor is trainable again afterwards
+    assert all(parameter.requires_grad for parameter in model.policy.parameters())
+    assert len(actor_parameters(model.policy)) < len(list(model.policy.parameters()))
+
+
+def test_initial_policy_for_another_swarm_or_network_is_refused(cloned):
+    other_n = fresh_model(env_kwargs={**ENV_KWARGS, "n_robots": 5})
+    message = rf"(?s)--from: {re.escape(str(cloned.model_path))}: its observation_space .*\(29,\).*differs.*\(36,\)"
+    with pytest.raises(ValueError, match=message):
+        load_initial_policy(other_n, cloned.model_path)
+    no_memory = fresh_model(env_kwargs=SMALL_ENV)
+    with pytest.raises(ValueError, match=r"(?s)observation_space Box\(.*\(29,\).*differs.*\(24,\)"):
+        load_initial_policy(no_memory, cloned.model_path)
+    narrow = fresh_model(hyperparams={**TINY_PPO, "policy_kwargs": {"net_arch": [32, 32]}})
+    with pytest.raises(ValueError, match=r"has another network than this run's"):
+        load_initial_policy(narrow, cloned.model_path)
+
+
+# -- a fine-tuning run ---------------------------------------------------------------------------------------------
+def test_run_records_its_start_and_warmup(finetuned, cloned):
+    config = yaml.safe_load(finetuned.config_path.read_text())
+    assert config["init_from"] == str(cloned.model_path.resolve()) and config["critic_warmup"] == 64
+    assert config["env_kwargs"] == ENV_KWARGS and config["timesteps"] == 64
+    assert config["hyperparameters"]["preset"] == "finetune" and config["hyperparameters"]["learning_rate"] == 3e-5
+    assert config["hyperparameters"]["n_steps"] == 32 and config["hyperparameter_overrides"] == TINY_PPO
+    assert config["timesteps_done"] >= 64 + 64  # the warm-up steps count too
+    info = read_model_info(finetuned.model_path)
+    assert (info.algo, info.env_id, info.env_kwargs, info.max_episode_steps) == ("ppo", ENV, ENV_KWARGS, STEPS)
+
+
+def test_finetuned_actor_starts_from_the_clone(finetuned, cloned):
+    """64 steps at a learning rate of 3e-5 move the cloned actor a little; the run's own initial network (seed 1)
+    is far from it."""
+    tuned, _ = load_model(finetuned.model_path)
+    clone, _ = load_model(cloned.model_path)
+    other = fresh_model(seed=1)
+    tuned_sd, clone_sd, other_sd = (m.policy.state_dict() for m in (tuned, clone, other))
+    for name in clone_sd:
+        if _is_value_head(name):
+            continue
+        assert (tuned_sd[name] - clone_sd[name]).abs().max() < 0.01, name
+    assert max((other_sd[name] - clone_sd[name]).abs().max() for name in clone_sd) > 0.1
+
+
+def test_finetuned_model_evaluates_with_its_env_kwargs(finetuned, tmp_path):
+    path = str(finetuned.model_path)
+    env = gym.make(ENV, max_episode_steps=20, **read_model_info(path).env_kwargs)
+    assert env.unwrapped.obs_last_action
+    policy = make_policy(path, env)
+    observation, _ = env.reset(seed=100)
+    assert env.action_space.contains(np.asarray(policy(observation)).astype(np.int8))
+    (result,) = evaluate([ENV], path, seeds=[100], steps=20)
+    assert 2 <= len(result.trajectory) <= 21
+    with pytest.raises(ValueError, match="obs_last_action=True; obs_last_action=False"):
+        evaluate([ENV], path, seeds=[100], steps=20, env_kwargs={"obs_last_action": False})
+    report = tmp_path / "eval.json"
+    argv = ["evaluate", "--policy", path, "--env", ENV, "--seeds", "100", "--steps", "20", "--workers", "1",
+            "--json", str(report)]
+    assert run(argv) == 0
+    assert json.loads(report.read_text())["env_kwargs"] == ENV_KWARGS
+
+
+# -- bad configurations ------------------------------------------------------------------------------------------
+def test_warmup_needs_init_from_and_dqn_cannot_start_from_a_clone(cloned, tmp_path):
+    with pytest.raises(ValueError, match="critic_warmup needs init_from"):
+        TrainConfig("ppo", ENV, critic_warmup=64)
+    with pytest.raises(ValueError, match="algo 'dqn' cannot start from a cloned policy"):
+        TrainConfig("dqn", ENV, init_from=str(cloned.model_path))
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="critic_warmup must be an integer >= 0"):
+            TrainConfig("ppo", ENV, critic_warmup=bad, init_from=str(cloned.model_path))
+    with pytest.raises(ValueError, match="no model file at .*missing.zip"):
+        train(finetune_config(tmp_path / "missing.zip"), tmp_path / "run", **QUIET)
+    assert not (tmp_path / "run").exists()  # refused before the run folder was made
+
+
+def test_cli_refuses_a_model_of_another_task_or_swarm(cloned, tmp_path, capsys):
+    model = str(cloned.model_path)
+    base = ["finetune", "--from", model, "--timesteps", "32", "--n-envs", "1"]
+    assert run([*base, "--env", "dpr/Gate-v0", "--out", str(tmp_path / "gate")]) == 2
+    assert f"{model} was trained on dpr/Navigation-v0, not on --env dpr/Gate-v0" in capsys.readouterr().err
+    assert run([*base, "--env", ENV, "--env-kwarg", "n_robots=9", "--out", str(tmp_path / "n9")]) == 2
+    assert "trained with n_robots=4; n_robots=9 makes a different observation" in capsys.readouterr().err
+    assert run([*base, "--env", ENV, "--env-kwarg", "obs_last_action=false", "--out", str(tmp_path / "plain")]) == 2
+    assert "trained with obs_last_action=True; obs_last_action=False" in capsys.readouterr().err
+    assert run([*base, "--env", ENV, "--algo", "dqn"]) == 2
+    assert "invalid choice: 'dqn'" in capsys.readouterr().err
+    assert run(["finetune", "--from", str(tmp_path / "none.zip"), "--env", ENV, "--out", str(tmp_path / "x")]) == 2
+    assert "no model file" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written
+
+
+def test_cli_finetunes_a_ppo_clone_with_a2c(cloned, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--algo", "a2c", "--timesteps", "32",
+            "--critic-warmup", "16", "--n-envs", "1", "--seed", "3", "--out", str(out)]
+    assert run(argv) == 0
+    assert f"model: {out / 'model.zip'}" in capsys.readouterr().out
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    assert config["algo"] == "a2c" and config["seed"] == 3 and config["critic_warmup"] == 16
+    assert config["env_kwargs"] == ENV_KWARGS and config["steps_per_episode"] == STEPS  # from the model file
+    assert config["hyperparameters"]["learning_rate"] == 1e-5 and config["hyperparameters"]["n_steps"] == 32
+    info = read_model_info(out / "model.zip")
+    assert (info.algo, info.env_kwargs) == ("a2c", ENV_KWARGS)
+
+
+# -- the pipeline --------------------------------------------------------------------------------------------------
+def test_task_names_are_the_env_ids_keys():
+    from dpr.cli import TASK_NAMES
+
+    assert TASK_NAMES == tuple(ENV_IDS)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"eval_seeds": [1000]}, r"eval_seeds \[1000\] are demonstration seeds"),
+        ({"demo_seed": 100, "episodes": 3, "eval_seeds": [90, 102]}, r"eval_seeds \[102\]"),
+        ({"eval_seeds": []}, "eval_seeds must name at least one seed"),
+        ({"tasks": ["swimming"]}, "tasks must be among"),
+        ({"tasks": []}, "tasks must be among"),
+        ({"finetune_algos": ["dqn"]}, "finetune_algos must be among"),
+        ({"scratch_algos": ["sac"]}, "scratch_algos must be among"),
+        ({"episodes": 1}, "episodes must be >= 2"),
+        ({"steps": 0}, "steps must be an integer >= 1"),
+        ({"critic_warmup": -1}, "critic_warmup must be an integer >= 0"),
+    ],
+)
+def test_pipeline_config_refuses_bad_settings(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        PipelineConfig(**kwargs)
+
+
+PIPELINE = dict(tasks=["navigation"], n_robots=4, episodes=2, steps=30, bc_epochs=1, critic_warmup=32,
+                finetune_steps=64, scratch_algos=["ppo"], eval_seeds=[100], workers=1)
+METHODS = ["wave", "bc", "bc-ppo", "ppo"]
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    """One tiny pipeline run. PipelineConfig has no hyperparameter overrides: the yaml's 1024-step PPO rollouts
+    are shrunk to 32 steps here, so that a few dozen steps of RL are a few updates."""
+    out = tmp_path_factory.mktemp("pipeline") / "run"
+    original = train_module.load_hyperparams
+
+    def small_rollouts(algo, env_id, preset="default", overrides=None):
+        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_module, "load_hyperparams", small_rollouts)
+        report = run_pipeline(PipelineConfig(**PIPELINE), out, **QUIET)
+    return out, report
+
+
+def test_pipeline_writes_every_stage(pipeline):
+    out, report = pipeline
+    assert report == out / "report"
+    assert (out / "datasets" / "navigation" / "meta" / "info.json").is_file()
+    assert sorted(p.name for p in (out / "models").iterdir()) == sorted(f"navigation-{m}.zip" for m in METHODS[1:])
+    assert sorted(p.name for p in (out / "eval").iterdir()) == sorted(f"navigation-{m}.json" for m in METHODS)
+    assert {"results.md", "bars.png", "trajectories.png"} <= {p.name for p in report.iterdir()}
+    for model in (out / "models").iterdir():
+        info = read_model_info(model)
+        assert info.env_kwargs == {"n_robots": 4, "robot_model": "paddle", "obs_last_action": True}
+        assert info.max_episode_steps == 30
+    finetune = yaml.safe_load((out / "runs" / "navigation-bc-ppo" / "config.yaml").read_text())
+    assert finetune["init_from"] == str((out / "models" / "navigation-bc.zip").resolve())
+    assert finetune["critic_warmup"] == 32 and finetune["timesteps"] == 64
+    scratch = yaml.safe_load((out / "runs" / "navigation-ppo" / "config.yaml").read_text())
+    assert scratch["timesteps"] == PipelineConfig(**PIPELINE).rl_steps == 2 * 30 + 32 + 64
+    assert scratch["init_from"] is None and scratch["hyperparameters"]["preset"] == "default"
+
+
+def test_pipeline_evaluates_every_method_on_the_same_swarm(pipeline):
+    out, _ = pipeline
+    starts = []
+    for method in METHODS:
+        payload = json.loads((out / "eval" / f"navigation-{method}.json").read_text())
+        assert payload["seeds"] == [100] and payload["steps"] == 30
+        assert payload["env_kwargs"].get("n_robots", 9) == 4, method  # the wave too, not the default N=9
+        assert payload["env_kwargs"]["obs_last_action"] is True
+        (episode,) = payload["episodes"]
+        starts.append(episode["trajectory"][0])
+    assert all(start == starts[0] for start in starts)
+
+
+def test_pipeline_report_has_a_row_per_method(pipeline):
+    _, report = pipeline
+    rows = [line.split("|") for line in (report / "results.md").read_text().splitlines()
+            if line.startswith("| Navigation |")]
+    assert [row[2].strip() for row in rows] == METHODS
+
+
+def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(pipeline):
+    out, _ = pipeline
+    files = {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()}
+    lines = []
+    run_pipeline(PipelineConfig(**PIPELINE), out, show_progress=False, log=lines.append)  # would train for long
+    assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
+    skipped = [line for line in lines if line.endswith("skipped")]
+    assert len(skipped) == 1 + 1 + 2 + 4 + 1  # dataset, bc, bc-ppo and ppo, four evaluations, report
+    with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
+        run_pipeline(PipelineConfig(**{**PIPELINE, "finetune_steps": 128}), out, **QUIET)
+    with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
+        run_pipeline(PipelineConfig(**{**PIPELINE, "eval_seeds": [100, 101]}), out, **QUIET)
+    assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
