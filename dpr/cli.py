@@ -188,11 +188,45 @@ def _hyperparam(text: str) -> tuple[str, object]:
     return key, parsed
 
 
+def _check_rerun_output(args, parser) -> None:
+    _check_output(args.rerun, parser, "--rerun")
+    if args.rerun and not args.rerun.endswith(".rrd"):
+        parser.error(f"--rerun: {args.rerun} must end in .rrd")
+
+
+def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
+    """Roll out every checkpoint of a training run and its final model from one evaluation start, side by side
+    in a new .rrd file (named after their step counts): how the policy changed over the run."""
+    import re
+
+    from tqdm import tqdm
+
+    from dpr.policies.sb3 import read_model_info
+    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.rerun_log import save_rrd
+
+    def step_count(model: Path) -> int:
+        match = re.search(r"_(\d+)_steps", model.stem)
+        return int(match.group(1)) if match else -1
+
+    checkpoints = sorted((result.run_dir / "checkpoints").glob("*.zip"), key=step_count)
+    models = [(f"step_{step_count(m)}", m) for m in checkpoints] + [("final", result.model_path)]
+    info = read_model_info(result.model_path)
+    swarm = {key: info.env_kwargs[key] for key in ("n_robots", "robot_model") if key in info.env_kwargs}
+    extra = {key: value for key, value in info.env_kwargs.items() if key not in swarm}
+    steps = info.max_episode_steps or 2500
+    episodes = [rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
+                for name, model in tqdm(models, desc="log to rerun", unit="model")]
+    save_rrd(episodes, path, title=f"dpr train {result.run_dir.name} (seed {seed})")
+    print(f"wrote {path}")
+
+
 def cmd_train(args, parser) -> int:
-    from dpr.rl.train import TrainConfig, train
+    from dpr.rl.train import EVAL_SEED_OFFSET, TrainConfig, train
 
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+    _check_rerun_output(args, parser)
     try:
         config = TrainConfig(
             args.algo, args.env, n_robots=args.n_robots, robot_model=args.robot_model, timesteps=args.timesteps,
@@ -208,15 +242,18 @@ def cmd_train(args, parser) -> int:
         print(f"best model: {result.best_model_path}")
     print(f"config: {result.config_path}")
     print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    if args.rerun and not result.interrupted:
+        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
     return 130 if result.interrupted else 0
 
 
 def cmd_finetune(args, parser) -> int:
     from dpr.policies.sb3 import model_env_kwargs, read_model_info
-    from dpr.rl.train import TrainConfig, train
+    from dpr.rl.train import EVAL_SEED_OFFSET, TrainConfig, train
 
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+    _check_rerun_output(args, parser)
     try:
         info = read_model_info(args.source)
         if info.env_id != args.env:
@@ -237,6 +274,8 @@ def cmd_finetune(args, parser) -> int:
         print(f"best model: {result.best_model_path}")
     print(f"config: {result.config_path}")
     print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    if args.rerun and not result.interrupted:
+        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
     return 130 if result.interrupted else 0
 
 
@@ -525,6 +564,12 @@ def _env_kwarg_argument(parser: argparse.ArgumentParser, example: str) -> None:
                         help=f"extra gym.make kwarg, e.g. {example} (repeatable)")
 
 
+def _training_rerun_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--rerun", metavar="OUT.rrd",
+                        help="after training, roll out every checkpoint and the final model from the evaluation "
+                        "start (seed + 10000) side by side into this new rerun file")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dpr", description="Deep Particle Robot: particle-robot swarms for robot learning.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -592,6 +637,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
                     help="override a yaml hyperparameter, e.g. n_steps=256 or learning_rate=lin_1e-3 (repeatable)")
     tr.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
+    _training_rerun_argument(tr)
     tr.set_defaults(func=cmd_train)
 
     ft = sub.add_parser(
@@ -617,6 +663,7 @@ def build_parser() -> argparse.ArgumentParser:
     ft.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
                     help="override a yaml hyperparameter, e.g. learning_rate=1e-5 (repeatable)")
     ft.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
+    _training_rerun_argument(ft)
     ft.set_defaults(func=cmd_finetune)
 
     pi = sub.add_parser(

@@ -271,3 +271,26 @@ def test_evaluate_refuses_an_existing_rerun_file(tmp_path, capsys):
     assert run(["evaluate", "--seeds", "0", "--steps", "5", "--rerun", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
     assert out.read_bytes() == b"earlier"
+
+
+# -- dpr train / finetune --rerun ---------------------------------------------------------------------------------
+def test_train_saves_its_checkpoints_and_final_model_rollouts_to_rerun(tmp_path, capsys):
+    out = tmp_path / "train.rrd"
+    argv = ["train", "--algo", "ppo", "--env", "dpr/Navigation-v0", "--n-robots", "4", "--robot-model", "disk",
+            "--timesteps", "128", "--steps-per-episode", str(STEPS), "--hyperparam", "n_steps=32",
+            "--hyperparam", "batch_size=32", "--eval-episodes", "1", "--out", str(tmp_path / "run"), "--rerun", str(out)]
+    assert run(argv) == 0, capsys.readouterr().err
+    checkpoints = sorted((tmp_path / "run" / "checkpoints").glob("*.zip"))
+    assert checkpoints
+    entities, origins = read_rrd(out)
+    steps = sorted(int(path.stem.split("_")[1]) for path in checkpoints)
+    assert {f"/step_{n}" for n in steps} | {"/final"} == {o for o in origins if o.startswith(("/step_", "/final"))}
+    assert_timelines(entities["/final/scene/robots"], 0, STEPS)
+
+
+def test_train_refuses_a_rerun_path_that_is_not_rrd_before_training(tmp_path, capsys):
+    argv = ["train", "--algo", "ppo", "--env", "dpr/Navigation-v0", "--out", str(tmp_path / "run"),
+            "--rerun", str(tmp_path / "x.txt")]
+    assert run(argv) == 2
+    assert "must end in .rrd" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()

@@ -105,6 +105,17 @@ def _stage(done: Path, what: str, log: Callable[[str], None]) -> bool:
     return True
 
 
+def _collect_stage(dataset: Path, episodes: int, what: str, log: Callable[[str], None]) -> bool:
+    """Whether the dataset still lacks episodes (an interrupted collection resumes: it skips saved seeds)."""
+    from dpr.datasets.lerobot import LeRobotReader
+
+    if (dataset / "meta" / "info.json").exists() and LeRobotReader(dataset).num_episodes >= episodes:
+        log(f"dpr pipeline: {what}: {dataset} holds them, skipped")
+        return False
+    log(f"dpr pipeline: {what} -> {dataset}")
+    return True
+
+
 def _copy_new(source: Path, target: Path) -> None:
     """Copy through a temporary name, so that ``target`` exists only once it is complete."""
     partial = target.with_name(target.name + ".partial")
@@ -143,7 +154,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
         env_id = ENV_IDS[task]
         env_kwargs = dict(PIPELINE_ENV_KWARGS)
         dataset = out / "datasets" / task
-        if _stage(dataset / "meta" / "info.json", f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
+        if _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
             spec = CollectSpec(env_id, policy=EXPERT, n_robots=config.n_robots, steps=config.steps,
                                env_kwargs=env_kwargs)
             with tqdm(total=config.episodes, desc=f"collect {task}", unit="episode", disable=not show_progress) as bar:

@@ -37,6 +37,7 @@ RUNS_DIR = Path("runs/train")
 FINETUNE_ALGOS = ("ppo", "a2c")  # actor-critic models, which `dpr bc` clones into
 EVALUATIONS = 5  # EvalCallback runs about this many times over a run
 CHECKPOINTS = 4
+EVAL_SEED_OFFSET = 10_000  # EvalCallback's env is seeded with seed + this: its starts differ from training's
 VERSIONED = ("deep-particle-robot", "stable-baselines3", "torch", "gymnasium", "numpy", "pymunk")
 # Kwargs the trainer owns: they come from TrainConfig fields, not from env_kwargs.
 RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "max_episode_steps")
@@ -221,7 +222,7 @@ def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: 
 
     per_env = max(timesteps // config.n_envs, 1)  # callbacks count vec-env steps, not env steps
     eval_env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, 1)
-    eval_env.seed(config.seed + 10_000)  # evaluation starts differ from the training starts
+    eval_env.seed(config.seed + EVAL_SEED_OFFSET)
     evaluation = EvalCallback(
         eval_env, n_eval_episodes=config.eval_episodes, eval_freq=max(per_env // EVALUATIONS, 1),
         best_model_save_path=str(run_dir), log_path=str(run_dir / "eval"), deterministic=True, verbose=0,
