@@ -310,18 +310,32 @@ def cmd_bc(args, parser) -> int:
         parser.error(f"--lr must be > 0, got {args.lr}")
     requested = {name: value for name, value in (("n_robots", args.n_robots), ("robot_model", args.robot_model))
                  if value is not None}
+    bc_kwargs = dict(algo=args.algo, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+                     val_fraction=args.val_fraction, patience=args.patience, seed=args.seed, env_kwargs=requested,
+                     show_progress=True)
     try:
-        result = behaviour_clone(
-            args.dataset, args.env, algo=args.algo, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-            val_fraction=args.val_fraction, patience=args.patience, seed=args.seed, out=args.out,
-            env_kwargs=requested, show_progress=True,
-        )
+        if args.dagger_rounds:
+            from dpr.imitation.bc import default_run_dir
+            from dpr.imitation.dagger import dagger
+
+            out = args.out or default_run_dir(args.env, f"{args.algo}-dagger", args.seed)
+            run = dagger(args.dataset, args.env, out, expert=args.expert, rounds=args.dagger_rounds,
+                         episodes_per_round=args.dagger_episodes, first_seed=args.dagger_seed,
+                         workers=args.workers, **bc_kwargs)
+            result = run.rounds[-1]
+            print(f"DAgger: {len(run.rounds) - 1} round(s), datasets {', '.join(map(str, run.datasets))}")
+        else:
+            result = behaviour_clone(args.dataset, args.env, out=args.out, **bc_kwargs)
     except (TypeError, ValueError) as error:
         parser.error(str(error))
-    print(f"model: {result.model_path}")
+    if args.dagger_rounds:
+        print(f"model: {run.model_path} (the last round's, {result.model_path})")
+    else:
+        print(f"model: {result.model_path}")
     print(f"log: {result.log_path}")
     print(f"config: {result.config_path}")
-    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    print(f"evaluate it: dpr evaluate --policy {run.model_path if args.dagger_rounds else result.model_path} "
+          f"--env {args.env}")
     print(f"best validation accuracy {result.best_val_accuracy:.3f} (epoch {result.best_epoch} of "
           f"{result.epochs_run}, validation NLL {result.best_val_nll:.4f})")
     return 0
@@ -363,12 +377,12 @@ def cmd_collect(args, parser) -> int:
         parser.error(f"--seed must be >= 0, got {args.seed}")
 
     from dpr.datasets.collect import CollectSpec, collect, format_summary
-    from dpr.datasets.lerobot import DatasetError
 
     try:
         spec = CollectSpec(
             args.env, policy=args.policy, n_robots=args.n_robots, robot_model=args.robot_model, steps=args.steps,
             pixels=args.pixels, image_size=args.image_size, env_kwargs=dict(args.env_kwarg or []),
+            label_policy=args.label_policy,
         )
     except ValueError as error:
         parser.error(str(error))
@@ -403,7 +417,7 @@ def cmd_collect(args, parser) -> int:
     try:
         summary = collect(out, spec, episodes=args.episodes, seed=args.seed, workers=args.workers, mcap=args.mcap,
                           progress=progress, backend=args.backend, address=args.address)
-    except DatasetError as error:
+    except ValueError as error:  # a DatasetError, or a policy that cannot run on this env
         bar.close()
         print(f"dpr collect: error: {error}", file=sys.stderr)
         return 2
@@ -705,7 +719,8 @@ def build_parser() -> argparse.ArgumentParser:
         "Saves model.zip, bc_log.json and config.yaml into a new run folder; "
         "`dpr evaluate --policy RUN/model.zip --env ID` runs the model.",
     )
-    bc.add_argument("--dataset", required=True, help="dataset folder written by `dpr collect`")
+    bc.add_argument("--dataset", required=True, nargs="+", help="dataset folder(s) written by `dpr collect` on the "
+                    "same env; validation episodes come from the first")
     bc.add_argument("--env", required=True, help="env id the dataset was recorded on, e.g. dpr/Navigation-v0")
     bc.add_argument("--algo", choices=("ppo", "a2c", "dqn"), default="ppo",
                     help="model to clone into (default ppo; dqn: its Q-network as a classifier over 2^N actions)")
@@ -720,6 +735,16 @@ def build_parser() -> argparse.ArgumentParser:
                     help="stop after this many epochs without a better validation log-likelihood (default 3)")
     bc.add_argument("--seed", type=int, default=0, help="seed of the model, the split and the shuffling (default 0)")
     bc.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
+    bc.add_argument("--dagger-rounds", type=int, default=0,
+                    help="DAgger rounds after cloning: roll the clone out, label its states with --expert, clone "
+                    "again on everything (default 0: plain behaviour cloning)")
+    bc.add_argument("--dagger-episodes", type=positive_int, default=10, help="episodes per DAgger round (default 10)")
+    bc.add_argument("--dagger-seed", type=int, default=50_000,
+                    help="first seed of the DAgger episodes; must not be a demonstration seed (default 50000)")
+    bc.add_argument("--expert", default="wave-markov",
+                    help="policy that labels the DAgger states; a function of the observation (default wave-markov)")
+    bc.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
+                    help="processes that roll out DAgger episodes (default: min(2, CPUs))")
     bc.set_defaults(func=cmd_bc)
 
     co = sub.add_parser(
@@ -733,6 +758,8 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0")
     co.add_argument("--policy", default="wave",
                     help="'wave' (default), 'wave-markov', 'random' or a model .zip: any policy `dpr evaluate` accepts")
+    co.add_argument("--label-policy", help="record this policy's action on every observation instead of the "
+                    "action --policy took (DAgger data: a clone drives, an expert labels), e.g. wave-markov")
     co.add_argument("--episodes", type=positive_int, default=10, help="number of episodes (seeds) to hold (default 10)")
     co.add_argument("--out", required=True, help="dataset folder (created, or resumed if it holds the same dataset)")
     co.add_argument("--seed", type=int, default=0, help="first seed (default 0)")

@@ -1,5 +1,6 @@
 """FrameDataset / EpisodeBlockSampler: exact items (stacking at episode starts), episode selection, the LRU cache
-bound, metadata-only construction, stats, sampler order guarantees, DataLoader with workers, and bad input."""
+bound, metadata-only construction, stats, sampler order guarantees, DataLoader with workers, bad input, and
+ConcatFrames (several datasets as one)."""
 
 import pickle
 from collections import Counter
@@ -9,7 +10,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from dpr.datasets.frames import EpisodeBlockSampler, FrameDataset
+from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 
 LENGTHS = (5, 3, 7, 1, 4)  # a length-1 episode: its whole stack is its first frame
@@ -392,3 +393,86 @@ def test_bad_indices_and_sampler_arguments(root, tmp_path):
         EpisodeBlockSampler(list(range(3)))
     with pytest.raises(DatasetError, match="not found"):
         FrameDataset(tmp_path / "missing")
+
+
+# ------------------------------------------------------------------------------------------------ ConcatFrames
+
+SECOND = (2, 6)  # the second part's episode lengths
+
+
+@pytest.fixture(scope="module")
+def second_root(tmp_path_factory):
+    return write_dataset(tmp_path_factory.mktemp("frames_second") / "ds", lengths=SECOND)
+
+
+def concat_frames(root, second_root):
+    """Episodes 4 and 1 of the first dataset, then every episode of the second."""
+    return ConcatFrames([FrameDataset(root, episodes=[4, 1]), FrameDataset(second_root)])
+
+
+def test_concat_numbers_items_part_after_part(root, second_root):
+    ds = concat_frames(root, second_root)
+    first = LENGTHS[4] + LENGTHS[1]
+    assert len(ds) == first + sum(SECOND) == 15
+    assert (ds.observation_dim, ds.action_dim) == (D, N)
+    assert ds.episode_ranges == [(0, 4), (4, 7), (7, 9), (9, 15)]
+    expected = [(4, f) for f in range(LENGTHS[4])] + [(1, f) for f in range(LENGTHS[1])] + all_frames(SECOND)
+    for i, (episode, frame) in enumerate(expected):
+        check_item(ds[i], episode, frame)
+    # each episode range covers exactly one (part, episode)
+    for (start, stop), episode in zip(ds.episode_ranges, [4, 1, 0, 1], strict=True):
+        assert {int(ds[i]["episode_index"]) for i in range(start, stop)} == {episode}
+        assert [int(ds[i]["frame_index"]) for i in range(start, stop)] == list(range(stop - start))
+
+
+def test_concat_getitems_matches_item_by_item(root, second_root):
+    ds = concat_frames(root, second_root)
+    indices = [14, 0, 8, 3, 3, 9, 6, 7, 1, -1, -15]
+    batch = ds.__getitems__(indices)
+    assert len(batch) == len(indices)
+    for got, i in zip(batch, indices, strict=True):
+        want = ds[i]
+        assert got.keys() == want.keys()
+        for key in want:
+            assert got[key].dtype == want[key].dtype
+            assert torch.equal(got[key], want[key]), (i, key)
+    assert ds.__getitems__([]) == []
+    for bad in (15, -16):
+        with pytest.raises(IndexError, match="out of range"):
+            ds.__getitems__([0, bad])
+
+
+def test_concat_of_other_widths_is_refused(root, second_root, tmp_path):
+    with pytest.raises(DatasetError, match=r"differ in \(observation, action\) width"):
+        ConcatFrames([FrameDataset(root), FrameDataset(second_root, frame_stack=2)])
+    discrete = write_dataset(tmp_path / "discrete", lengths=(3,), discrete=True)
+    with pytest.raises(DatasetError, match="width") as info:
+        ConcatFrames([FrameDataset(root), FrameDataset(discrete)])
+    assert str(discrete) in str(info.value)  # the message names the datasets
+    with pytest.raises(ValueError, match="FrameDataset"):
+        ConcatFrames([])
+    with pytest.raises(ValueError, match="FrameDataset"):
+        ConcatFrames([FrameDataset(root), list(range(3))])
+
+
+def test_block_sampler_over_concat_is_a_permutation_mixing_the_parts(root, second_root):
+    ds = ConcatFrames([FrameDataset(root), FrameDataset(second_root)])
+    ranges = ds.episode_ranges
+    assert len(ranges) == len(LENGTHS) + len(SECOND)
+    sampler = EpisodeBlockSampler(ds, block_episodes=2, seed=5)
+    for epoch in range(3):
+        sampler.set_epoch(epoch)
+        order = list(sampler)
+        assert len(sampler) == len(ds) and sorted(order) == list(range(len(ds)))
+        for block in sampler.blocks():  # a block holds whole episodes, at most two, from either part
+            touched = {k for k, (start, stop) in enumerate(ranges) if any(start <= i < stop for i in block)}
+            assert 1 <= len(touched) <= 2
+            assert sum(ranges[k][1] - ranges[k][0] for k in touched) == len(block)
+    loader = DataLoader(ds, batch_size=6, sampler=sampler, num_workers=0)
+    seen = Counter()
+    for batch in loader:
+        assert batch["observation"].shape[1:] == (D,) and batch["action"].shape[1:] == (N,)
+        for o in batch["observation"]:
+            seen[tuple(o.tolist())] += 1
+    assert sum(seen.values()) == len(ds)
+    assert seen == Counter(tuple(ds[i]["observation"].tolist()) for i in range(len(ds)))

@@ -62,6 +62,8 @@ def test_presets_hold_the_papers_values_and_laptop_defaults(algo):
         (("ppo", ENV, "default", {"n_stepz": 64}), "unknown hyperparameter.*n_stepz.*n_steps"),
         (("ppo", ENV, "default", {"learning_rate": "cos_1e-3"}), "learning_rate"),
         (("a2c", ENV, "default", {"policy_kwargs": {"net_arch": [64, "wide"]}}), "net_arch"),
+        (("ppo", ENV, "default", {"policy_kwargs": {"features_extractor": "nope"}}),
+         r"features_extractor must be one of \('flatten', 'swarm'\), got 'nope'"),
     ],
 )
 def test_bad_hyperparameters_are_refused(args, message):

@@ -48,11 +48,15 @@ class CollectSpec:
     pixels: bool = False
     image_size: int = 96
     env_kwargs: dict = field(default_factory=dict)  # any further gym.make kwargs (e.g. object_type="box")
+    # DAgger-style data: ``policy`` drives the env and the recorded action is this policy's on each observation
+    label_policy: str | None = None
 
     def __post_init__(self):
         if self.env_id not in ENV_IDS.values():
             raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
         check_policy_name(self.policy)
+        if self.label_policy is not None:
+            check_policy_name(self.label_policy)
         for name in ("n_robots", "steps", "image_size"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -142,6 +146,10 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
     observation, info = env.reset(seed=seed)
     policy = make_policy(spec.policy, env)
     policy.reset(seed)
+    labeller = None
+    if spec.label_policy is not None:
+        labeller = make_policy(spec.label_policy, env)
+        labeller.reset(seed)
     discrete = base.action_type == "discrete"
     observations, actions, rewards, dones, successes, images = [], [], [], [], [], []
     trajectory = [base._agent_position()]
@@ -160,7 +168,7 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
                 images.append(env.render())
             action = policy(observation)
             observations.append(observation)
-            actions.append(action)
+            actions.append(action if labeller is None else labeller(observation))
             observation, reward, terminated, truncated, info = env.step(action)
             done = terminated or truncated
             rewards.append(reward)
@@ -211,6 +219,7 @@ def save_record(writer: LeRobotWriter, spec: CollectSpec, record: EpisodeRecord,
         "env_id": spec.env_id,
         "env_kwargs": spec.make_kwargs(),
         "policy": spec.policy,
+        "label_policy": spec.label_policy or "",
         "n_robots": spec.n_robots,
         "robot_model": spec.robot_model,
         "projected_displacement": record.metrics.projected_displacement,
@@ -364,11 +373,20 @@ def collect(
             raise ValueError("backend 'ray' needs Ray: pip install -e '.[distributed]'") from None
     root = Path(root)
     probe = spec.make_env()
+    for name in (spec.policy, spec.label_policy):  # a policy that cannot run on this env fails before any write
+        if name is not None:
+            try:
+                make_policy(name, probe)
+            except ValueError:
+                probe.close()
+                raise
     features = dataset_features(probe, spec.pixels, spec.image_size)
     task = probe.unwrapped.task_description
     probe.close()
     # what must match to resume: the env, its kwargs, the policy, and whether episodes carry MCAP logs
     info_extra = {"dpr": {"env_id": spec.env_id, "policy": spec.policy, "env_kwargs": spec.make_kwargs(), "mcap": mcap}}
+    if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
+        info_extra["dpr"]["label_policy"] = spec.label_policy
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
     started = time.perf_counter()

@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset, Sampler
+from torch.utils.data import ConcatDataset, Dataset, Sampler
 
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
 
-__all__ = ["EpisodeBlockSampler", "FrameDataset"]
+__all__ = ["ConcatFrames", "EpisodeBlockSampler", "FrameDataset"]
 
 NUMERIC_KINDS = frozenset("biuf")  # numpy dtype kinds a vector feature may have (bool, int, uint, float)
 NORMALISATION_STATS = ("min", "max", "mean", "std", "q01", "q10", "q50", "q90", "q99")
@@ -329,6 +329,53 @@ class FrameDataset(Dataset):
         )
 
 
+class ConcatFrames(ConcatDataset):
+    """Several :class:`FrameDataset` (say, demonstrations and the corrective episodes of DAgger rounds) as one
+    dataset; items are numbered part after part, and :class:`EpisodeBlockSampler` shuffles across parts."""
+
+    def __init__(self, parts: Sequence[FrameDataset]):
+        parts = list(parts)
+        if not parts or not all(isinstance(part, FrameDataset) for part in parts):
+            raise ValueError("ConcatFrames needs one or more FrameDataset")
+        dims = {(part.observation_dim, part.action_dim) for part in parts}
+        if len(dims) > 1:
+            raise DatasetError(f"datasets differ in (observation, action) width: {sorted(dims)}; "
+                               f"{[str(part.root) for part in parts]}")
+        super().__init__(parts)
+
+    @property
+    def observation_dim(self) -> int:
+        return self.datasets[0].observation_dim
+
+    @property
+    def action_dim(self) -> int:
+        return self.datasets[0].action_dim
+
+    @property
+    def episode_ranges(self) -> list[tuple[int, int]]:
+        """[start, stop) of every episode of every part, in item numbers of the whole."""
+        ranges = []
+        for part, offset in zip(self.datasets, [0, *self.cumulative_sizes[:-1]]):
+            ranges += [(start + offset, stop + offset) for start, stop in part.episode_ranges]
+        return ranges
+
+    def __getitems__(self, indices: Sequence[int]) -> list[dict[str, torch.Tensor]]:
+        # one batched read per part (FrameDataset groups by episode), results back in the order asked
+        out: list[dict[str, torch.Tensor] | None] = [None] * len(indices)
+        by_part: dict[int, list[tuple[int, int]]] = {}
+        for position, index in enumerate(indices):
+            index = int(index) + len(self) if index < 0 else int(index)  # negative: from the end of the whole
+            if not 0 <= index < len(self):
+                raise IndexError(f"item index {indices[position]} out of range for {len(self)} frames")
+            part = bisect_right(self.cumulative_sizes, index)
+            start = self.cumulative_sizes[part - 1] if part else 0
+            by_part.setdefault(part, []).append((position, index - start))
+        for part, items in by_part.items():
+            for (position, _), item in zip(items, self.datasets[part].__getitems__([i for _, i in items])):
+                out[position] = item
+        return out  # type: ignore[return-value]
+
+
 class EpisodeBlockSampler(Sampler[int]):
     """Shuffles for training without thrashing the episode cache: episodes in random order, taken
     ``block_episodes`` at a time, frames shuffled within each block.
@@ -339,10 +386,11 @@ class EpisodeBlockSampler(Sampler[int]):
     once per epoch by each DataLoader worker. ``shuffle=False`` yields ``0 .. len - 1`` in order.
     """
 
-    def __init__(self, dataset: FrameDataset, block_episodes: int = 8, seed: int = 0, shuffle: bool = True):
+    def __init__(self, dataset: FrameDataset | ConcatFrames, block_episodes: int = 8, seed: int = 0,
+                 shuffle: bool = True):
         super().__init__()
-        if not isinstance(dataset, FrameDataset):
-            raise ValueError(f"dataset must be a FrameDataset, got {type(dataset).__name__}")
+        if not isinstance(dataset, (FrameDataset, ConcatFrames)):
+            raise ValueError(f"dataset must be a FrameDataset or ConcatFrames, got {type(dataset).__name__}")
         self.block_episodes = _positive_int(block_episodes, "block_episodes")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be an int >= 0, got {seed!r}")

@@ -43,7 +43,7 @@ import torch
 import yaml
 from torch.utils.data import DataLoader
 
-from dpr.datasets.frames import EpisodeBlockSampler, FrameDataset
+from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import ModelInfo, write_model_info
@@ -253,12 +253,19 @@ def measure(policy, dataset: FrameDataset, batch_size: int, prefix: str) -> dict
     return meter.result(prefix)
 
 
-def _train_epoch(policy, optimizer, loader: DataLoader, n_actions: int, bar) -> dict[str, Any]:
+def _train_epoch(policy, optimizer, loader: DataLoader, n_actions: int, bar, previous_action: slice | None = None,
+                 change_weight: float = 1.0) -> dict[str, Any]:
     policy.set_training_mode(True)
     meter = _Meter(n_actions)
     for batch in loader:
         nll, correct = _batch_stats(policy, batch["observation"], batch["action"])
-        loss = nll.mean()
+        if previous_action is not None and change_weight != 1.0:
+            # frames whose action differs from the one before are the policy's decisions; the rest repeat it
+            changed = (batch["observation"][:, previous_action] != batch["action"]).any(dim=1)
+            weights = torch.where(changed, change_weight, 1.0)
+            loss = (nll * weights).sum() / weights.sum()
+        else:
+            loss = nll.mean()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -289,7 +296,7 @@ def _check_out(out: str | Path | None) -> None:
 
 
 def behaviour_clone(
-    dataset_dir: str | Path,
+    dataset_dir: str | Path | list[str | Path],
     env_id: str,
     *,
     algo: str = "ppo",
@@ -301,10 +308,13 @@ def behaviour_clone(
     seed: int = 0,
     out: str | Path | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    hyperparams: dict[str, Any] | None = None,
+    change_weight: float = 1.0,
     show_progress: bool = False,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> BCResult:
-    """Behaviour-clone the dataset at ``dataset_dir`` (recorded by ``dpr collect`` on ``env_id``) into a new
+    """Behaviour-clone the dataset at ``dataset_dir`` (recorded by ``dpr collect`` on ``env_id``; or a list of
+    datasets of the same env, whose first one provides the validation episodes and the rest only train) into a new
     ``algo`` model built as ``dpr train`` builds it; save it with ``bc_log.json`` and ``config.yaml`` into ``out``
     (a new or empty folder; default ``runs/bc/<task>-<algo>-seed<S>-<timestamp>``).
 
@@ -315,9 +325,17 @@ def behaviour_clone(
 
     _check_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
     _check_out(out)
-    reader = LeRobotReader(dataset_dir)  # DatasetError (a ValueError) naming the folder when it is not a dataset
+    dataset_dirs = [dataset_dir] if isinstance(dataset_dir, (str, Path)) else list(dataset_dir)
+    if not dataset_dirs:
+        raise ValueError("--dataset: give at least one dataset")
+    readers = [LeRobotReader(path) for path in dataset_dirs]  # DatasetError naming a folder that is not a dataset
+    reader = readers[0]
     kwargs, steps = dataset_env(reader, env_id, env_kwargs)
-    hyper = load_hyperparams(algo, env_id)
+    for other in readers[1:]:
+        if dataset_env(other, env_id, env_kwargs) != (kwargs, steps):
+            raise ValueError(f"--dataset: {other.root} was recorded with {dataset_env(other, env_id, env_kwargs)}, "
+                             f"{reader.root} with {(kwargs, steps)}; datasets cloned together must match")
+    hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
     for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
         # DQN's Discrete(2^N) actions are the recorded MultiBinary ones, encoded as integers
         converted = algo == "dqn" and name == "action_type" and kwargs.get(name) == "multibinary"
@@ -327,11 +345,19 @@ def behaviour_clone(
     kwargs = {**kwargs, **hyper.env_kwargs}
     steps = int(steps) if steps else 2500
     env_text = f"{env_id} {kwargs}"
+    if isinstance(change_weight, bool) or not isinstance(change_weight, (int, float)) or not change_weight >= 1.0:
+        raise ValueError(f"change_weight must be a number >= 1, got {change_weight!r}")
     probe = gym.make(env_id, **kwargs)  # a bad kwarg fails here, before the run folder exists
     try:
-        check_features(reader, probe.observation_space, probe.action_space, env_text)
+        for each in readers:
+            check_features(each, probe.observation_space, probe.action_space, env_text)
+        base = probe.unwrapped
+        previous_action = slice(base.memory_offset, base.memory_offset + base.n_robots) if base.obs_last_action else None
     finally:
         probe.close()
+    if change_weight != 1.0 and previous_action is None:
+        raise ValueError("change_weight needs the previous action in the observation: a dataset recorded "
+                         "with obs_last_action=True")
     train_ids, val_ids = split_episodes(reader.num_episodes, val_fraction, seed)
 
     run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
@@ -340,8 +366,10 @@ def behaviour_clone(
         "algo": algo, "env_id": env_id, "env_kwargs": kwargs, "steps_per_episode": steps,
         "dataset": str(reader.root.resolve()), "dataset_episodes": reader.num_episodes,
         "dataset_frames": reader.num_frames, "train_episodes": train_ids, "val_episodes": val_ids,
+        "more_datasets": [{"dataset": str(r.root.resolve()), "episodes": r.num_episodes, "frames": r.num_frames}
+                          for r in readers[1:]],
         "bc": {"epochs": epochs, "batch_size": batch_size, "lr": lr, "val_fraction": val_fraction,
-               "patience": patience, "seed": seed, "optimizer": "Adam", "loss": "mean per-frame NLL of the "
+               "patience": patience, "seed": seed, "change_weight": change_weight, "optimizer": "Adam", "loss": "mean per-frame NLL of the "
                "recorded action (Bernoulli per robot, summed over robots)", "trained": "actor only"},
         "hyperparameters": hyper.as_dict(), "versions": package_versions(),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -359,6 +387,8 @@ def behaviour_clone(
         env.close()
     policy = model.policy
     train_set = FrameDataset(reader.root, episodes=train_ids, cache_episodes=BLOCK_EPISODES)
+    if len(readers) > 1:
+        train_set = ConcatFrames([train_set, *(FrameDataset(r.root, cache_episodes=BLOCK_EPISODES) for r in readers[1:])])
     val_set = FrameDataset(reader.root, episodes=val_ids, cache_episodes=BLOCK_EPISODES)
     sampler = EpisodeBlockSampler(train_set, block_episodes=BLOCK_EPISODES, seed=seed)
     loader = _loader(train_set, batch_size, sampler)
@@ -378,7 +408,8 @@ def behaviour_clone(
         for epoch in range(1, epochs + 1):
             sampler.set_epoch(epoch)
             tick = time.perf_counter()
-            row = {"epoch": epoch, **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar),
+            row = {"epoch": epoch, **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar, previous_action,
+                                                         change_weight),
                    **measure(policy, val_set, batch_size, "val")}
             row["seconds"] = round(time.perf_counter() - tick, 3)
             history.append(row)

@@ -2,7 +2,8 @@
 
 Each file has one entry per env id (laptop-sized defaults, preset ``default``) and one ``paper`` entry (Shen et
 al.'s values, any env id). An entry holds ``n_timesteps``, ``policy``, ``learning_rate`` (a number or
-``"lin_X"``: linear from X to 0 over training), ``policy_kwargs`` (``net_arch``, ``activation_fn``),
+``"lin_X"``: linear from X to 0 over training), ``policy_kwargs`` (``net_arch``, ``activation_fn``,
+``features_extractor``: ``flatten`` or ``swarm``, see :mod:`dpr.policies.features`),
 ``env_kwargs`` (gym.make kwargs the algorithm needs, e.g. DQN's discrete actions) and any other keyword
 argument of the SB3 class. Everything stays plain yaml data until :meth:`Hyperparams.model_kwargs` turns it
 into the objects SB3 wants, so the resolved values can be saved as they were read.
@@ -26,7 +27,8 @@ PAPER_PRESET = "paper"
 FINETUNE_PRESET = "finetune"  # the env id's entry with the yaml's `finetune` entry on top (dpr finetune)
 LINEAR_PREFIX = "lin_"
 ACTIVATIONS = ("tanh", "relu")
-POLICY_KWARGS = ("net_arch", "activation_fn")
+POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor")
+FEATURES_EXTRACTORS = ("flatten", "swarm")  # SB3's default; dpr.policies.features.SwarmFeatures
 # Set by the trainer itself, never by a yaml entry.
 RESERVED = ("env", "seed", "verbose", "tensorboard_log", "device", "_init_setup_model")
 
@@ -43,8 +45,9 @@ class Hyperparams:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     algo_kwargs: dict[str, Any] = field(default_factory=dict)  # learning_rate, policy_kwargs, n_steps, ...
 
-    def model_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for the SB3 class (schedules and activation classes built here)."""
+    def model_kwargs(self, n_robots: int | None = None) -> dict[str, Any]:
+        """Keyword arguments for the SB3 class (schedules, activation and features extractor classes built
+        here; the ``swarm`` extractor needs ``n_robots``)."""
         kwargs = dict(self.algo_kwargs)
         if "learning_rate" in kwargs:
             kwargs["learning_rate"] = learning_rate(kwargs["learning_rate"])
@@ -55,6 +58,13 @@ class Hyperparams:
 
                 classes = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
                 policy_kwargs["activation_fn"] = classes[policy_kwargs["activation_fn"]]
+            if policy_kwargs.pop("features_extractor", "flatten") == "swarm":
+                from dpr.policies.features import SwarmFeatures
+
+                if n_robots is None:
+                    raise ValueError("the swarm features extractor needs n_robots")
+                policy_kwargs["features_extractor_class"] = SwarmFeatures
+                policy_kwargs["features_extractor_kwargs"] = {"n_robots": int(n_robots)}
             kwargs["policy_kwargs"] = policy_kwargs
         return kwargs
 
@@ -146,6 +156,9 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
     net_arch = policy_kwargs.get("net_arch", [64])
     if not isinstance(net_arch, list) or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in net_arch):
         raise ValueError(f"{where}: policy_kwargs.net_arch must be a list of layer sizes, got {net_arch!r}")
+    if policy_kwargs.get("features_extractor", "flatten") not in FEATURES_EXTRACTORS:
+        raise ValueError(f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "
+                         f"got {policy_kwargs['features_extractor']!r}")
     if policy_kwargs.get("activation_fn", "tanh") not in ACTIVATIONS:
         raise ValueError(
             f"{where}: policy_kwargs.activation_fn must be one of {ACTIVATIONS}, got {policy_kwargs['activation_fn']!r}"

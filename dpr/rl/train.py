@@ -256,7 +256,8 @@ def build_model(hyper: Hyperparams, env, seed: int, tensorboard_log: str | None)
     """The SB3 model of ``hyper`` on ``env``."""
     single_thread_torch()
     return algo_class(hyper.algo)(
-        hyper.policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log, **hyper.model_kwargs()
+        hyper.policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log,
+        **hyper.model_kwargs(n_robots=env.get_attr("n_robots")[0])
     )
 
 
