@@ -221,8 +221,22 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
     print(f"wrote {path}")
 
 
+def _training_done(result, args) -> int:
+    """Say where a `dpr train`/`dpr finetune` run's files are (and log it to rerun when asked)."""
+    from dpr.rl.train import EVAL_SEED_OFFSET
+
+    print(f"model: {result.model_path}")
+    if result.best_model_path:
+        print(f"best model: {result.best_model_path}")
+    print(f"config: {result.config_path}")
+    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    if args.rerun and not result.interrupted:
+        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
+    return 130 if result.interrupted else 0
+
+
 def cmd_train(args, parser) -> int:
-    from dpr.rl.train import EVAL_SEED_OFFSET, TrainConfig, train
+    from dpr.rl.train import TrainConfig, train
 
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
@@ -237,19 +251,12 @@ def cmd_train(args, parser) -> int:
         result = train(config, args.out)
     except (TypeError, ValueError) as error:
         parser.error(str(error))
-    print(f"model: {result.model_path}")
-    if result.best_model_path:
-        print(f"best model: {result.best_model_path}")
-    print(f"config: {result.config_path}")
-    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
-    if args.rerun and not result.interrupted:
-        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
-    return 130 if result.interrupted else 0
+    return _training_done(result, args)
 
 
 def cmd_finetune(args, parser) -> int:
     from dpr.policies.sb3 import model_env_kwargs, read_model_info
-    from dpr.rl.train import EVAL_SEED_OFFSET, TrainConfig, train
+    from dpr.rl.train import TrainConfig, train
 
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
@@ -269,14 +276,7 @@ def cmd_finetune(args, parser) -> int:
         result = train(config, args.out)
     except (TypeError, ValueError) as error:
         parser.error(str(error))
-    print(f"model: {result.model_path}")
-    if result.best_model_path:
-        print(f"best model: {result.best_model_path}")
-    print(f"config: {result.config_path}")
-    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
-    if args.rerun and not result.interrupted:
-        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
-    return 130 if result.interrupted else 0
+    return _training_done(result, args)
 
 
 def cmd_pipeline(args, parser) -> int:
@@ -578,7 +578,15 @@ def _env_kwarg_argument(parser: argparse.ArgumentParser, example: str) -> None:
                         help=f"extra gym.make kwarg, e.g. {example} (repeatable)")
 
 
-def _training_rerun_argument(parser: argparse.ArgumentParser) -> None:
+def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> None:
+    """The flags `dpr train` and `dpr finetune` share."""
+    parser.add_argument("--seed", type=int, default=0, help="seed of the model and the envs (default 0)")
+    parser.add_argument("--eval-episodes", type=positive_int, default=2,
+                        help="episodes per periodic evaluation (default 2)")
+    _env_kwarg_argument(parser, "reward=projected")
+    parser.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
+                        help=f"override a yaml hyperparameter, e.g. {hyperparam_example} (repeatable)")
+    parser.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
     parser.add_argument("--rerun", metavar="OUT.rrd",
                         help="after training, roll out every checkpoint and the final model from the evaluation "
                         "start (seed + 10000) side by side into this new rerun file")
@@ -639,19 +647,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "dpr/Manipulation-v0")
     _swarm_arguments(tr)
     tr.add_argument("--timesteps", type=positive_int, help="env steps to train for (default: the preset's n_timesteps)")
-    tr.add_argument("--seed", type=int, default=0, help="seed of the model and the envs (default 0)")
     tr.add_argument("--n-envs", type=positive_int, default=1,
                     help="parallel envs (subprocesses when > 1; default 1)")
     tr.add_argument("--preset", choices=("default", "paper"), default="default",
                     help="default: laptop-sized entry of the env id; paper: Shen et al.'s (10M steps)")
     tr.add_argument("--steps-per-episode", type=positive_int, default=2500, help="episode length (default 2500)")
-    tr.add_argument("--eval-episodes", type=positive_int, default=2,
-                    help="episodes per periodic evaluation (default 2)")
-    _env_kwarg_argument(tr, "reward=projected")
-    tr.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
-                    help="override a yaml hyperparameter, e.g. n_steps=256 or learning_rate=lin_1e-3 (repeatable)")
-    tr.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
-    _training_rerun_argument(tr)
+    _run_arguments(tr, "n_steps=256 or learning_rate=lin_1e-3")
     tr.set_defaults(func=cmd_train)
 
     ft = sub.add_parser(
@@ -668,16 +669,9 @@ def build_parser() -> argparse.ArgumentParser:
     ft.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
     ft.add_argument("--critic-warmup", type=int, default=20_000,
                     help="env steps that train only the value head first (default 20000; 0 to skip)")
-    ft.add_argument("--seed", type=int, default=0, help="seed of the run and its envs (default 0)")
     ft.add_argument("--n-envs", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="parallel envs (subprocesses when > 1; default: min(2, CPUs))")
-    ft.add_argument("--eval-episodes", type=positive_int, default=2,
-                    help="episodes per periodic evaluation (default 2)")
-    _env_kwarg_argument(ft, "reward=projected")
-    ft.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
-                    help="override a yaml hyperparameter, e.g. learning_rate=1e-5 (repeatable)")
-    ft.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
-    _training_rerun_argument(ft)
+    _run_arguments(ft, "learning_rate=1e-5")
     ft.set_defaults(func=cmd_finetune)
 
     pi = sub.add_parser(
