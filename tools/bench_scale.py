@@ -163,10 +163,16 @@ def closest_pairs(swarm) -> tuple[float, tuple[float, float], float]:
     return float(distance[closest]), (float(radius[i]), float(radius[j])), float(overlap.max())
 
 
-def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int) -> dict:
-    env = gym.make(ENV_ID, n_robots=n_robots, robot_model="disk", max_episode_steps=steps)
+def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_radius: float | None = None,
+                  start_side: str | None = None, hold_steps: int | None = None) -> dict:
+    """One wave-policy episode of a large disk swarm. ``start_radius`` puts the swarm's centre that far from the
+    goal (default: the env's 450-550, which a 1000-robot swarm covers); ``start_side``/``hold_steps`` override
+    the disk model's wave defaults (tuned at N=9)."""
+    kwargs = {} if start_radius is None else {"start_radius": (start_radius, start_radius)}
+    env = gym.make(ENV_ID, n_robots=n_robots, robot_model="disk", max_episode_steps=steps, **kwargs)
     obs, _ = env.reset(seed=seed)
-    policy = WavePolicy.from_env(env)
+    overrides = {k: v for k, v in (("start_side", start_side), ("hold_steps", hold_steps)) if v is not None}
+    policy = WavePolicy.from_env(env, **overrides)
     policy.reset()
     swarm = env.unwrapped.world.swarm  # one World per episode: this swarm lives as long as the episode
     min_allowed = 2 * swarm.contracted_radius - tolerance
@@ -198,6 +204,8 @@ def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int) -> dic
     }
     return {
         "n_robots": n_robots,
+        "start_radius": start_radius,
+        "wave": {"start_side": policy.start_side, "hold_steps": policy.hold_steps},
         "steps": done_steps,
         "end": end,
         "wall_s": round(step_time, 2),
@@ -245,10 +253,11 @@ def markdown(results: dict) -> str:
     if "episode" in results:
         e = results["episode"]
         lines += [
-            "| N (disk, wave) | steps | end | wall s (env+policy) | ms/step | min centre distance (allowed) "
-            "| max overlap (actual radii) | projected displacement | checks |",
-            "|---|---|---|---|---|---|---|---|---|",
-            f"| {e['n_robots']} | {e['steps']} | {e['end']} | {e['wall_s']} | {e['ms_per_step']} | "
+            "| N (disk) | start radius | wave | steps | end | wall s (env+policy) | ms/step | min centre distance "
+            "(allowed) | max overlap (actual radii) | projected displacement | checks |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
+            f"| {e['n_robots']} | {e['start_radius'] or '450-550'} | {e['wave']['start_side']}, hold "
+            f"{e['wave']['hold_steps']} | {e['steps']} | {e['end']} | {e['wall_s']} | {e['ms_per_step']} | "
             f"{e['min_centre_distance']} (>= {e['min_allowed_distance']}; radii {e['closest_pair_radii']}, step "
             f"{e['closest_pair_step']}) | {e['max_overlap_actual_radii']} | "
             f"{e['projected_displacement']} | {'all passed' if e['met'] else e['checks']} |",
@@ -269,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episode-robots", type=int, default=1000, help="swarm size of the episode (c)")
     parser.add_argument("--episode-steps", type=int, default=2500, help="episode length (c)")
     parser.add_argument("--tolerance", type=float, default=5.0, help="allowed overlap below 2 contracted radii (c)")
+    parser.add_argument("--episode-start-radius", type=float,
+                        help="distance of the swarm's start from the goal (c; default: the env's 450-550)")
+    parser.add_argument("--episode-side", choices=("near", "far"), help="wave start side (c; default: the disk model's)")
+    parser.add_argument("--episode-hold", type=int, help="wave hold steps (c; default: the disk model's)")
     parser.add_argument("--profile", action="store_true", help="cProfile the largest wave-policy size (b)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
     args = parser.parse_args(argv)
@@ -287,7 +300,9 @@ def main(argv: list[str] | None = None) -> int:
         results["sizes"] = bench_sizes(args.sizes, args.size_steps, args.warmup, args.size_repeats, args.profile)
     if "episode" in args.parts:
         results["load"]["episode"] = load()
-        results["episode"] = bench_episode(args.episode_robots, args.episode_steps, args.tolerance, seed=0)
+        results["episode"] = bench_episode(args.episode_robots, args.episode_steps, args.tolerance, seed=0,
+                                           start_radius=args.episode_start_radius, start_side=args.episode_side,
+                                           hold_steps=args.episode_hold)
 
     print(markdown(results))
     for row in results.get("sizes", {}).get("rows", []):
