@@ -9,7 +9,7 @@ from helpers import run_cli as run
 from PIL import Image
 
 from dpr.rl.evaluation import evaluation_json, run_episode, subsample_trajectory
-from dpr.rl.report import load_evaluation, results_table, trajectory_figure, write_report
+from dpr.rl.report import load_evaluation, policy_label, results_table, trajectory_figure, write_report
 
 SWARM = ["--robot-model", "disk", "--n-robots", "4"]
 STEPS = 25  # not a multiple of the subsampling step: the last position must still be stored
@@ -117,7 +117,8 @@ def test_report_from_evaluate_files(evaluated, tmp_path, capsys):
 
 def test_table_rows_medians_and_percent_of_wave(synthetic):
     rows = _rows(results_table([load_evaluation(path) for path in synthetic]))
-    assert [row[:2] for row in rows] == [["Navigation", "wave"], ["Navigation", "navigation-bc-ppo"],
+    # on Navigation the model is named by its method; on another task it keeps its whole name
+    assert [row[:2] for row in rows] == [["Navigation", "wave"], ["Navigation", "bc-ppo"],
                                          ["Gate", "wave"], ["Gate", "navigation-bc-ppo"]]
     nav_wave, nav_bc, gate_wave, gate_bc = rows
     assert nav_wave[2:] == ["20.0", "10.0", "40.0", f"23.3 ± {np.std([10, 20, 40]):.1f}", "33%", "3", "0-2", "100%"]
@@ -186,3 +187,10 @@ def test_files_without_trajectories(tmp_path):
     with pytest.warns(UserWarning, match="old.json: random on Navigation has no trajectories"):
         trajectory_figure([load_evaluation(new), load_evaluation(old)], tmp_path / "mixed.png")
     assert (tmp_path / "mixed.png").stat().st_size > 0
+
+
+def test_a_model_named_after_its_task_is_labelled_by_its_method():
+    assert policy_label("models/navigation-bc-ppo.zip", {"Navigation"}) == "bc-ppo"
+    assert policy_label("models/gate-dqn.zip", {"Gate"}) == "dqn"
+    assert policy_label("models/gate-dqn.zip", {"Navigation"}) == "gate-dqn"  # another task's model keeps its name
+    assert policy_label("models/gate-dqn.zip") == "gate-dqn" and policy_label("wave", {"Gate"}) == "wave"

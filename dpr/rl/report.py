@@ -37,10 +37,17 @@ def task_name(env_id: str) -> str:
     return env_id.split("/")[-1].rsplit("-v", 1)[0]
 
 
-def policy_label(policy: str) -> str:
-    """Display name of a policy: a model file's stem (models/navigation-bc-ppo.zip -> navigation-bc-ppo), else
-    the policy's name."""
-    return Path(policy).stem if policy.endswith(MODEL_SUFFIX) else policy
+def policy_label(policy: str, tasks=()) -> str:
+    """Display name of a policy: a model file's stem without the prefix of one of ``tasks`` (task names), so
+    that the same method has the same name on every task (models/navigation-bc-ppo.zip on Navigation ->
+    bc-ppo), else the policy's name."""
+    if not policy.endswith(MODEL_SUFFIX):
+        return policy
+    stem = Path(policy).stem
+    for task in tasks:
+        if stem.lower().startswith(f"{task.lower()}-"):
+            return stem[len(task) + 1 :]
+    return stem
 
 
 def _is_a(value, kind) -> bool:
@@ -95,7 +102,9 @@ def load_evaluation(path, label: str | None = None) -> dict:
                 raise ValueError(f"{where} has a trajectory but no goal")
             _check_points(episode["goal"], (2,), f"{where}: 'goal'")
             _check_points(episode["trajectory"], (None, 2), f"{where}: 'trajectory'")
-    return {**payload, "source": str(path), "label": label or policy_label(payload["policy"])}
+    tasks = {task_name(env_id) for env_id in payload["env_ids"]}  # a one-task file names its model by method
+    return {**payload, "source": str(path),
+            "label": label or policy_label(payload["policy"], tasks if len(tasks) == 1 else ())}
 
 
 @dataclass
@@ -120,7 +129,9 @@ def _label(evaluation: dict) -> str:
 
 
 def _labels_in_order(evaluations: list[dict]) -> list[str]:
-    return list(dict.fromkeys(_label(evaluation) for evaluation in evaluations))
+    """Labels in the order given, the wave policy (the reference) first."""
+    labels = list(dict.fromkeys(_label(evaluation) for evaluation in evaluations))
+    return sorted(labels, key=lambda label: label != WAVE_POLICY)
 
 
 def _task_key(task: str) -> tuple[int, str]:
@@ -299,13 +310,28 @@ def _draw_trajectories(plan: dict[str, tuple[int, list[_Path]]], labels: list[st
         start, goal = paths[0].trajectory[0], paths[0].goal
         # Hollow start marker under the paths: a short path must stay visible on top of it.
         markers = axes.plot(*start, "s", color="black", markerfacecolor="none", markersize=9, label="start", zorder=1)
-        markers += axes.plot(*goal, "*", color="gold", markeredgecolor="black", markersize=14, label="goal", zorder=1)
         lines = []
         for p in paths:
             lines += axes.plot(p.trajectory[:, 0], p.trajectory[:, 1], color=colours[p.label], linewidth=1.5,
                                label=p.label, zorder=2)
             axes.plot(*p.trajectory[-1], "o", color=colours[p.label], markersize=4, zorder=2)  # where it ended
-        axes.set_aspect("equal", adjustable="datalim")
+        # The paths are short beside the distance to the goal: frame them, and point at the goal instead.
+        points = np.vstack([p.trajectory for p in paths])
+        low, high = points.min(axis=0), points.max(axis=0)
+        pad = max(float((high - low).max()) * 0.25, 10.0)
+        axes.set_xlim(low[0] - pad, high[0] + pad)
+        axes.set_ylim(low[1] - pad, high[1] + pad)
+        to_goal = goal - start
+        distance = float(np.linalg.norm(to_goal))
+        if distance > 0:
+            tip = start + to_goal / distance * min(distance, 0.8 * float((high - low).max() + pad))
+            axes.annotate("", xy=tip, xytext=start, zorder=0,
+                          arrowprops={"arrowstyle": "->", "color": "0.6", "linestyle": "--"})
+            axes.text(*tip, f" to the goal ({distance:.0f} units)", color="0.4", fontsize="small", zorder=0)
+        if (low - pad <= goal).all() and (goal <= high + pad).all():  # the goal is in the frame: mark it
+            markers += axes.plot(*goal, "*", color="gold", markeredgecolor="black", markersize=14, label="goal",
+                                 zorder=1)
+        axes.set_aspect("equal", adjustable="box")
         axes.set_title(f"{task} (seed {seed})")
         axes.set_xlabel("x (units)")
         axes.set_ylabel("y (units)")
