@@ -687,9 +687,9 @@ def build_parser() -> argparse.ArgumentParser:
     pi.add_argument("--tasks", nargs="+", default=["navigation"], choices=(*TASK_NAMES, ALL_ENVS),
                     help="tasks to run (default navigation; 'all' for the four)")
     pi.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
-    pi.add_argument("--episodes", type=positive_int, default=10, help="demonstration episodes per task (default 10)")
+    pi.add_argument("--episodes", type=positive_int, default=40, help="demonstration episodes per task (default 40)")
     pi.add_argument("--demo-seed", type=int, default=1000, help="first demonstration seed (default 1000)")
-    pi.add_argument("--bc-epochs", type=positive_int, default=10, help="behaviour-cloning epochs (default 10)")
+    pi.add_argument("--bc-epochs", type=positive_int, default=15, help="behaviour-cloning epochs (default 15)")
     pi.add_argument("--critic-warmup", type=int, default=10_000, help="value-only steps before fine-tuning (default 10000)")
     pi.add_argument("--finetune-steps", type=positive_int, default=30_000, help="fine-tuning steps (default 30000)")
     pi.add_argument("--finetune-algos", nargs="+", default=["ppo"], choices=("ppo", "a2c"),

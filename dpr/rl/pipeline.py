@@ -48,9 +48,9 @@ class PipelineConfig:
 
     tasks: list[str] = field(default_factory=lambda: ["navigation"])
     n_robots: int = 9
-    episodes: int = 10  # demonstrations per task
+    episodes: int = 40  # demonstrations per task (fewer clone the wave poorly: RESULTS.md)
     demo_seed: int = 1000
-    bc_epochs: int = 10
+    bc_epochs: int = 15
     critic_warmup: int = 10_000
     finetune_steps: int = 30_000
     finetune_algos: list[str] = field(default_factory=lambda: ["ppo"])
