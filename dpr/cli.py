@@ -100,9 +100,7 @@ def cmd_evaluate(args, parser) -> int:
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
-    _check_output(args.rerun, parser, "--rerun")
-    if args.rerun and not args.rerun.endswith(".rrd"):
-        parser.error(f"--rerun: {args.rerun} must end in .rrd")
+    _check_rerun_output(args, parser)
     env_kwargs = _evaluate_env_kwargs(args, env_ids, parser)
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
@@ -189,6 +187,7 @@ def _hyperparam(text: str) -> tuple[str, object]:
 
 
 def _check_rerun_output(args, parser) -> None:
+    """``--rerun``: a new file ending in .rrd (`dpr evaluate`, `dpr train`, `dpr finetune`)."""
     _check_output(args.rerun, parser, "--rerun")
     if args.rerun and not args.rerun.endswith(".rrd"):
         parser.error(f"--rerun: {args.rerun} must end in .rrd")

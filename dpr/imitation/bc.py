@@ -45,6 +45,7 @@ from torch.utils.data import DataLoader
 
 from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
+from dpr import runs
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import ModelInfo, write_model_info
 
@@ -279,20 +280,7 @@ def _train_epoch(policy, optimizer, loader: DataLoader, n_actions: int, bar, pre
 
 def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
     """``runs/bc/<task>-<algo>-seed<S>-<timestamp>`` (a suffix when two runs start in the same second)."""
-    task = next(task for task, known in ENV_IDS.items() if known == env_id)
-    base = RUNS_DIR / f"{task}-{algo}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    path, n = base, 1
-    while path.exists():
-        n += 1
-        path = base.with_name(f"{base.name}-{n}")
-    return path
-
-
-def _check_out(out: str | Path | None) -> None:
-    if out is not None:
-        path = Path(out)
-        if path.exists() and (not path.is_dir() or any(path.iterdir())):
-            raise ValueError(f"--out: {path} already exists and is not an empty folder; runs are never overwritten")
+    return runs.default_run_dir(RUNS_DIR, env_id, algo, seed)
 
 
 def behaviour_clone(
@@ -324,7 +312,7 @@ def behaviour_clone(
     from dpr.rl.train import build_model, make_vec_env, package_versions
 
     _check_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
-    _check_out(out)
+    runs.check_new_folder(out)
     dataset_dirs = [dataset_dir] if isinstance(dataset_dir, (str, Path)) else list(dataset_dir)
     if not dataset_dirs:
         raise ValueError("--dataset: give at least one dataset")

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dpr import runs
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.imitation.bc import BCResult, behaviour_clone, dataset_env
@@ -60,9 +61,8 @@ def dagger(
     if bc_kwargs.get("algo", "ppo") == "dqn":
         raise ValueError("DAgger clones into an actor-critic (algo ppo or a2c): a DQN clone acts in Discrete(2^N), "
                          "not in the demonstrations' MultiBinary env it would have to drive")
+    runs.check_new_folder(out)
     out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ValueError(f"--out: {out} already exists and is not an empty folder; runs are never overwritten")
     demos = [Path(dataset_dir)] if isinstance(dataset_dir, (str, Path)) else [Path(d) for d in dataset_dir]
     readers = [LeRobotReader(path) for path in demos]
     env_kwargs, steps = dataset_env(readers[0], env_id, bc_kwargs.get("env_kwargs"))

@@ -182,12 +182,18 @@ class ModelPolicy:
         return action
 
 
-def load_model_policy(path: str | Path, env) -> ModelPolicy:
-    """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env).
-    Predictions run on one torch thread: one small MLP per step gains nothing from more, and evaluation runs
-    one process per core."""
+def single_thread_torch() -> None:
+    """One torch thread in this process. The networks are small MLPs, which more threads do not speed up;
+    envs and evaluation run one process per core, and torch's spinning worker threads competing with them
+    slowed training and evaluation down tenfold and more on 2 cores."""
     import torch
 
     torch.set_num_threads(1)
+
+
+def load_model_policy(path: str | Path, env) -> ModelPolicy:
+    """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env),
+    predicting on one torch thread (:func:`single_thread_torch`)."""
+    single_thread_torch()
     model, info = load_model(path, env)
     return ModelPolicy(model, info, Path(path))

@@ -33,6 +33,7 @@ from typing import Any
 import yaml
 
 from dpr.envs import ENV_IDS
+from dpr.runs import fresh_path
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
 EXPERT = "wave-markov"
@@ -165,7 +166,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
         bc_model = out / "models" / f"{task}-bc.zip"
         if _stage(bc_model, f"{task}: behaviour cloning", log):
             result = behaviour_clone(dataset, env_id, algo="ppo", epochs=config.bc_epochs, seed=config.seed,
-                                     out=_fresh(out / "runs" / f"{task}-bc"), show_progress=show_progress, log=log)
+                                     out=fresh_path(out / "runs" / f"{task}-bc"), show_progress=show_progress, log=log)
             _copy_new(result.model_path, bc_model)
 
         runs: list[tuple[str, dict[str, Any]]] = [
@@ -180,7 +181,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
                 train_config = TrainConfig(env_id=env_id, n_robots=config.n_robots, seed=config.seed,
                                            n_envs=config.workers, steps_per_episode=config.steps,
                                            env_kwargs=env_kwargs, **settings)
-                result = train(train_config, _fresh(out / "runs" / f"{task}-{method}"), show_progress=show_progress,
+                result = train(train_config, fresh_path(out / "runs" / f"{task}-{method}"), show_progress=show_progress,
                                log=log)
                 if result.interrupted:
                     raise KeyboardInterrupt
@@ -217,15 +218,6 @@ def _model_kwargs(policy: str, env_id: str) -> dict:
     from dpr.policies.sb3 import model_env_kwargs
 
     return model_env_kwargs(policy, env_id)
-
-
-def _fresh(path: Path) -> Path:
-    """``path``, or ``path-2``, ``path-3``... when an earlier, interrupted attempt left it behind."""
-    candidate, n = path, 1
-    while candidate.exists():
-        n += 1
-        candidate = path.with_name(f"{path.name}-{n}")
-    return candidate
 
 
 def _seed_text(seeds: list[int]) -> str:

@@ -29,7 +29,8 @@ import gymnasium as gym
 import yaml
 
 from dpr.envs import ENV_IDS
-from dpr.policies.sb3 import ALGOS, ModelInfo, algo_class, write_model_info
+from dpr import runs
+from dpr.policies.sb3 import ALGOS, ModelInfo, algo_class, single_thread_torch, write_model_info
 from dpr.rl.hyperparams import PRESETS, Hyperparams, load_hyperparams
 from dpr.rl.models import save_model
 
@@ -115,24 +116,11 @@ def _check_positive(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
 
 
-def default_run_dir(config: TrainConfig) -> Path:
-    """``runs/train/<task>-<algo>-seed<S>-<timestamp>``."""
-    task = next(task for task, env_id in ENV_IDS.items() if env_id == config.env_id)
-    return RUNS_DIR / f"{task}-{config.algo}-seed{config.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-
-
 def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
-    """A new, empty run folder: ``out`` (refused when it exists and is not an empty folder) or the default."""
-    if out is None:
-        base = default_run_dir(config)
-        path, n = base, 1
-        while path.exists():  # two runs started in the same second
-            n += 1
-            path = base.with_name(f"{base.name}-{n}")
-    else:
-        path = Path(out)
-        if path.exists() and (not path.is_dir() or any(path.iterdir())):
-            raise ValueError(f"--out: {path} already exists and is not an empty folder; runs are never overwritten")
+    """A new, empty run folder: ``out`` (refused when it exists and is not an empty folder) or
+    ``runs/train/<task>-<algo>-seed<S>-<timestamp>``."""
+    runs.check_new_folder(out)
+    path = Path(out) if out is not None else runs.default_run_dir(RUNS_DIR, config.env_id, config.algo, config.seed)
     path.mkdir(parents=True, exist_ok=True)
     return path
 
@@ -174,19 +162,18 @@ def tensorboard_available() -> bool:
     return importlib.util.find_spec("tensorboard") is not None
 
 
-def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: dict, timesteps: int, show_progress: bool):
-    """Progress bar, evaluation (best_model.zip) and checkpoints, each stamping its zips with ``info``."""
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+def progress_bar(desc: str, total: int, show_progress: bool):
+    """An SB3 callback showing a tqdm bar over the ``total`` steps of one ``learn`` call (counted from where
+    the model's step count stood, so a run after a critic warm-up starts at 0), with the mean return of the
+    last episodes."""
+    from stable_baselines3.common.callbacks import BaseCallback
 
     class ProgressBar(BaseCallback):
-        """A tqdm bar over the step budget, with the mean return of the last episodes."""
-
         def _on_training_start(self) -> None:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=timesteps, desc=f"{'finetune' if config.init_from else 'train'} {config.algo} "
-                            f"{config.env_id}", unit="step", disable=not show_progress)
-            self.first_step = self.model.num_timesteps  # after a critic warm-up, the count goes on from it
+            self.bar = tqdm(total=total, desc=desc, unit="step", disable=not show_progress)
+            self.first_step = self.model.num_timesteps
 
         def _on_step(self) -> bool:
             self.bar.update(self.model.num_timesteps - self.first_step - self.bar.n)
@@ -197,6 +184,13 @@ def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: 
 
         def _on_training_end(self) -> None:
             self.bar.close()
+
+    return ProgressBar()
+
+
+def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: dict, timesteps: int, show_progress: bool):
+    """Progress bar, evaluation (best_model.zip) and checkpoints, each stamping its zips with ``info``."""
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 
     class StampBest(BaseCallback):
         """Runs right after EvalCallback saved a new best_model.zip: writes the env metadata into it."""
@@ -230,7 +224,8 @@ def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: 
     )
     checkpoints = StampingCheckpoints(save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"),
                                       name_prefix="model", verbose=0)
-    return CallbackList([ProgressBar(), evaluation, checkpoints]), eval_env
+    desc = f"{'finetune' if config.init_from else 'train'} {config.algo} {config.env_id}"
+    return CallbackList([progress_bar(desc, timesteps, show_progress), evaluation, checkpoints]), eval_env
 
 
 def _close_quietly(vec_env) -> None:
@@ -241,15 +236,6 @@ def _close_quietly(vec_env) -> None:
         vec_env.close()
     except (EOFError, BrokenPipeError, ConnectionResetError):
         pass
-
-
-def single_thread_torch() -> None:
-    """One torch thread in this process. The networks are small MLPs, which more threads do not speed up;
-    the envs run in other processes on the same cores, and torch's spinning worker threads competing with them
-    slowed training and evaluation down tenfold and more on 2 cores."""
-    import torch
-
-    torch.set_num_threads(1)
 
 
 def build_model(hyper: Hyperparams, env, seed: int, tensorboard_log: str | None):
@@ -280,28 +266,14 @@ def load_initial_policy(model, path: str | Path) -> None:
 
 def warm_up_critic(model, steps: int, show_progress: bool) -> None:
     """``steps`` steps of ``model.learn`` with every actor parameter frozen: only the value head moves."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
     from dpr.imitation.bc import actor_parameters
-
-    class Progress(BaseCallback):
-        def _on_training_start(self) -> None:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=steps, desc="critic warm-up", unit="step", disable=not show_progress)
-
-        def _on_step(self) -> bool:
-            self.bar.update(self.model.num_timesteps - self.bar.n)
-            return True
-
-        def _on_training_end(self) -> None:
-            self.bar.close()
 
     actor = actor_parameters(model.policy)
     for parameter in actor:
         parameter.requires_grad_(False)
     try:
-        model.learn(total_timesteps=steps, callback=Progress(), tb_log_name="critic_warmup")
+        model.learn(total_timesteps=steps, callback=progress_bar("critic warm-up", steps, show_progress),
+                    tb_log_name="critic_warmup")
     finally:
         for parameter in actor:
             parameter.requires_grad_(True)

@@ -1,0 +1,34 @@
+"""Run folders of the commands that write models and logs (`dpr bc`, `dpr train`, `dpr finetune`,
+`dpr pipeline`): always new ones, so nothing already written is overwritten."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from dpr.envs import ENV_IDS
+
+
+def fresh_path(path: str | Path) -> Path:
+    """``path``, or ``path-2``, ``path-3``... the first that does not exist yet (two runs started in the same
+    second, or an interrupted attempt left the first behind)."""
+    base = candidate = Path(path)
+    n = 1
+    while candidate.exists():
+        n += 1
+        candidate = base.with_name(f"{base.name}-{n}")
+    return candidate
+
+
+def check_new_folder(out: str | Path | None) -> None:
+    """ValueError when ``out`` exists and is not an empty folder (``None``: a default folder will be made)."""
+    if out is not None:
+        path = Path(out)
+        if path.exists() and (not path.is_dir() or any(path.iterdir())):
+            raise ValueError(f"--out: {path} already exists and is not an empty folder; runs are never overwritten")
+
+
+def default_run_dir(runs_dir: str | Path, env_id: str, name: str, seed: int) -> Path:
+    """``runs_dir/<task>-<name>-seed<S>-<timestamp>``, made unique with :func:`fresh_path`."""
+    task = next(task for task, known in ENV_IDS.items() if known == env_id)
+    return fresh_path(Path(runs_dir) / f"{task}-{name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
