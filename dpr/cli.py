@@ -96,7 +96,7 @@ def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
     from dpr.envs import ENV_IDS
-    from dpr.rl.evaluation import evaluate, evaluation_json, evaluation_payload, format_table
+    from dpr.rl.evaluation import evaluate, format_table, save_evaluation
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     _check_output(args.json, parser, "--json")
@@ -112,8 +112,7 @@ def cmd_evaluate(args, parser) -> int:
         parser.error(str(error))
     print(format_table(results))
     if args.json:
-        payload = evaluation_payload(args.policy, env_ids, env_kwargs, args.steps, args.seeds, results)
-        Path(args.json).write_text(evaluation_json(payload))
+        save_evaluation(args.json, args.policy, env_ids, env_kwargs, args.steps, args.seeds, results)
         print(f"wrote {args.json}")
     if args.rerun:
         _log_evaluation_to_rerun(args, env_ids, env_kwargs)

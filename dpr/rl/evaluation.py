@@ -6,6 +6,7 @@ import json
 import re
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -73,6 +74,17 @@ def evaluation_payload(policy: str, env_ids: list[str], env_kwargs: dict, steps:
         "episodes": [r.as_dict(trajectory=True) for r in results],
         "summary": per_env if len(env_ids) > 1 else per_env[env_ids[0]],
     }
+
+
+def save_evaluation(path, policy: str, env_ids: list[str], env_kwargs: dict, steps: int, seeds: list[int],
+                    results: list[EpisodeResult]) -> Path:
+    """Write :func:`evaluation_payload` as :func:`evaluation_json` to ``path`` through a temporary file, so that
+    ``path`` exists only once it is complete."""
+    path = Path(path)
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(evaluation_json(evaluation_payload(policy, env_ids, env_kwargs, steps, seeds, results)))
+    partial.replace(path)
+    return path
 
 
 def evaluation_json(payload: dict) -> str:

@@ -131,8 +131,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
 
     from dpr.datasets.collect import CollectSpec, collect
     from dpr.imitation.bc import behaviour_clone
-    from dpr.rl.evaluation import evaluate, evaluation_json, evaluation_payload
-    from dpr.rl.report import REPORT_FILES, write_report
+    from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
+    from dpr.rl.report import REPORT_FILES, format_seeds, write_report
     from dpr.rl.train import TrainConfig, train
 
     out = Path(out)
@@ -191,19 +191,16 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
             policy = BASELINE if method == BASELINE else str(out / "models" / f"{task}-{method}.zip")
             path = out / "eval" / f"{task}-{method}.json"
             evaluations.append((path, method))
-            if not _stage(path, f"{task}: evaluate {method} on seeds {_seed_text(config.eval_seeds)}", log):
+            if not _stage(path, f"{task}: evaluate {method} on seeds {format_seeds(config.eval_seeds)}", log):
                 continue
             # the wave runs on the pipeline's env; a model on the env kwargs stored in it
-            kwargs = ({"n_robots": config.n_robots, **env_kwargs} if method == BASELINE
-                      else _model_kwargs(policy, env_id))
+            kwargs = policy_env_kwargs(policy, env_id, {"n_robots": config.n_robots, **env_kwargs}
+                                       if method == BASELINE else None)
             with tqdm(total=len(config.eval_seeds), desc=f"evaluate {task}-{method}", unit="episode",
                       disable=not show_progress) as bar:
                 results = evaluate([env_id], policy, config.eval_seeds, steps=config.steps, env_kwargs=kwargs,
                                    workers=config.workers, progress=lambda r: bar.update(1))
-            payload = evaluation_payload(policy, [env_id], kwargs, config.steps, config.eval_seeds, results)
-            partial = path.with_name(path.name + ".partial")
-            partial.write_text(evaluation_json(payload))
-            partial.replace(path)
+            save_evaluation(path, policy, [env_id], kwargs, config.steps, config.eval_seeds, results)
 
     report = out / "report"
     if (report / REPORT_FILES[0]).exists():
@@ -213,14 +210,3 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
     log(f"dpr pipeline: done in {time.perf_counter() - started:.0f} s; report in {report}")
     return report
 
-
-def _model_kwargs(policy: str, env_id: str) -> dict:
-    from dpr.policies.sb3 import model_env_kwargs
-
-    return model_env_kwargs(policy, env_id)
-
-
-def _seed_text(seeds: list[int]) -> str:
-    if len(seeds) > 1 and seeds == list(range(seeds[0], seeds[0] + len(seeds))):
-        return f"{seeds[0]}-{seeds[-1]}"
-    return ",".join(map(str, seeds))

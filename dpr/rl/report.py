@@ -166,7 +166,7 @@ def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
     }
 
 
-def _format_seeds(seeds: list[int]) -> str:
+def format_seeds(seeds: list[int]) -> str:
     """[0, 1, 2, 3, 5] -> '0-3,5'."""
     runs: list[list[int]] = []
     for seed in sorted(set(seeds)):
@@ -212,7 +212,7 @@ def results_table(evaluations: list[dict]) -> str:
             lines.append(
                 f"| {task} | {label} | {s['median']:.1f} | {s['min']:.1f} | {s['max']:.1f} | "
                 f"{s['mean']:.1f} ± {s['std']:.1f} | {100 * success:.0f}% | {s['n']} | "
-                f"{_format_seeds(group.seeds)} | {_percent_of_wave(group, wave)} |"
+                f"{format_seeds(group.seeds)} | {_percent_of_wave(group, wave)} |"
             )
     return "\n".join(lines)
 
@@ -350,7 +350,7 @@ def trajectory_figure(evaluations: list[dict], path, seed: int | None = None) ->
 def _sources_line(evaluations: list[dict]) -> str:
     parts = [
         f"`{e['source']}` ({_label(e)}: {', '.join(task_name(env_id) for env_id in e['env_ids'])}; "
-        f"seeds {_format_seeds(e['seeds'])}, {e['steps']} steps)"
+        f"seeds {format_seeds(e['seeds'])}, {e['steps']} steps)"
         for e in evaluations
     ]
     return "Sources: " + "; ".join(parts) + "."
