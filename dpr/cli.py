@@ -124,11 +124,11 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
     every robot's state recorded, and save them side by side in a new .rrd file."""
     from tqdm import tqdm
 
+    from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.viz.episodes import rollout_episode
     from dpr.viz.rerun_log import save_rrd
 
-    swarm = {key: env_kwargs[key] for key in ("n_robots", "robot_model") if key in env_kwargs}
-    extra = {k: v for k, v in env_kwargs.items() if k not in swarm}
+    swarm, extra = split_swarm_kwargs(env_kwargs)
     episodes = []
     for env_id in tqdm(env_ids, desc="log to rerun", unit="env"):
         for seed in args.seeds:
@@ -199,6 +199,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
 
     from tqdm import tqdm
 
+    from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.sb3 import read_model_info
     from dpr.viz.episodes import rollout_episode
     from dpr.viz.rerun_log import save_rrd
@@ -210,8 +211,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
     checkpoints = sorted((result.run_dir / "checkpoints").glob("*.zip"), key=step_count)
     models = [(f"step_{step_count(m)}", m) for m in checkpoints] + [("final", result.model_path)]
     info = read_model_info(result.model_path)
-    swarm = {key: info.env_kwargs[key] for key in ("n_robots", "robot_model") if key in info.env_kwargs}
-    extra = {key: value for key, value in info.env_kwargs.items() if key not in swarm}
+    swarm, extra = split_swarm_kwargs(info.env_kwargs)
     steps = info.max_episode_steps or 2500
     episodes = [rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
                 for name, model in tqdm(models, desc="log to rerun", unit="model")]
@@ -253,6 +253,7 @@ def cmd_train(args, parser) -> int:
 
 
 def cmd_finetune(args, parser) -> int:
+    from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.sb3 import model_env_kwargs, read_model_info
     from dpr.rl.train import TrainConfig, train
 
@@ -263,10 +264,9 @@ def cmd_finetune(args, parser) -> int:
         info = read_model_info(args.source)
         if info.env_id != args.env:
             raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
-        env_kwargs = model_env_kwargs(args.source, args.env, dict(args.env_kwarg or []))
+        swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, dict(args.env_kwarg or [])))
         config = TrainConfig(
-            args.algo or info.algo, args.env, n_robots=env_kwargs.pop("n_robots", 9),
-            robot_model=env_kwargs.pop("robot_model", "paddle"), timesteps=args.timesteps, seed=args.seed,
+            args.algo or info.algo, args.env, **swarm, timesteps=args.timesteps, seed=args.seed,
             n_envs=args.n_envs, preset="finetune", steps_per_episode=info.max_episode_steps or 2500, env_kwargs=env_kwargs,
             hyperparams=dict(args.hyperparam or []), eval_episodes=args.eval_episodes, init_from=args.source,
             critic_warmup=args.critic_warmup,

@@ -25,6 +25,15 @@ LENGTH_SCALE = 1.0 / 1000.0
 GOAL = np.zeros(2)
 
 
+SWARM_KWARGS = ("n_robots", "robot_model")  # what CollectSpec, TrainConfig and rollouts take as their own fields
+
+
+def split_swarm_kwargs(env_kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``env_kwargs`` as (the swarm's ``n_robots``/``robot_model``, every other kwarg)."""
+    swarm = {key: value for key, value in env_kwargs.items() if key in SWARM_KWARGS}
+    return swarm, {key: value for key, value in env_kwargs.items() if key not in SWARM_KWARGS}
+
+
 def _copy(observation):
     if isinstance(observation, dict):
         return {key: value.copy() for key, value in observation.items()}

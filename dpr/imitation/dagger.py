@@ -22,6 +22,7 @@ from typing import Any
 from dpr import runs
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
+from dpr.envs.particle_env import split_swarm_kwargs
 from dpr.imitation.bc import BCResult, behaviour_clone, dataset_env
 from dpr.policies.registry import check_policy_name, make_policy
 
@@ -71,7 +72,7 @@ def dagger(
     if demo_seeds & dagger_seeds:
         raise ValueError(f"first_seed: DAgger seeds {min(dagger_seeds)}-{max(dagger_seeds)} overlap the "
                          "demonstrations' seeds; choose seeds the dataset does not hold")
-    swarm = {key: env_kwargs.pop(key) for key in ("n_robots", "robot_model") if key in env_kwargs}
+    swarm, env_kwargs = split_swarm_kwargs(env_kwargs)
     spec = CollectSpec(env_id, policy=expert, steps=steps or 2500, env_kwargs=env_kwargs, **swarm)
     probe = spec.make_env()
     try:  # an expert that cannot label this env's observations (e.g. wave-markov without obs_last_action)
