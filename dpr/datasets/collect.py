@@ -373,16 +373,14 @@ def collect(
             raise ValueError("backend 'ray' needs Ray: pip install -e '.[distributed]'") from None
     root = Path(root)
     probe = spec.make_env()
-    for name in (spec.policy, spec.label_policy):  # a policy that cannot run on this env fails before any write
-        if name is not None:
-            try:
+    try:
+        for name in (spec.policy, spec.label_policy):  # a policy that cannot run on this env fails before any write
+            if name is not None:
                 make_policy(name, probe)
-            except ValueError:
-                probe.close()
-                raise
-    features = dataset_features(probe, spec.pixels, spec.image_size)
-    task = probe.unwrapped.task_description
-    probe.close()
+        features = dataset_features(probe, spec.pixels, spec.image_size)
+        task = probe.unwrapped.task_description
+    finally:
+        probe.close()
     # what must match to resume: the env, its kwargs, the policy, and whether episodes carry MCAP logs
     info_extra = {"dpr": {"env_id": spec.env_id, "policy": spec.policy, "env_kwargs": spec.make_kwargs(), "mcap": mcap}}
     if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)

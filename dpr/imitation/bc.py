@@ -57,6 +57,11 @@ OBSERVATION_KEY = "observation.state"
 ACTION_KEY = "action"
 # Recording-only env kwargs: they change how a dataset was rendered, not what the model sees or does.
 RECORDING_KWARGS = ("render_mode", "render_size")
+# What a run's config.yaml says was trained, and on what loss.
+_ACTOR_CRITIC_LOSS = {"loss": "mean per-frame NLL of the recorded action (Bernoulli per robot, summed over robots)",
+                      "trained": "actor only"}
+_DQN_LOSS = {"loss": "mean per-frame cross-entropy of the recorded action's index among the 2^N Q-values",
+             "trained": "Q-network, then copied into the target network"}
 BLOCK_EPISODES = 8  # EpisodeBlockSampler block; the FrameDataset cache holds as many episodes
 
 
@@ -320,8 +325,9 @@ def behaviour_clone(
     reader = readers[0]
     kwargs, steps = dataset_env(reader, env_id, env_kwargs)
     for other in readers[1:]:
-        if dataset_env(other, env_id, env_kwargs) != (kwargs, steps):
-            raise ValueError(f"--dataset: {other.root} was recorded with {dataset_env(other, env_id, env_kwargs)}, "
+        recorded = dataset_env(other, env_id, env_kwargs)
+        if recorded != (kwargs, steps):
+            raise ValueError(f"--dataset: {other.root} was recorded with {recorded}, "
                              f"{reader.root} with {(kwargs, steps)}; datasets cloned together must match")
     hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
     for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
@@ -357,8 +363,8 @@ def behaviour_clone(
         "more_datasets": [{"dataset": str(r.root.resolve()), "episodes": r.num_episodes, "frames": r.num_frames}
                           for r in readers[1:]],
         "bc": {"epochs": epochs, "batch_size": batch_size, "lr": lr, "val_fraction": val_fraction,
-               "patience": patience, "seed": seed, "change_weight": change_weight, "optimizer": "Adam", "loss": "mean per-frame NLL of the "
-               "recorded action (Bernoulli per robot, summed over robots)", "trained": "actor only"},
+               "patience": patience, "seed": seed, "change_weight": change_weight, "optimizer": "Adam",
+               **(_DQN_LOSS if algo == "dqn" else _ACTOR_CRITIC_LOSS)},
         "hyperparameters": hyper.as_dict(), "versions": package_versions(),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }

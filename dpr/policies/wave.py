@@ -105,7 +105,7 @@ def encode_action(expand: np.ndarray, action_type: str) -> np.ndarray | int:
     return int(expand @ (1 << np.arange(len(expand) - 1, -1, -1)))
 
 
-class MarkovWavePolicy:
+class MarkovWavePolicy(WavePolicy):
     """The wave as a function of the observation alone: what a policy learned by imitation can reproduce.
 
     It needs the env's ``obs_last_action=True``: the state then ends with the previous action and how many
@@ -113,34 +113,24 @@ class MarkovWavePolicy:
     held fewer than ``hold_steps`` steps it is repeated. Then the robots are binned as in
     :class:`WavePolicy`, from the current positions, the non-empty bins taken in wave order, and the bin after
     the nearest expanded one expands (after the last bin, the first; with nothing expanded, the first). On the
-    paddle model this is the 10-step wave, with bins planned at every phase instead of every cycle.
+    paddle model this is the 10-step wave, with bins planned at every phase instead of every cycle. Arguments
+    and validation are :class:`WavePolicy`'s (``hold_steps`` at most 20, what the observation counts).
     """
 
-    def __init__(
-        self,
-        n_robots: int,
-        action_type: str = "multibinary",
-        hold_steps: int = 10,
-        bin_width: float = BIN_WIDTH,
-        start_side: str = "near",
-    ):
-        self._wave = WavePolicy(n_robots, action_type, hold_steps=hold_steps, bin_width=bin_width, start_side=start_side)
+    def __init__(self, n_robots: int, action_type: str = "multibinary", hold_steps: int = 10, **kwargs):
         if hold_steps > HELD_STEPS_CAP:
             raise ValueError(f"hold_steps must be <= {HELD_STEPS_CAP} (the observation counts held steps up to it), "
                              f"got {hold_steps}")
-        self.n_robots, self.action_type, self.hold_steps = n_robots, action_type, int(hold_steps)
+        super().__init__(n_robots, action_type, hold_steps, **kwargs)
 
     @classmethod
     def from_env(cls, env, **overrides) -> "MarkovWavePolicy":
         """A Markov wave for ``env`` (wrapped or not) with its robot model's defaults; the env must have
         ``obs_last_action=True``."""
-        base: ParticleSwarmEnv = env.unwrapped
-        if base.obs_type == "pixels":
-            raise ValueError("the wave policy reads robot positions: use obs_type 'state' or 'pixels_state'")
-        if not base.obs_last_action:
+        if not env.unwrapped.obs_last_action:
             raise ValueError("wave-markov reads the previous action and its held steps from the observation: "
                              "make the env with obs_last_action=True (e.g. --env-kwarg obs_last_action=true)")
-        return cls(base.n_robots, base.action_type, **{**MODEL_DEFAULTS[base.robot_model], **overrides})
+        return super().from_env(env, **overrides)
 
     def reset(self) -> None:
         """Nothing to reset: the policy keeps no state."""
@@ -154,7 +144,7 @@ class MarkovWavePolicy:
         if last.any() and held < self.hold_steps:
             return encode_action(last.astype(np.int8), self.action_type)
         positions = state[: ROBOT_FEATURES * n].reshape(n, ROBOT_FEATURES)[:, 0:2]
-        bins = self._wave.plan(positions * 1000.0)
+        bins = self.plan(positions * 1000.0)
         rank = np.searchsorted(np.unique(bins), bins)  # position of each robot's bin among the non-empty ones
         # The bin after the nearest expanded robot's: a robot of the last phase that drifted over a bin edge
         # would otherwise make the wave skip a bin.
