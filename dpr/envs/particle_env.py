@@ -178,10 +178,11 @@ class ParticleSwarmEnv(gym.Env):
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         targets = self._targets(action)
-        if np.array_equal(targets, self._last_targets):
-            self._held_steps += 1
-        else:
-            self._last_targets, self._held_steps = targets, 1
+        if self.obs_last_action:  # (off the hot path of envs that do not observe it)
+            if np.array_equal(targets, self._last_targets):
+                self._held_steps += 1
+            else:
+                self._last_targets, self._held_steps = targets, 1
         previous = self._tracker.last_position
         self.world.step(targets)
         if not self.world.is_sane():
