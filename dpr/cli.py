@@ -269,7 +269,8 @@ def cmd_finetune(args, parser) -> int:
             args.algo or info.algo, args.env, **swarm, timesteps=args.timesteps, seed=args.seed,
             n_envs=args.n_envs, preset="finetune", steps_per_episode=info.max_episode_steps or 2500, env_kwargs=env_kwargs,
             hyperparams=dict(args.hyperparam or []), eval_episodes=args.eval_episodes, init_from=args.source,
-            critic_warmup=args.critic_warmup,
+            critic_warmup=args.critic_warmup, anchor_datasets=list(args.anchor or []), anchor_weight=args.anchor_weight,
+            anchor_decay=args.anchor_decay,
         )
         result = train(config, args.out)
     except (TypeError, ValueError) as error:
@@ -667,6 +668,13 @@ def build_parser() -> argparse.ArgumentParser:
     ft.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
     ft.add_argument("--critic-warmup", type=int, default=20_000,
                     help="env steps that train only the value head first (default 20000; 0 to skip)")
+    ft.add_argument("--anchor", nargs="+", metavar="DATASET",
+                    help="demonstration datasets (from `dpr collect`) to anchor every update to: after each update, "
+                    "a few steps of the behaviour-cloning loss on their frames, scaled by --anchor-weight and decaying "
+                    "by --anchor-decay per update (DAPG's demonstration term)")
+    ft.add_argument("--anchor-weight", type=float, default=1.0, help="the anchor's scale at the first update (default 1)")
+    ft.add_argument("--anchor-decay", type=float, default=0.99, help="the anchor's scale is multiplied by this after "
+                    "each update (default 0.99: about a third left after 100 updates)")
     ft.add_argument("--n-envs", type=positive_int, default=min(2, os.cpu_count() or 1),
                     help="parallel envs (subprocesses when > 1; default: min(2, CPUs))")
     _run_arguments(ft, "learning_rate=1e-5")

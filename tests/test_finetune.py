@@ -4,6 +4,7 @@ report, resumable)."""
 
 import json
 import re
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -219,6 +220,64 @@ def test_cli_finetunes_a_ppo_clone_with_a2c(cloned, tmp_path, capsys):
     assert config["hyperparameters"]["learning_rate"] == 1e-5 and config["hyperparameters"]["n_steps"] == 32
     info = read_model_info(out / "model.zip")
     assert (info.algo, info.env_kwargs) == ("a2c", ENV_KWARGS)
+
+
+# -- the demonstration anchor ---------------------------------------------------------------------------------------
+def _demos(cloned):
+    return yaml.safe_load(cloned.config_path.read_text())["dataset"]
+
+
+def _demonstration_nll(model_path, demos) -> float:
+    from dpr.imitation.bc import batch_stats
+    from dpr.rl.anchor import load_demonstrations
+
+    model, _ = load_model(model_path)
+    frames = load_demonstrations([demos], model.observation_space, model.action_space, "test")
+    with torch.no_grad():
+        return float(batch_stats(model.policy, frames.observation, frames.action)[0].mean())
+
+
+def test_anchor_holds_the_actor_at_the_demonstrations(cloned, tmp_path):
+    """At a learning rate 30x the preset's, the unanchored updates follow the returns only; the anchored run ends
+    closer to the demonstrated actions than both that run and the clone it started from."""
+    fast = {**TINY_PPO, "learning_rate": 1e-3}
+    demos = _demos(cloned)
+    free = train(finetune_config(cloned.model_path, critic_warmup=0, hyperparams=fast, seed=1), tmp_path / "free", **QUIET)
+    anchored = train(finetune_config(cloned.model_path, critic_warmup=0, hyperparams=fast, seed=1, anchor_datasets=[demos],
+                                     anchor_weight=1.0, anchor_decay=1.0), tmp_path / "anchored", **QUIET)
+    nll = {name: _demonstration_nll(path, demos) for name, path in
+           (("clone", cloned.model_path), ("free", free.model_path), ("anchored", anchored.model_path))}
+    assert nll["anchored"] < nll["clone"] and nll["anchored"] < nll["free"], nll
+    record = yaml.safe_load(anchored.config_path.read_text())["anchor"]
+    assert record["datasets"] == [str(Path(demos).resolve())] and record["frames"] == 3 * STEPS
+    assert (record["weight"], record["decay"]) == (1.0, 1.0)
+    assert yaml.safe_load(free.config_path.read_text())["anchor"] is None
+
+
+def test_anchor_refuses_bad_settings_before_writing(cloned, tmp_path):
+    for name, bad in (("anchor_weight", 0), ("anchor_weight", -1.0), ("anchor_decay", 1.5), ("anchor_decay", True)):
+        with pytest.raises(ValueError, match=rf"{name} must be a number"):
+            TrainConfig("ppo", ENV, init_from=str(cloned.model_path), anchor_datasets=["x"], **{name: bad})
+    with pytest.raises(ValueError, match="algo 'dqn' cannot be anchored"):
+        TrainConfig("dqn", ENV, anchor_datasets=[_demos(cloned)])
+    other = tmp_path / "n5"  # demonstrations of 5 robots cannot anchor a 4-robot policy
+    collect(other, CollectSpec(ENV, policy="wave-markov", steps=10, env_kwargs=MEMORY, n_robots=5, robot_model="disk"),
+            episodes=1, workers=1)
+    with pytest.raises(ValueError, match=rf"(?s)--dataset: {re.escape(str(other))} does not fit.*shape \[5\]"):
+        train(finetune_config(cloned.model_path, anchor_datasets=[str(other)]), tmp_path / "run", **QUIET)
+    assert not (tmp_path / "run").exists()
+
+
+def test_cli_finetune_with_an_anchor(cloned, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--timesteps", "32", "--critic-warmup", "0",
+            "--n-envs", "1", "--anchor", _demos(cloned), "--anchor-weight", "0.5", "--anchor-decay", "0.9",
+            "--hyperparam", "n_steps=32", "--hyperparam", "batch_size=32", "--out", str(out)]
+    assert run(argv) == 0
+    record = yaml.safe_load((out / "config.yaml").read_text())["anchor"]
+    assert (record["weight"], record["decay"], record["frames"]) == (0.5, 0.9, 3 * STEPS)
+    assert run([*argv[:-1], str(tmp_path / "bad"), "--anchor-decay", "0"]) == 2
+    assert "anchor_decay must be a number in (0.0, 1.0], got 0.0" in capsys.readouterr().err
 
 
 # -- the pipeline --------------------------------------------------------------------------------------------------

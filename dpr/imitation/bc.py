@@ -197,7 +197,7 @@ def trained_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
     return actor_parameters(policy)
 
 
-def _batch_stats(policy, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def batch_stats(policy, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-frame negative log-likelihood [B] and per-robot correctness of the deterministic action [B, N]."""
     if hasattr(policy, "q_net"):  # DQN: Q-values as the logits of a softmax over the 2^N joint actions
         n = action.shape[1]
@@ -255,7 +255,7 @@ def measure(policy, dataset: FrameDataset, batch_size: int, prefix: str) -> dict
     policy.set_training_mode(False)
     meter = _Meter(dataset.action_dim)
     for batch in _loader(dataset, batch_size, EpisodeBlockSampler(dataset, shuffle=False)):
-        meter.add(*_batch_stats(policy, batch["observation"], batch["action"]), batch["action"])
+        meter.add(*batch_stats(policy, batch["observation"], batch["action"]), batch["action"])
     return meter.result(prefix)
 
 
@@ -264,7 +264,7 @@ def _train_epoch(policy, optimizer, loader: DataLoader, n_actions: int, bar, pre
     policy.set_training_mode(True)
     meter = _Meter(n_actions)
     for batch in loader:
-        nll, correct = _batch_stats(policy, batch["observation"], batch["action"])
+        nll, correct = batch_stats(policy, batch["observation"], batch["action"])
         if previous_action is not None and change_weight != 1.0:
             # frames whose action differs from the one before are the policy's decisions; the rest repeat it
             changed = (batch["observation"][:, previous_action] != batch["action"]).any(dim=1)

@@ -23,7 +23,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import yaml
@@ -33,6 +33,9 @@ from dpr import runs
 from dpr.policies.sb3 import ALGOS, ModelInfo, algo_class, single_thread_torch, write_model_info
 from dpr.rl.hyperparams import PRESETS, Hyperparams, load_hyperparams
 from dpr.rl.models import save_model
+
+if TYPE_CHECKING:  # the anchor imports torch and the BC code: only runs that anchor load it
+    from dpr.rl.anchor import Demonstrations
 
 RUNS_DIR = Path("runs/train")
 FINETUNE_ALGOS = ("ppo", "a2c")  # actor-critic models, which `dpr bc` clones into
@@ -62,6 +65,9 @@ class TrainConfig:
     eval_episodes: int = 2
     init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
     critic_warmup: int = 0  # with init_from: steps that train the value head only, before the actor moves
+    anchor_datasets: list[str] = field(default_factory=list)  # demonstrations the updates are anchored to
+    anchor_weight: float = 1.0  # the anchor's loss scale at the first update ...
+    anchor_decay: float = 0.99  # ... times this per update
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -82,6 +88,14 @@ class TrainConfig:
             raise ValueError("critic_warmup needs init_from: a critic warm-up keeps a trained actor unchanged")
         if self.init_from is not None and self.algo not in FINETUNE_ALGOS:
             raise ValueError(f"algo {self.algo!r} cannot start from a cloned policy; choose one of {FINETUNE_ALGOS}")
+        if self.anchor_datasets and self.algo not in FINETUNE_ALGOS:
+            raise ValueError(f"algo {self.algo!r} cannot be anchored to demonstrations; choose one of {FINETUNE_ALGOS}")
+        for name, low, high in (("anchor_weight", 0.0, None), ("anchor_decay", 0.0, 1.0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > low \
+                    or (high is not None and value > high):
+                bound = f"in ({low}, {high}]" if high is not None else f"> {low}"
+                raise ValueError(f"{name} must be a number {bound}, got {value!r}")
         reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
             raise ValueError(f"env_kwargs must not set {reserved}: use n_robots, robot_model and steps_per_episode")
@@ -264,6 +278,20 @@ def load_initial_policy(model, path: str | Path) -> None:
                          f"{model.policy.net_arch}: {str(error).splitlines()[0]}") from None
 
 
+def _demonstrations(config: TrainConfig, env_kwargs: dict[str, Any]) -> Demonstrations | None:
+    """The anchor's demonstration frames (None without ``anchor_datasets``)."""
+    if not config.anchor_datasets:
+        return None
+    from dpr.rl.anchor import load_demonstrations
+
+    probe = gym.make(config.env_id, **env_kwargs)
+    try:
+        return load_demonstrations(config.anchor_datasets, probe.observation_space, probe.action_space,
+                                   f"{config.env_id} {env_kwargs}")
+    finally:
+        probe.close()
+
+
 def warm_up_critic(model, steps: int, show_progress: bool) -> None:
     """``steps`` steps of ``model.learn`` with every actor parameter frozen: only the value head moves."""
     from dpr.imitation.bc import actor_parameters
@@ -294,6 +322,7 @@ def train(
         from dpr.policies.sb3 import read_model_info
 
         read_model_info(config.init_from)  # a missing or foreign file fails here, before the run folder exists
+    demonstrations = _demonstrations(config, env_kwargs)  # so does a dataset that does not fit the env
     run_dir = prepare_run_dir(out, config)
     info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
@@ -312,6 +341,7 @@ def train(
         "eval_episodes": config.eval_episodes,
         "init_from": None if config.init_from is None else str(Path(config.init_from).resolve()),
         "critic_warmup": config.critic_warmup,
+        "anchor": None if demonstrations is None else demonstrations.record(config.anchor_weight, config.anchor_decay),
         "tensorboard_log": tensorboard_log,
         "versions": package_versions(),
         "config": asdict(config),
@@ -331,6 +361,11 @@ def train(
         if config.init_from is not None:
             load_initial_policy(model, config.init_from)
         callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress)
+        if demonstrations is not None:
+            from dpr.rl.anchor import demonstration_anchor
+
+            callbacks.callbacks.append(demonstration_anchor(demonstrations, config.anchor_weight, config.anchor_decay,
+                                                            config.seed))
         with warnings.catch_warnings():
             # EvalCallback warns when the eval env is a DummyVecEnv and training runs in a SubprocVecEnv: harmless
             # (both are Monitor-wrapped), and one env does not need a process of its own.
