@@ -34,6 +34,12 @@ def split_swarm_kwargs(env_kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict
     return swarm, {key: value for key, value in env_kwargs.items() if key not in SWARM_KWARGS}
 
 
+def joint_action_bits(n_robots: int) -> np.ndarray:
+    """The value of each robot's bit in a ``action_type="discrete"`` action (int64 [N]): robot 0 is the most
+    significant bit, so the integer action is ``expand @ joint_action_bits(N)``."""
+    return 1 << np.arange(n_robots - 1, -1, -1, dtype=np.int64)
+
+
 def _copy(observation):
     if isinstance(observation, dict):
         return {key: value.copy() for key, value in observation.items()}
@@ -235,8 +241,7 @@ class ParticleSwarmEnv(gym.Env):
                 raise ValueError(f"action must be an integer in [0, {2**n}) for action_type='discrete', got {action!r}")
             if not 0 <= value < 2**n:
                 raise ValueError(f"action must be in [0, {2**n}) for action_type='discrete', got {value}")
-            # robot 0 is the most significant bit
-            return ((int(value) >> np.arange(n - 1, -1, -1)) & 1).astype(float)
+            return ((int(value) & joint_action_bits(n)) > 0).astype(float)
         if self.action_type == "multibinary" and isinstance(action, np.ndarray) and action.shape == (n,) \
                 and action.dtype.kind == "i":
             # the common case, a policy's integer array, in two calls: x & ~1 is 0 only for x in {0, 1}

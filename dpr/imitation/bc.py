@@ -47,6 +47,7 @@ from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
 from dpr import runs
 from dpr.envs import ENV_IDS
+from dpr.envs.particle_env import joint_action_bits
 from dpr.policies.sb3 import ModelInfo, write_model_info
 
 __all__ = ["BC_ALGOS", "BCResult", "behaviour_clone", "check_features", "dataset_env"]
@@ -200,8 +201,7 @@ def trained_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
 def batch_stats(policy, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-frame negative log-likelihood [B] and per-robot correctness of the deterministic action [B, N]."""
     if hasattr(policy, "q_net"):  # DQN: Q-values as the logits of a softmax over the 2^N joint actions
-        n = action.shape[1]
-        bits = 1 << torch.arange(n - 1, -1, -1)
+        bits = torch.from_numpy(joint_action_bits(action.shape[1]))
         logits = policy.q_net(observation)
         nll = torch.nn.functional.cross_entropy(logits, (action.long() * bits).sum(1), reduction="none")
         chosen = logits.argmax(dim=1, keepdim=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES, ParticleSwarmEnv
+from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES, ParticleSwarmEnv, joint_action_bits
 
 BIN_WIDTH = 60.0  # the 2021 code's "robot diameter"
 START_SIDES = ("near", "far")
@@ -102,7 +102,7 @@ def encode_action(expand: np.ndarray, action_type: str) -> np.ndarray | int:
         return expand
     if action_type == "continuous":
         return expand.astype(np.float32)
-    return int(expand @ (1 << np.arange(len(expand) - 1, -1, -1)))
+    return int(expand @ joint_action_bits(len(expand)))
 
 
 class MarkovWavePolicy(WavePolicy):
