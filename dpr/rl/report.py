@@ -66,6 +66,19 @@ def _check_points(value, shape: tuple[int | None, int], where: str) -> None:
         raise ValueError(f"{where} must be {expected}, got shape {array.shape}")
 
 
+def _check_keys(record: dict, spec: dict[str, type | tuple[type, ...]], missing: str, wrong: str) -> None:
+    """ValueError with ``missing`` (formatted with the absent keys) or ``wrong`` (with the key, its expected kind and
+    its value) unless ``record`` has every key of ``spec`` with a value of its type."""
+    absent = [key for key in spec if key not in record]
+    if absent:
+        raise ValueError(missing.format(missing=absent))
+    for key, kind in spec.items():
+        if not _is_a(record[key], kind):
+            kinds = kind if isinstance(kind, tuple) else (kind,)
+            name = " or ".join(k.__name__ for k in kinds)
+            raise ValueError(wrong.format(key=key, kind=name, value=record[key]))
+
+
 def load_evaluation(path, label: str | None = None) -> dict:
     """The payload of a `dpr evaluate --json` file, checked, with ``source`` (the path) and ``label`` (``label``,
     else policy_label of its policy) added. A ValueError names the file and what is wrong."""
@@ -79,24 +92,15 @@ def load_evaluation(path, label: str | None = None) -> dict:
     if not isinstance(payload, dict):
         kind = type(payload).__name__
         raise ValueError(f"{path}: expected a JSON object written by `dpr evaluate --json`, got a {kind}")
-    missing = [key for key in REQUIRED_KEYS if key not in payload]
-    if missing:
-        raise ValueError(f"{path}: missing key(s) {missing}; is it a `dpr evaluate --json` file?")
-    for key, kind in REQUIRED_KEYS.items():
-        if not _is_a(payload[key], kind):
-            raise ValueError(f"{path}: '{key}' must be a {kind.__name__}, got {payload[key]!r:.60}")
+    _check_keys(payload, REQUIRED_KEYS, f"{path}: missing key(s) {{missing}}; is it a `dpr evaluate --json` file?",
+                f"{path}: '{{key}}' must be a {{kind}}, got {{value!r:.60}}")
     if not payload["episodes"]:
         raise ValueError(f"{path}: no episodes")
     for i, episode in enumerate(payload["episodes"]):
         where = f"{path}: episode {i}"
         if not isinstance(episode, dict):
             raise ValueError(f"{where} must be an object, got {episode!r:.60}")
-        missing = [key for key in EPISODE_KEYS if key not in episode]
-        if missing:
-            raise ValueError(f"{where} lacks {missing}")
-        for key, kind in EPISODE_KEYS.items():
-            if not _is_a(episode[key], kind):
-                raise ValueError(f"{where}: '{key}' has a wrong type: {episode[key]!r:.60}")
+        _check_keys(episode, EPISODE_KEYS, f"{where} lacks {{missing}}", f"{where}: '{{key}}' has a wrong type: {{value!r:.60}}")
         if "trajectory" in episode:  # absent from files written before trajectories were recorded
             if "goal" not in episode:
                 raise ValueError(f"{where} has a trajectory but no goal")
