@@ -364,4 +364,8 @@ def test_bench_scale_runs_small_and_writes_json(tmp_path, capsys):
     episode = results["episode"]
     assert episode["steps"] == 10 and episode["checks"]["no_physics_error"]
     assert episode["min_centre_distance"] > 0
+    # tunnelling: a centre inside another robot's contracted disk; touching-contact overlap is reported apart
+    assert episode["tunnelling_below"] == 27.5 and episode["min_allowed_distance"] == 50.0
+    assert episode["checks"]["no_tunnelling"] == (episode["min_centre_distance"] >= 27.5)
+    assert episode["overlap_within_tolerance"] == (episode["min_centre_distance"] >= 50.0)
     assert "| wave | 16 |" in capsys.readouterr().out

@@ -9,10 +9,13 @@
   microseconds per robot-step (wall time of env step + policy / steps / N, fastest of ``--size-repeats``
   runs); target: the largest N costs at most 2x the smallest per robot-step.
 * (c) ``episode``: a ``--episode-robots`` (1000) disk-model swarm runs a ``--episode-steps`` (2500) wave-policy
-  Navigation episode. Checked at every step: no ``physics_error`` in info, no tunnelling (every pair of
-  robot centres at least ``2 * contracted radius - --tolerance`` apart; the largest overlap with the robots'
-  actual radii is reported too), and a positive projected displacement at the end. Reports the wall time of
-  the episode (env + policy; the checks are timed apart).
+  Navigation episode. Checked at every step: no ``physics_error`` in info, no tunnelling (no robot's centre
+  ever inside another robot's contracted disk: every pair of centres at least one contracted radius apart;
+  past that, the solver may push a pair out on the wrong side, through each other), and a positive projected
+  displacement at the end. Soft-contact overlap is reported beside them, not as a pass/fail check: the
+  smallest centre distance against ``2 * contracted radius - --tolerance`` (touching contracted robots) and
+  the largest overlap with the robots' actual radii. Reports the wall time of the episode (env + policy; the
+  checks are timed apart).
 
     python tools/bench_scale.py [--parts vec sizes episode] [--json out.json] [--profile]
 
@@ -175,7 +178,8 @@ def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_
     policy = WavePolicy.from_env(env, **overrides)
     policy.reset()
     swarm = env.unwrapped.world.swarm  # one World per episode: this swarm lives as long as the episode
-    min_allowed = 2 * swarm.contracted_radius - tolerance
+    min_allowed = 2 * swarm.contracted_radius - tolerance  # touching contracted robots, less the tolerance
+    tunnelling_below = swarm.contracted_radius  # a centre inside another robot's disk
     min_distance, closest_radii, max_overlap = closest_pairs(swarm)
     closest_step = 0
     step_time = check_time = 0.0
@@ -199,7 +203,7 @@ def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_
     env.close()
     ok = {
         "no_physics_error": not errors,
-        "no_tunnelling": min_distance >= min_allowed,
+        "no_tunnelling": min_distance >= tunnelling_below,
         "moved_toward_goal": info.get("projected_displacement", 0.0) > 0.0,
     }
     return {
@@ -212,7 +216,9 @@ def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_
         "check_s": round(check_time, 2),
         "ms_per_step": round(step_time / done_steps * 1e3, 3),
         "min_centre_distance": round(min_distance, 3),
+        "tunnelling_below": tunnelling_below,
         "min_allowed_distance": min_allowed,
+        "overlap_within_tolerance": min_distance >= min_allowed,
         "closest_pair_radii": [round(r, 2) for r in closest_radii],
         "closest_pair_step": closest_step,
         "max_overlap_actual_radii": round(max_overlap, 3),
@@ -254,11 +260,12 @@ def markdown(results: dict) -> str:
         e = results["episode"]
         lines += [
             "| N (disk) | start radius | wave | steps | end | wall s (env+policy) | ms/step | min centre distance "
-            "(allowed) | max overlap (actual radii) | projected displacement | checks |",
+            "(tunnelling below; contact tolerance) | max overlap (actual radii) | projected displacement | checks |",
             "|---|---|---|---|---|---|---|---|---|---|---|",
             f"| {e['n_robots']} | {e['start_radius'] or '450-550'} | {e['wave']['start_side']}, hold "
             f"{e['wave']['hold_steps']} | {e['steps']} | {e['end']} | {e['wall_s']} | {e['ms_per_step']} | "
-            f"{e['min_centre_distance']} (>= {e['min_allowed_distance']}; radii {e['closest_pair_radii']}, step "
+            f"{e['min_centre_distance']} (< {e['tunnelling_below']}; >= {e['min_allowed_distance']}: "
+            f"{'within' if e['overlap_within_tolerance'] else 'beyond'}; radii {e['closest_pair_radii']}, step "
             f"{e['closest_pair_step']}) | {e['max_overlap_actual_radii']} | "
             f"{e['projected_displacement']} | {'all passed' if e['met'] else e['checks']} |",
             "",
@@ -277,7 +284,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size-repeats", type=int, default=3, help="runs of each size, the fastest kept (b)")
     parser.add_argument("--episode-robots", type=int, default=1000, help="swarm size of the episode (c)")
     parser.add_argument("--episode-steps", type=int, default=2500, help="episode length (c)")
-    parser.add_argument("--tolerance", type=float, default=5.0, help="allowed overlap below 2 contracted radii (c)")
+    parser.add_argument("--tolerance", type=float, default=5.0, help="soft-contact overlap below 2 contracted radii reported as within "
+                        "tolerance (c; not a pass/fail check)")
     parser.add_argument("--episode-start-radius", type=float,
                         help="distance of the swarm's start from the goal (c; default: the env's 450-550)")
     parser.add_argument("--episode-side", choices=("near", "far"), help="wave start side (c; default: the disk model's)")
