@@ -288,7 +288,7 @@ def cmd_pipeline(args, parser) -> int:
             tasks=tasks, n_robots=args.n_robots, episodes=args.episodes, demo_seed=args.demo_seed,
             bc_epochs=args.bc_epochs, critic_warmup=args.critic_warmup, finetune_steps=args.finetune_steps,
             finetune_algos=args.finetune_algos, scratch_algos=args.scratch_algos, eval_seeds=args.eval_seeds,
-            seed=args.seed, workers=args.workers, steps=args.steps,
+            anchor=args.anchor, seed=args.seed, workers=args.workers, steps=args.steps,
         )
         report = run_pipeline(config, args.out)
     except (TypeError, ValueError) as error:
@@ -698,6 +698,8 @@ def build_parser() -> argparse.ArgumentParser:
     pi.add_argument("--bc-epochs", type=positive_int, default=15, help="behaviour-cloning epochs (default 15)")
     pi.add_argument("--critic-warmup", type=int, default=10_000, help="value-only steps before fine-tuning (default 10000)")
     pi.add_argument("--finetune-steps", type=positive_int, default=30_000, help="fine-tuning steps (default 30000)")
+    pi.add_argument("--anchor", action="store_true", help="anchor fine-tuning to the task's demonstrations "
+                    "(`dpr finetune --anchor` with its default weight and decay)")
     pi.add_argument("--finetune-algos", nargs="+", default=["ppo"], choices=("ppo", "a2c"),
                     help="algorithms that fine-tune the clone (default ppo)")
     pi.add_argument("--scratch-algos", nargs="*", default=["ppo"], choices=("ppo", "a2c", "dqn"),

@@ -308,7 +308,7 @@ def test_pipeline_config_refuses_bad_settings(kwargs, message):
 
 
 PIPELINE = dict(tasks=["navigation"], n_robots=4, episodes=2, steps=30, bc_epochs=1, critic_warmup=32,
-                finetune_steps=64, scratch_algos=["ppo"], eval_seeds=[100], workers=1)
+                finetune_steps=64, scratch_algos=["ppo"], eval_seeds=[100], workers=1, anchor=True)
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
 
@@ -342,6 +342,8 @@ def test_pipeline_writes_every_stage(pipeline):
     finetune = yaml.safe_load((out / "runs" / "navigation-bc-ppo" / "config.yaml").read_text())
     assert finetune["init_from"] == str((out / "models" / "navigation-bc.zip").resolve())
     assert finetune["critic_warmup"] == 32 and finetune["timesteps"] == 64
+    dataset = str((out / "datasets" / "navigation").resolve())
+    assert finetune["anchor"]["datasets"] == [dataset] and finetune["anchor"]["frames"] == 2 * 30
     scratch = yaml.safe_load((out / "runs" / "navigation-ppo" / "config.yaml").read_text())
     assert scratch["timesteps"] == PipelineConfig(**PIPELINE).rl_steps == 2 * 30 + 32 + 64
     assert scratch["init_from"] is None and scratch["hyperparameters"]["preset"] == "default"
@@ -380,3 +382,19 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "eval_seeds": [100, 101]}), out, **QUIET)
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
+
+
+def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path):
+    """A pipeline.yaml written before ``anchor`` existed resumes as anchor=False (the default), and only so."""
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(pipeline[0], old)
+    record = yaml.safe_load((old / "pipeline.yaml").read_text())
+    del record["config"]["anchor"]
+    (old / "pipeline.yaml").write_text(yaml.safe_dump(record))
+    with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
+        run_pipeline(PipelineConfig(**PIPELINE), old, **QUIET)  # anchor=True differs from the old default
+    lines = []
+    run_pipeline(PipelineConfig(**{**PIPELINE, "anchor": False}), old, show_progress=False, log=lines.append)
+    assert sum(line.endswith("skipped") for line in lines) == 1 + 1 + 2 + 4 + 1

@@ -54,6 +54,7 @@ class PipelineConfig:
     bc_epochs: int = 15
     critic_warmup: int = 10_000
     finetune_steps: int = 30_000
+    anchor: bool = False  # anchor fine-tuning to the task's demonstrations (dpr finetune --anchor)
     finetune_algos: list[str] = field(default_factory=lambda: ["ppo"])
     scratch_algos: list[str] = field(default_factory=lambda: ["ppo"])
     eval_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
@@ -143,6 +144,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
     config_path = out / "pipeline.yaml"
     if config_path.exists():
         previous = yaml.safe_load(config_path.read_text()).get("config")
+        if isinstance(previous, dict):  # a setting added since that run started had its default value there
+            previous = {**asdict(PipelineConfig()), **previous}
         if previous != asdict(config):
             raise ValueError(f"--out: {out} holds a pipeline run with other settings ({config_path}); "
                              "use a new folder, or the same settings to resume it")
@@ -171,7 +174,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
 
         runs: list[tuple[str, dict[str, Any]]] = [
             (f"bc-{algo}", {"algo": algo, "preset": "finetune", "timesteps": config.finetune_steps,
-                            "init_from": str(bc_model), "critic_warmup": config.critic_warmup})
+                            "init_from": str(bc_model), "critic_warmup": config.critic_warmup,
+                            "anchor_datasets": [str(dataset)] if config.anchor else []})
             for algo in config.finetune_algos
         ] + [(algo, {"algo": algo, "timesteps": config.rl_steps}) for algo in config.scratch_algos]
         for method, settings in runs:
