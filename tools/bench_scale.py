@@ -170,7 +170,7 @@ def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_
                   start_side: str | None = None, hold_steps: int | None = None) -> dict:
     """One wave-policy episode of a large disk swarm. ``start_radius`` puts the swarm's centre that far from the
     goal (default: the env's 450-550, which a 1000-robot swarm covers); ``start_side``/``hold_steps`` override
-    the disk model's wave defaults (tuned at N=9)."""
+    the disk model's wave defaults (hold 4; far side below ``DISK_NEAR_SIDE_FROM`` robots, near side from it on)."""
     kwargs = {} if start_radius is None else {"start_radius": (start_radius, start_radius)}
     env = gym.make(ENV_ID, n_robots=n_robots, robot_model="disk", max_episode_steps=steps, **kwargs)
     obs, _ = env.reset(seed=seed)
@@ -264,8 +264,9 @@ def markdown(results: dict) -> str:
             "|---|---|---|---|---|---|---|---|---|---|---|",
             f"| {e['n_robots']} | {e['start_radius'] or '450-550'} | {e['wave']['start_side']}, hold "
             f"{e['wave']['hold_steps']} | {e['steps']} | {e['end']} | {e['wall_s']} | {e['ms_per_step']} | "
-            f"{e['min_centre_distance']} (< {e['tunnelling_below']}; >= {e['min_allowed_distance']}: "
-            f"{'within' if e['overlap_within_tolerance'] else 'beyond'}; radii {e['closest_pair_radii']}, step "
+            f"{e['min_centre_distance']} (tunnelling below {e['tunnelling_below']}; contact tolerance "
+            f"{e['min_allowed_distance']}: {'within' if e['overlap_within_tolerance'] else 'beyond'}; radii "
+            f"{e['closest_pair_radii']}, step "
             f"{e['closest_pair_step']}) | {e['max_overlap_actual_radii']} | "
             f"{e['projected_displacement']} | {'all passed' if e['met'] else e['checks']} |",
             "",
