@@ -99,13 +99,19 @@ def committed_episodes(root: Path) -> int:
         return 0
 
 
+def _sigint_as_a_terminal_delivers_it() -> None:
+    # A shell without job control starts background commands with SIGINT ignored, and children inherit that
+    # (Python then installs no KeyboardInterrupt handler): give `dpr collect` the disposition it has when typed.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:
-    """`dpr collect` in a new session (its own process group, workers included)."""
+    """`dpr collect` in a new session (its own process group, workers included), Ctrl-C not ignored."""
     with open(log, "ab") as handle:
         return subprocess.Popen(
             [sys.executable, "-m", "dpr.cli", "collect", *CLI_ARGS, "--out", str(out)],
             cwd=REPO, stdout=handle, stderr=subprocess.STDOUT, start_new_session=True,
-            env={**os.environ, "SDL_VIDEODRIVER": "dummy"},
+            env={**os.environ, "SDL_VIDEODRIVER": "dummy"}, preexec_fn=_sigint_as_a_terminal_delivers_it,
         )
 
 
@@ -428,7 +434,16 @@ def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
     check_complete_dataset(out, CLI_STEPS)
 
 
-def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch):
+@pytest.fixture
+def sigint_raises():
+    """SIGINT raises KeyboardInterrupt, as in an interactive Python, even where the tests run with it ignored
+    (a background job of a shell without job control)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch, sigint_raises):
     """Ctrl-C arriving in the middle of writing an episode's files waits for them, then stops the run."""
     original = LeRobotWriter.save_episode
 
