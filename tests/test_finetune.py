@@ -263,7 +263,7 @@ def test_anchor_refuses_bad_settings_before_writing(cloned, tmp_path):
     other = tmp_path / "n5"  # demonstrations of 5 robots cannot anchor a 4-robot policy
     collect(other, CollectSpec(ENV, policy="wave-markov", steps=10, env_kwargs=MEMORY, n_robots=5, robot_model="disk"),
             episodes=1, workers=1)
-    with pytest.raises(ValueError, match=rf"(?s)--dataset: {re.escape(str(other))} does not fit.*shape \[5\]"):
+    with pytest.raises(ValueError, match=rf"(?s)--anchor: {re.escape(str(other))} does not fit.*shape \[5\]"):
         train(finetune_config(cloned.model_path, anchor_datasets=[str(other)]), tmp_path / "run", **QUIET)
     assert not (tmp_path / "run").exists()
 

@@ -148,8 +148,10 @@ def _space_text(space: gym.Space) -> str:
     return f"Box(shape={space.shape})" if isinstance(space, gym.spaces.Box) else str(space)
 
 
-def check_features(reader: LeRobotReader, observation_space: gym.Space, action_space: gym.Space, env_text: str) -> None:
-    """ValueError naming both sides when the dataset's observation or action feature does not fit the spaces."""
+def check_features(reader: LeRobotReader, observation_space: gym.Space, action_space: gym.Space, env_text: str,
+                   argument: str = "--dataset") -> None:
+    """ValueError naming ``argument``, the dataset and both sides when the dataset's observation or action feature
+    does not fit the spaces."""
     problems = []
     observation = reader.features.get(OBSERVATION_KEY)
     if observation is None or not isinstance(observation_space, gym.spaces.Box) \
@@ -170,7 +172,7 @@ def check_features(reader: LeRobotReader, observation_space: gym.Space, action_s
         problems.append(f"{ACTION_KEY} has shape {shape}, expected [{n_robots}] (one 0/1 per robot) for the env's "
                         f"action space {action_space}")
     if problems:
-        raise ValueError(f"--dataset: {reader.root} does not fit {env_text}: " + "; ".join(problems))
+        raise ValueError(f"{argument}: {reader.root} does not fit {env_text}: " + "; ".join(problems))
 
 
 def split_episodes(num_episodes: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:

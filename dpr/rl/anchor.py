@@ -47,13 +47,13 @@ def load_demonstrations(dataset_dirs: list[str | Path], observation_space: gym.S
     """Read every frame of the datasets at ``dataset_dirs`` (ValueError naming a dataset whose features do not
     fit the spaces; DatasetError for one that is not a dataset)."""
     if not isinstance(action_space, gym.spaces.MultiBinary):
-        raise ValueError(f"anchor: the demonstration loss needs a MultiBinary action space, not {action_space}")
+        raise ValueError(f"--anchor: the demonstration loss needs a MultiBinary action space, not {action_space}")
     if not dataset_dirs:
-        raise ValueError("anchor: give at least one dataset")
+        raise ValueError("--anchor: give at least one dataset")
     observations, actions = [], []
     for path in dataset_dirs:
         reader = LeRobotReader(path)
-        check_features(reader, observation_space, action_space, env_text)
+        check_features(reader, observation_space, action_space, env_text, argument="--anchor")
         frames = reader.frame_range(0, reader.num_frames, [OBSERVATION_KEY, ACTION_KEY])
         observations.append(np.asarray(frames[OBSERVATION_KEY], dtype=np.float32))
         actions.append(np.asarray(frames[ACTION_KEY], dtype=np.float32))
