@@ -321,20 +321,17 @@ def cmd_bc(args, parser) -> int:
             run = dagger(args.dataset, args.env, out, expert=args.expert, rounds=args.dagger_rounds,
                          episodes_per_round=args.dagger_episodes, first_seed=args.dagger_seed,
                          workers=args.workers, **bc_kwargs)
-            result = run.rounds[-1]
+            result, model = run.rounds[-1], run.model_path
             print(f"DAgger: {len(run.rounds) - 1} round(s), datasets {', '.join(map(str, run.datasets))}")
         else:
             result = behaviour_clone(args.dataset, args.env, out=args.out, **bc_kwargs)
+            model = result.model_path
     except (TypeError, ValueError) as error:
         parser.error(str(error))
-    if args.dagger_rounds:
-        print(f"model: {run.model_path} (the last round's, {result.model_path})")
-    else:
-        print(f"model: {result.model_path}")
+    print(f"model: {model}" + (f" (the last round's, {result.model_path})" if model != result.model_path else ""))
     print(f"log: {result.log_path}")
     print(f"config: {result.config_path}")
-    print(f"evaluate it: dpr evaluate --policy {run.model_path if args.dagger_rounds else result.model_path} "
-          f"--env {args.env}")
+    print(f"evaluate it: dpr evaluate --policy {model} --env {args.env}")
     print(f"best validation accuracy {result.best_val_accuracy:.3f} (epoch {result.best_epoch} of "
           f"{result.epochs_run}, validation NLL {result.best_val_nll:.4f})")
     return 0

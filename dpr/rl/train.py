@@ -90,12 +90,10 @@ class TrainConfig:
             raise ValueError(f"algo {self.algo!r} cannot start from a cloned policy; choose one of {FINETUNE_ALGOS}")
         if self.anchor_datasets and self.algo not in FINETUNE_ALGOS:
             raise ValueError(f"algo {self.algo!r} cannot be anchored to demonstrations; choose one of {FINETUNE_ALGOS}")
-        for name, low, high in (("anchor_weight", 0.0, None), ("anchor_decay", 0.0, 1.0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > low \
-                    or (high is not None and value > high):
-                bound = f"in ({low}, {high}]" if high is not None else f"> {low}"
-                raise ValueError(f"{name} must be a number {bound}, got {value!r}")
+        if not _is_number(self.anchor_weight) or not self.anchor_weight > 0:
+            raise ValueError(f"anchor_weight must be a number > 0.0, got {self.anchor_weight!r}")
+        if not _is_number(self.anchor_decay) or not 0 < self.anchor_decay <= 1:
+            raise ValueError(f"anchor_decay must be a number in (0.0, 1.0], got {self.anchor_decay!r}")
         reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
             raise ValueError(f"env_kwargs must not set {reserved}: use n_robots, robot_model and steps_per_episode")
@@ -123,6 +121,10 @@ class TrainResult:
     timesteps: int
     seconds: float
     interrupted: bool = False
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _check_positive(name: str, value: Any) -> None:
@@ -278,18 +280,15 @@ def load_initial_policy(model, path: str | Path) -> None:
                          f"{model.policy.net_arch}: {str(error).splitlines()[0]}") from None
 
 
-def _demonstrations(config: TrainConfig, env_kwargs: dict[str, Any]) -> Demonstrations | None:
-    """The anchor's demonstration frames (None without ``anchor_datasets``)."""
+def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any]) -> Demonstrations | None:
+    """The anchor's demonstration frames, checked against the spaces of ``env`` (made with ``env_kwargs``);
+    None without ``anchor_datasets``."""
     if not config.anchor_datasets:
         return None
     from dpr.rl.anchor import load_demonstrations
 
-    probe = gym.make(config.env_id, **env_kwargs)
-    try:
-        return load_demonstrations(config.anchor_datasets, probe.observation_space, probe.action_space,
-                                   f"{config.env_id} {env_kwargs}")
-    finally:
-        probe.close()
+    return load_demonstrations(config.anchor_datasets, env.observation_space, env.action_space,
+                               f"{config.env_id} {env_kwargs}")
 
 
 def warm_up_critic(model, steps: int, show_progress: bool) -> None:
@@ -317,12 +316,15 @@ def train(
     """Train ``config.algo`` from scratch and save the run into ``out`` (a new or empty folder; default
     ``runs/train/<task>-<algo>-seed<S>-<timestamp>``). Bad input raises ValueError before anything is written."""
     hyper, env_kwargs, timesteps = config.resolve()
-    gym.make(config.env_id, **env_kwargs).close()  # a bad env kwarg fails here, before the run folder exists
-    if config.init_from is not None:
-        from dpr.policies.sb3 import read_model_info
+    probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
+    try:
+        if config.init_from is not None:
+            from dpr.policies.sb3 import read_model_info
 
-        read_model_info(config.init_from)  # a missing or foreign file fails here, before the run folder exists
-    demonstrations = _demonstrations(config, env_kwargs)  # so does a dataset that does not fit the env
+            read_model_info(config.init_from)  # so does a missing or foreign model file
+        demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
+    finally:
+        probe.close()
     run_dir = prepare_run_dir(out, config)
     info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
