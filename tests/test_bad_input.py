@@ -102,6 +102,9 @@ def test_gate_just_wider_than_one_robot(robot_model, width):
         ({"object_mass": 0.0}, "object_mass"),
         ({"object_size": -1.0}, "object_size"),
         ({"object_start": "random"}, "object_start"),
+        ({"approach_reward": -0.5}, "approach_reward"),
+        ({"approach_reward": "1"}, "approach_reward"),
+        ({"approach_reward": True}, "approach_reward"),
     ],
 )
 def test_bad_object_kwargs(kwargs, name):

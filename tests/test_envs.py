@@ -567,6 +567,27 @@ def test_object_kwargs(make_env):
     assert world.object_body.mass == pytest.approx(100.0)
 
 
+def test_approach_reward_adds_the_closing_of_the_swarm_object_gap(make_env):
+    """The shaping telescopes: over an episode it adds weight x (first gap - last gap) to the return, and the
+    metrics still follow the object alone."""
+    returns, metrics = {}, {}
+    for weight in (0.0, 2.0):
+        env = make_env("dpr/Manipulation-v0", approach_reward=weight)
+        env.reset(seed=3)
+        world = env.unwrapped.world
+        gaps = [float(np.linalg.norm(world.object_pose[0:2] - world.centre_of_mass))]
+        total = 0.0
+        for step in range(60):
+            # all robots expand, then contract: the swarm pushes the ball and the gap changes
+            _, reward, _, _, info = env.step(np.full(4, (step // 10) % 2, dtype=np.int8))
+            total += reward
+        gaps.append(float(np.linalg.norm(world.object_pose[0:2] - world.centre_of_mass)))
+        returns[weight], metrics[weight] = total, info["projected_displacement"]
+    assert abs(gaps[0] - gaps[1]) > 1.0
+    assert returns[2.0] - returns[0.0] == pytest.approx(2.0 * (gaps[0] - gaps[1]), rel=1e-6)
+    assert metrics[2.0] == metrics[0.0]
+
+
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_goal_is_not_solid(make_env, env_id):
     env = make_env(env_id)
