@@ -50,11 +50,12 @@ class ManipulationEnv(ParticleSwarmEnv):
 
     ## Rewards
     As Navigation, computed on the object's position. With ``approach_reward`` > 0, plus that weight times the
-    step's decrease of the distance from the swarm's centre to the object: potential-based shaping (Ng et al.,
-    1999), which leaves the best policy as it was. The first expansions kick the object ahead of the swarm,
-    which then walks for hundreds of steps before it pushes again; the object's own progress rewards that
-    walk only once contact is made, beyond a discount horizon of 100 steps, and the shaping rewards it as it
-    happens. Metrics and success still follow the object alone.
+    step's decrease of the distance from the swarm's centre to the object: shaping with that distance as the
+    potential (Ng et al., 1999), so over an episode it adds weight x (first gap - last gap), whatever the
+    path. The first expansions kick the object ahead of the swarm, which then walks for hundreds of steps
+    before it pushes again; the object's own progress rewards that walk only once contact is made, beyond a
+    discount horizon of 100 steps, and the shaping rewards it as it happens. Metrics and success still follow
+    the object alone.
 
     ## Starting State
     As Navigation; the object is placed on the goal side of the swarm, on the line from the swarm's centre
