@@ -288,7 +288,8 @@ def cmd_pipeline(args, parser) -> int:
             tasks=tasks, n_robots=args.n_robots, episodes=args.episodes, demo_seed=args.demo_seed,
             bc_epochs=args.bc_epochs, critic_warmup=args.critic_warmup, finetune_steps=args.finetune_steps,
             finetune_algos=args.finetune_algos, scratch_algos=args.scratch_algos, eval_seeds=args.eval_seeds,
-            anchor=args.anchor, seed=args.seed, workers=args.workers, steps=args.steps,
+            anchor=args.anchor, approach_reward=args.approach_reward, seed=args.seed, workers=args.workers,
+            steps=args.steps,
         )
         report = run_pipeline(config, args.out)
     except (TypeError, ValueError) as error:
@@ -697,6 +698,9 @@ def build_parser() -> argparse.ArgumentParser:
     pi.add_argument("--finetune-steps", type=positive_int, default=30_000, help="fine-tuning steps (default 30000)")
     pi.add_argument("--anchor", action="store_true", help="anchor fine-tuning to the task's demonstrations "
                     "(`dpr finetune --anchor` with its default weight and decay)")
+    pi.add_argument("--approach-reward", type=float, default=1.0, metavar="W",
+                    help="Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the "
+                    "swarm-ball approach shaping (the env's approach_reward; default 1, 0 for none)")
     pi.add_argument("--finetune-algos", nargs="+", default=["ppo"], choices=("ppo", "a2c"),
                     help="algorithms that fine-tune the clone (default ppo)")
     pi.add_argument("--scratch-algos", nargs="*", default=["ppo"], choices=("ppo", "a2c", "dqn"),

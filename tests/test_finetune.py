@@ -300,11 +300,23 @@ def test_task_names_are_the_env_ids_keys():
         ({"episodes": 1}, "episodes must be >= 2"),
         ({"steps": 0}, "steps must be an integer >= 1"),
         ({"critic_warmup": -1}, "critic_warmup must be an integer >= 0"),
+        ({"approach_reward": -1.0}, "approach_reward must be a number >= 0"),
+        ({"approach_reward": "1"}, "approach_reward must be a number >= 0"),
     ],
 )
 def test_pipeline_config_refuses_bad_settings(kwargs, message):
     with pytest.raises(ValueError, match=message):
         PipelineConfig(**kwargs)
+
+
+def test_pipeline_shapes_only_manipulation_rewards():
+    config = PipelineConfig(tasks=list(ENV_IDS))
+    assert config.rl_env_kwargs("manipulation") == {"obs_last_action": True, "approach_reward": 1.0}
+    for task in ("navigation", "gate", "unresponsive"):
+        assert config.rl_env_kwargs(task) == {"obs_last_action": True}
+    assert PipelineConfig(approach_reward=0).rl_env_kwargs("manipulation") == {"obs_last_action": True}
+    for task in ENV_IDS:  # every task's env takes them
+        gym.make(ENV_IDS[task], **config.rl_env_kwargs(task)).close()
 
 
 PIPELINE = dict(tasks=["navigation"], n_robots=4, episodes=2, steps=30, bc_epochs=1, critic_warmup=32,

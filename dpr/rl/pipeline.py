@@ -15,7 +15,9 @@ For each task:
 6. ``report/``: ``results.md``, ``bars.png`` and ``trajectories.png`` (:mod:`dpr.rl.report`).
 
 Every env runs with ``obs_last_action=True`` (the previous action and how long it has been held are part of
-the observation), which the Markov wave needs and which every learner gets too. Each stage writes into its
+the observation), which the Markov wave needs and which every learner gets too. On Manipulation, RL (fine-tuning and from
+scratch alike) trains with ``approach_reward`` shaping (:class:`dpr.envs.ManipulationEnv`): without it the
+ball's progress rewards catching up with the ball only on contact, and fine-tuning loses ground (RESULTS.md). Each stage writes into its
 own file or folder under ``out`` and is skipped when that already exists, so an interrupted pipeline resumes
 where it stopped and nothing written is replaced.
 """
@@ -55,6 +57,7 @@ class PipelineConfig:
     critic_warmup: int = 10_000
     finetune_steps: int = 30_000
     anchor: bool = False  # anchor fine-tuning to the task's demonstrations (dpr finetune --anchor)
+    approach_reward: float = 1.0  # Manipulation's shaping weight for RL, fine-tuning and from scratch (0: none)
     finetune_algos: list[str] = field(default_factory=lambda: ["ppo"])
     scratch_algos: list[str] = field(default_factory=lambda: ["ppo"])
     eval_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
@@ -78,6 +81,9 @@ class PipelineConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        if isinstance(self.approach_reward, bool) or not isinstance(self.approach_reward, (int, float)) \
+                or not self.approach_reward >= 0:
+            raise ValueError(f"approach_reward must be a number >= 0, got {self.approach_reward!r}")
         if self.episodes < 2:
             raise ValueError(f"episodes must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}")
         if not self.eval_seeds:
@@ -92,6 +98,12 @@ class PipelineConfig:
         """Env steps of a fine-tuned model in all: demonstration frames, critic warm-up and fine-tuning (the
         budget RL from scratch gets)."""
         return self.episodes * self.steps + self.critic_warmup + self.finetune_steps
+
+    def rl_env_kwargs(self, task: str) -> dict[str, Any]:
+        """The env kwargs RL trains ``task`` with: the pipeline's, and Manipulation's shaping."""
+        if task == "manipulation" and self.approach_reward:
+            return {**PIPELINE_ENV_KWARGS, "approach_reward": float(self.approach_reward)}
+        return dict(PIPELINE_ENV_KWARGS)
 
     def methods(self) -> list[str]:
         """Names of the policies evaluated on each task, the wave first."""
@@ -184,7 +196,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
                       + (f" after {config.critic_warmup} warm-up steps)" if "init_from" in settings else ")"), log):
                 train_config = TrainConfig(env_id=env_id, n_robots=config.n_robots, seed=config.seed,
                                            n_envs=config.workers, steps_per_episode=config.steps,
-                                           env_kwargs=env_kwargs, **settings)
+                                           env_kwargs=config.rl_env_kwargs(task), **settings)
                 result = train(train_config, fresh_path(out / "runs" / f"{task}-{method}"), show_progress=show_progress,
                                log=log)
                 if result.interrupted:
