@@ -340,6 +340,24 @@ def pipeline(tmp_path_factory):
     return out, report
 
 
+def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
+    """RL on Manipulation, fine-tuning and from scratch, gets the approach shaping; the clone and the
+    evaluations do not need it (the metric follows the ball either way)."""
+    original = train_module.load_hyperparams
+
+    def small_rollouts(algo, env_id, preset="default", overrides=None):
+        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
+
+    settings = {**PIPELINE, "tasks": ["manipulation"], "anchor": False, "approach_reward": 0.5}
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_module, "load_hyperparams", small_rollouts)
+        run_pipeline(PipelineConfig(**settings), tmp_path / "run", **QUIET)
+    for method in ("bc-ppo", "ppo"):
+        info = read_model_info(tmp_path / "run" / "models" / f"manipulation-{method}.zip")
+        assert info.env_kwargs["approach_reward"] == 0.5, method
+    assert "approach_reward" not in read_model_info(tmp_path / "run" / "models" / "manipulation-bc.zip").env_kwargs
+
+
 def test_pipeline_writes_every_stage(pipeline):
     out, report = pipeline
     assert report == out / "report"

@@ -15,11 +15,11 @@ For each task:
 6. ``report/``: ``results.md``, ``bars.png`` and ``trajectories.png`` (:mod:`dpr.rl.report`).
 
 Every env runs with ``obs_last_action=True`` (the previous action and how long it has been held are part of
-the observation), which the Markov wave needs and which every learner gets too. On Manipulation, RL (fine-tuning and from
-scratch alike) trains with ``approach_reward`` shaping (:class:`dpr.envs.ManipulationEnv`): without it the
-ball's progress rewards catching up with the ball only on contact, and fine-tuning loses ground (RESULTS.md). Each stage writes into its
-own file or folder under ``out`` and is skipped when that already exists, so an interrupted pipeline resumes
-where it stopped and nothing written is replaced.
+the observation), which the Markov wave needs and which every learner gets too. On Manipulation, RL
+(fine-tuning and from scratch alike) trains with ``approach_reward`` shaping (:class:`dpr.envs.ManipulationEnv`):
+without it the ball's progress rewards catching up with the ball only on contact, and fine-tuning loses ground
+(RESULTS.md). Each stage writes into its own file or folder under ``out`` and is skipped when that already
+exists, so an interrupted pipeline resumes where it stopped and nothing written is replaced.
 """
 
 from __future__ import annotations
