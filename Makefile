@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 export SDL_VIDEODRIVER ?= dummy
 
-.PHONY: run test test-slow bench clean
+.PHONY: run test lint test-slow bench clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -23,6 +23,12 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# Style kept by machines: lint and import order, formatting, and the layering contract (pyproject.toml).
+lint: $(STAMP)
+	$(BIN)/ruff check dpr tests tools
+	$(BIN)/ruff format --check dpr tests tools
+	$(BIN)/lint-imports
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow

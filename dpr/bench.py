@@ -86,7 +86,9 @@ def bench_env(robot_model: str, n_robots: int, steps: int = 200, repeats: int = 
     return bench.row()
 
 
-def run_benchmarks(models=("paddle", "disk"), sizes=(9, 25, 49, 100), steps: int = 200, repeats: int = 5, progress=None):
+def run_benchmarks(
+    models=("paddle", "disk"), sizes=(9, 25, 49, 100), steps: int = 200, repeats: int = 5, progress=None
+):
     """Every configuration, with their timed blocks interleaved (repeat r of every configuration, then repeat
     r + 1, ...), so that a change in the machine's load hits all configurations alike and ratios between
     them (disk / paddle) are fair. Blocks are sized to take about the same time."""
@@ -110,7 +112,8 @@ def run_benchmarks(models=("paddle", "disk"), sizes=(9, 25, 49, 100), steps: int
 
 def format_table(rows: list[dict]) -> str:
     lines = [
-        "| model | N | substeps | env steps/s | physics-only steps/s | env / physics | replay physics steps/s | µs per robot-step | 2021 env steps/s |",
+        "| model | N | substeps | env steps/s | physics-only steps/s | env / physics | replay physics steps/s "
+        "| µs per robot-step | 2021 env steps/s |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:

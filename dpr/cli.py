@@ -10,7 +10,36 @@ from pathlib import Path
 
 ALL_ENVS = "all"
 ROBOT_MODEL_NAMES = ("paddle", "disk")
-TASK_NAMES = ("navigation", "gate", "unresponsive", "manipulation")  # the keys of dpr.envs.ENV_IDS (kept light: no env import for --help)
+TASK_NAMES = (
+    "navigation",
+    "gate",
+    "unresponsive",
+    "manipulation",
+)  # the keys of dpr.envs.ENV_IDS (kept light: no env import for --help)
+
+
+# Library parameters whose CLI flag is not "--" + the name with dashes (see dpr.checks.ParameterError).
+PARAMETER_FLAGS = {
+    "dataset_dirs": "--dataset",
+    "datasets": "--dataset",
+    "root": "--dataset",
+    "init_policy": "--from",
+    "anchor_dirs": "--anchor",
+    "policy_name": "--policy",
+    "policy_names": "--policies",
+    "env_id": "--env",
+    "env_ids": "--env",
+}
+
+
+def flag_message(error: Exception) -> str:
+    """``error``'s message, with a library parameter name (dpr.checks.ParameterError) said as its CLI flag."""
+    from dpr.checks import ParameterError
+
+    if isinstance(error, ParameterError):
+        flag = PARAMETER_FLAGS.get(error.parameter, "--" + error.parameter.replace("_", "-"))
+        return f"{flag}: {error.problem}"
+    return str(error)
 
 
 def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
@@ -83,7 +112,7 @@ def _evaluate_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentPars
         try:
             resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit)
         except ValueError as error:
-            message = str(error)
+            message = flag_message(error)
             for name, flag in flags.items():  # name the flag the user typed, not the kwarg
                 if given[name] is not None:
                     message = message.replace(f"; {name}={given[name]!r}", f"; {flag} {given[name]}")
@@ -105,11 +134,16 @@ def cmd_evaluate(args, parser) -> int:
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
             results = evaluate(
-                env_ids, args.policy, args.seeds, steps=args.steps, env_kwargs=env_kwargs,
-                workers=args.workers, progress=lambda r: bar.update(1),
+                env_ids,
+                args.policy,
+                args.seeds,
+                steps=args.steps,
+                env_kwargs=env_kwargs,
+                workers=args.workers,
+                progress=lambda r: bar.update(1),
             )
     except ValueError as error:
-        parser.error(str(error))
+        parser.error(flag_message(error))
     print(format_table(results))
     if args.json:
         save_evaluation(args.json, args.policy, env_ids, env_kwargs, args.steps, args.seeds, results)
@@ -133,8 +167,11 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
     for env_id in tqdm(env_ids, desc="log to rerun", unit="env"):
         for seed in args.seeds:
             task = env_id.split("/")[-1].removesuffix("-v0").lower()
-            episodes.append(rollout_episode(env_id, args.policy, seed, steps=args.steps, env_kwargs=extra,
-                                            name=f"{task}_seed{seed}", **swarm))
+            episodes.append(
+                rollout_episode(
+                    env_id, args.policy, seed, steps=args.steps, env_kwargs=extra, name=f"{task}_seed{seed}", **swarm
+                )
+            )
     save_rrd(episodes, args.rerun, title=f"dpr evaluate {args.policy}")
     print(f"wrote {args.rerun}")
 
@@ -151,7 +188,7 @@ def cmd_report(args, parser) -> int:
         try:
             written = write_report(args.evaluations, args.out, labels=args.label, seed=args.seed)
         except (ValueError, FileExistsError) as error:
-            parser.error(str(error))
+            parser.error(flag_message(error))
     for warning in caught:
         print(f"dpr report: warning: {warning.message}", file=sys.stderr)
     print(written[0].read_text())
@@ -213,8 +250,10 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
     info = read_model_info(result.model_path)
     swarm, extra = split_swarm_kwargs(info.env_kwargs)
     steps = info.max_episode_steps or 2500
-    episodes = [rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
-                for name, model in tqdm(models, desc="log to rerun", unit="model")]
+    episodes = [
+        rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
+        for name, model in tqdm(models, desc="log to rerun", unit="model")
+    ]
     save_rrd(episodes, path, title=f"dpr train {result.run_dir.name} (seed {seed})")
     print(f"wrote {path}")
 
@@ -241,14 +280,22 @@ def cmd_train(args, parser) -> int:
     _check_rerun_output(args, parser)
     try:
         config = TrainConfig(
-            args.algo, args.env, n_robots=args.n_robots, robot_model=args.robot_model, timesteps=args.timesteps,
-            seed=args.seed, n_envs=args.n_envs, preset=args.preset, steps_per_episode=args.steps_per_episode,
-            env_kwargs=dict(args.env_kwarg or []), hyperparams=dict(args.hyperparam or []),
+            args.algo,
+            args.env,
+            n_robots=args.n_robots,
+            robot_model=args.robot_model,
+            timesteps=args.timesteps,
+            seed=args.seed,
+            n_envs=args.n_envs,
+            preset=args.preset,
+            steps_per_episode=args.steps_per_episode,
+            env_kwargs=dict(args.env_kwarg or []),
+            hyperparams=dict(args.hyperparam or []),
             eval_episodes=args.eval_episodes,
         )
         result = train(config, args.out)
     except (TypeError, ValueError) as error:
-        parser.error(str(error))
+        parser.error(flag_message(error))
     return _training_done(result, args)
 
 
@@ -266,15 +313,26 @@ def cmd_finetune(args, parser) -> int:
             raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
         swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, dict(args.env_kwarg or [])))
         config = TrainConfig(
-            args.algo or info.algo, args.env, **swarm, timesteps=args.timesteps, seed=args.seed,
-            n_envs=args.n_envs, preset="finetune", steps_per_episode=info.max_episode_steps or 2500, env_kwargs=env_kwargs,
-            hyperparams=dict(args.hyperparam or []), eval_episodes=args.eval_episodes, init_from=args.source,
-            critic_warmup=args.critic_warmup, anchor_datasets=list(args.anchor or []), anchor_weight=args.anchor_weight,
+            args.algo or info.algo,
+            args.env,
+            **swarm,
+            timesteps=args.timesteps,
+            seed=args.seed,
+            n_envs=args.n_envs,
+            preset="finetune",
+            steps_per_episode=info.max_episode_steps or 2500,
+            env_kwargs=env_kwargs,
+            hyperparams=dict(args.hyperparam or []),
+            eval_episodes=args.eval_episodes,
+            init_from=args.source,
+            critic_warmup=args.critic_warmup,
+            anchor_datasets=list(args.anchor or []),
+            anchor_weight=args.anchor_weight,
             anchor_decay=args.anchor_decay,
         )
         result = train(config, args.out)
     except (TypeError, ValueError) as error:
-        parser.error(str(error))
+        parser.error(flag_message(error))
     return _training_done(result, args)
 
 
@@ -285,15 +343,25 @@ def cmd_pipeline(args, parser) -> int:
     tasks = list(ENV_IDS) if args.tasks == [ALL_ENVS] else args.tasks
     try:
         config = PipelineConfig(
-            tasks=tasks, n_robots=args.n_robots, episodes=args.episodes, demo_seed=args.demo_seed,
-            bc_epochs=args.bc_epochs, critic_warmup=args.critic_warmup, finetune_steps=args.finetune_steps,
-            finetune_algos=args.finetune_algos, scratch_algos=args.scratch_algos, eval_seeds=args.eval_seeds,
-            anchor=args.anchor, approach_reward=args.approach_reward, seed=args.seed, workers=args.workers,
+            tasks=tasks,
+            n_robots=args.n_robots,
+            episodes=args.episodes,
+            demo_seed=args.demo_seed,
+            bc_epochs=args.bc_epochs,
+            critic_warmup=args.critic_warmup,
+            finetune_steps=args.finetune_steps,
+            finetune_algos=args.finetune_algos,
+            scratch_algos=args.scratch_algos,
+            eval_seeds=args.eval_seeds,
+            anchor=args.anchor,
+            approach_reward=args.approach_reward,
+            seed=args.seed,
+            workers=args.workers,
             steps=args.steps,
         )
         report = run_pipeline(config, args.out)
     except (TypeError, ValueError) as error:
-        parser.error(str(error))
+        parser.error(flag_message(error))
     except KeyboardInterrupt:
         print(f"dpr pipeline: interrupted; run the same command again to resume {args.out}", file=sys.stderr)
         return 130
@@ -308,33 +376,54 @@ def cmd_bc(args, parser) -> int:
         parser.error(f"--seed must be >= 0, got {args.seed}")
     if not args.lr > 0:
         parser.error(f"--lr must be > 0, got {args.lr}")
-    requested = {name: value for name, value in (("n_robots", args.n_robots), ("robot_model", args.robot_model))
-                 if value is not None}
-    bc_kwargs = dict(algo=args.algo, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                     val_fraction=args.val_fraction, patience=args.patience, seed=args.seed, env_kwargs=requested,
-                     show_progress=True)
+    requested = {
+        name: value
+        for name, value in (("n_robots", args.n_robots), ("robot_model", args.robot_model))
+        if value is not None
+    }
+    bc_kwargs = dict(
+        algo=args.algo,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        val_fraction=args.val_fraction,
+        patience=args.patience,
+        seed=args.seed,
+        env_kwargs=requested,
+        show_progress=True,
+    )
     try:
         if args.dagger_rounds:
             from dpr.imitation.bc import default_run_dir
             from dpr.imitation.dagger import dagger
 
             out = args.out or default_run_dir(args.env, f"{args.algo}-dagger", args.seed)
-            run = dagger(args.dataset, args.env, out, expert=args.expert, rounds=args.dagger_rounds,
-                         episodes_per_round=args.dagger_episodes, first_seed=args.dagger_seed,
-                         workers=args.workers, **bc_kwargs)
+            run = dagger(
+                args.dataset,
+                args.env,
+                out,
+                expert=args.expert,
+                rounds=args.dagger_rounds,
+                episodes_per_round=args.dagger_episodes,
+                first_seed=args.dagger_seed,
+                workers=args.workers,
+                **bc_kwargs,
+            )
             result, model = run.rounds[-1], run.model_path
             print(f"DAgger: {len(run.rounds) - 1} round(s), datasets {', '.join(map(str, run.datasets))}")
         else:
             result = behaviour_clone(args.dataset, args.env, out=args.out, **bc_kwargs)
             model = result.model_path
     except (TypeError, ValueError) as error:
-        parser.error(str(error))
+        parser.error(flag_message(error))
     print(f"model: {model}" + (f" (the last round's, {result.model_path})" if model != result.model_path else ""))
     print(f"log: {result.log_path}")
     print(f"config: {result.config_path}")
     print(f"evaluate it: dpr evaluate --policy {model} --env {args.env}")
-    print(f"best validation accuracy {result.best_val_accuracy:.3f} (epoch {result.best_epoch} of "
-          f"{result.epochs_run}, validation NLL {result.best_val_nll:.4f})")
+    print(
+        f"best validation accuracy {result.best_val_accuracy:.3f} (epoch {result.best_epoch} of "
+        f"{result.epochs_run}, validation NLL {result.best_val_nll:.4f})"
+    )
     return 0
 
 
@@ -343,7 +432,10 @@ def cmd_bench(args, parser) -> int:
 
     _check_output(args.json, parser, "--json")
     rows = run_benchmarks(
-        models=args.models, sizes=args.sizes, steps=args.steps, repeats=args.repeats,
+        models=args.models,
+        sizes=args.sizes,
+        steps=args.steps,
+        repeats=args.repeats,
         progress=lambda r: print(
             f"{r['robot_model']:>6} N={r['n_robots']:<4} env {r['env_steps_per_s']:8.0f}/s  "
             f"physics {r['physics_steps_per_s']:8.0f}/s  ({r['env_over_physics']:.0%})",
@@ -377,17 +469,24 @@ def cmd_collect(args, parser) -> int:
 
     try:
         spec = CollectSpec(
-            args.env, policy=args.policy, n_robots=args.n_robots, robot_model=args.robot_model, steps=args.steps,
-            pixels=args.pixels, image_size=args.image_size, env_kwargs=dict(args.env_kwarg or []),
+            args.env,
+            policy=args.policy,
+            n_robots=args.n_robots,
+            robot_model=args.robot_model,
+            steps=args.steps,
+            pixels=args.pixels,
+            image_size=args.image_size,
+            env_kwargs=dict(args.env_kwarg or []),
             label_policy=args.label_policy,
         )
     except ValueError as error:
-        parser.error(str(error))
+        parser.error(flag_message(error))
     try:
         spec.make_env().close()  # a bad --env-kwarg name or value fails here, before anything is written
     except (TypeError, ValueError) as error:
-        parser.error(f"cannot make {spec.env_id} from --n-robots/--robot-model/--env-kwarg "
-                     f"{spec.make_kwargs()}: {error}")
+        parser.error(
+            f"cannot make {spec.env_id} from --n-robots/--robot-model/--env-kwarg {spec.make_kwargs()}: {error}"
+        )
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         parser.error(f"--out: {out} exists and is not a folder")
@@ -412,11 +511,20 @@ def cmd_collect(args, parser) -> int:
         bar.set_postfix(frames=frames[0], fps=f"{frames[0] / max(time.perf_counter() - started[0], 1e-9):.0f}")
 
     try:
-        summary = collect(out, spec, episodes=args.episodes, seed=args.seed, workers=args.workers, mcap=args.mcap,
-                          progress=progress, backend=args.backend, address=args.address)
+        summary = collect(
+            out,
+            spec,
+            episodes=args.episodes,
+            seed=args.seed,
+            workers=args.workers,
+            mcap=args.mcap,
+            progress=progress,
+            backend=args.backend,
+            address=args.address,
+        )
     except ValueError as error:  # a DatasetError, or a policy that cannot run on this env
         bar.close()
-        print(f"dpr collect: error: {error}", file=sys.stderr)
+        print(f"dpr collect: error: {flag_message(error)}", file=sys.stderr)
         return 2
     bar.close()
     print(format_summary(summary))
@@ -438,14 +546,18 @@ def cmd_replay(args, parser) -> int:
         with tqdm(total=len(episodes), desc="replay", unit="episode") as bar:
             checks = replay_dataset(args.dataset, episodes, progress=lambda c: bar.update(1))
     except (DatasetError, ValueError) as error:
-        print(f"dpr replay: error: {error}", file=sys.stderr)
+        print(f"dpr replay: error: {flag_message(error)}", file=sys.stderr)
         return 2
     bad = [c for c in checks if not c.equal]
     for c in bad:
         worst = {k: v for k, v in c.max_abs_difference.items() if v}
-        print(f"episode {c.episode_index} (seed {c.seed}): differs from frame {c.first_mismatch} on; max |diff| {worst}")
-    print(f"{len(checks) - len(bad)}/{len(checks)} episodes replay bit-identically "
-          f"({sum(c.frames for c in checks)} frames)")
+        print(
+            f"episode {c.episode_index} (seed {c.seed}): differs from frame {c.first_mismatch} on; max |diff| {worst}"
+        )
+    print(
+        f"{len(checks) - len(bad)}/{len(checks)} episodes replay bit-identically "
+        f"({sum(c.frames for c in checks)} frames)"
+    )
     return 1 if bad else 0
 
 
@@ -468,7 +580,7 @@ def _episode_index(text: str) -> int:
 
 
 def _view_error(error: Exception | str) -> int:
-    print(f"dpr view: error: {error}", file=sys.stderr)
+    print(f"dpr view: error: {flag_message(error) if isinstance(error, Exception) else error}", file=sys.stderr)
     return 2
 
 
@@ -514,10 +626,18 @@ def _roll_out_policies(args, parser) -> list:
     episodes = []
     for name in policies:
         with tqdm(total=args.steps, desc=f"roll out {name}", unit="step", leave=False) as bar:
-            episodes.append(rollout_episode(
-                args.env, name, args.seed, n_robots=args.n_robots, robot_model=args.robot_model, steps=args.steps,
-                env_kwargs=env_kwargs, on_step=lambda step: bar.update(1),
-            ))
+            episodes.append(
+                rollout_episode(
+                    args.env,
+                    name,
+                    args.seed,
+                    n_robots=args.n_robots,
+                    robot_model=args.robot_model,
+                    steps=args.steps,
+                    env_kwargs=env_kwargs,
+                    on_step=lambda step: bar.update(1),
+                )
+            )
     return episodes
 
 
@@ -563,34 +683,59 @@ def cmd_view(args, parser) -> int:
 def _swarm_arguments(parser: argparse.ArgumentParser, *, model_default: bool = False) -> None:
     """--n-robots and --robot-model. With ``model_default`` they default to None: a saved model's own values
     apply, else 9 and paddle."""
-    parser.add_argument("--n-robots", type=positive_int, default=None if model_default else 9,
-                        help="swarm size N (default 9" + (", or a model's N)" if model_default else ")"))
-    parser.add_argument("--robot-model", choices=ROBOT_MODEL_NAMES, default=None if model_default else "paddle",
-                        help="paddle: the paper's robot (default" + (", or a model's" if model_default else "")
-                        + "); disk: the fast single-body model")
+    parser.add_argument(
+        "--n-robots",
+        type=positive_int,
+        default=None if model_default else 9,
+        help="swarm size N (default 9" + (", or a model's N)" if model_default else ")"),
+    )
+    parser.add_argument(
+        "--robot-model",
+        choices=ROBOT_MODEL_NAMES,
+        default=None if model_default else "paddle",
+        help="paddle: the paper's robot (default"
+        + (", or a model's" if model_default else "")
+        + "); disk: the fast single-body model",
+    )
 
 
 def _env_kwarg_argument(parser: argparse.ArgumentParser, example: str) -> None:
-    parser.add_argument("--env-kwarg", action="append", type=_env_kwarg, metavar="NAME=VALUE",
-                        help=f"extra gym.make kwarg, e.g. {example} (repeatable)")
+    parser.add_argument(
+        "--env-kwarg",
+        action="append",
+        type=_env_kwarg,
+        metavar="NAME=VALUE",
+        help=f"extra gym.make kwarg, e.g. {example} (repeatable)",
+    )
 
 
 def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> None:
     """The flags `dpr train` and `dpr finetune` share."""
     parser.add_argument("--seed", type=int, default=0, help="seed of the model and the envs (default 0)")
-    parser.add_argument("--eval-episodes", type=positive_int, default=2,
-                        help="episodes per periodic evaluation (default 2)")
+    parser.add_argument(
+        "--eval-episodes", type=positive_int, default=2, help="episodes per periodic evaluation (default 2)"
+    )
     _env_kwarg_argument(parser, "reward=projected")
-    parser.add_argument("--hyperparam", action="append", type=_hyperparam, metavar="NAME=VALUE",
-                        help=f"override a yaml hyperparameter, e.g. {hyperparam_example} (repeatable)")
+    parser.add_argument(
+        "--hyperparam",
+        action="append",
+        type=_hyperparam,
+        metavar="NAME=VALUE",
+        help=f"override a yaml hyperparameter, e.g. {hyperparam_example} (repeatable)",
+    )
     parser.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
-    parser.add_argument("--rerun", metavar="OUT.rrd",
-                        help="after training, roll out every checkpoint and the final model from the evaluation "
-                        "start (seed + 10000) side by side into this new rerun file")
+    parser.add_argument(
+        "--rerun",
+        metavar="OUT.rrd",
+        help="after training, roll out every checkpoint and the final model from the evaluation "
+        "start (seed + 10000) side by side into this new rerun file",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dpr", description="Deep Particle Robot: particle-robot swarms for robot learning.")
+    parser = argparse.ArgumentParser(
+        prog="dpr", description="Deep Particle Robot: particle-robot swarms for robot learning."
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     ev = sub.add_parser(
@@ -599,20 +744,35 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run a policy on one or more tasks and print projected displacement, net displacement, "
         "total distance and success (median, min, max, mean ± std over seeds).",
     )
-    ev.add_argument("--policy", default="wave", help="'wave' (the paper's hand-crafted policy), 'wave-markov' "
-                    "(its phase read from the observation), 'random', or a model file MODEL.zip written by "
-                    "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)")
-    ev.add_argument("--env", nargs="+", default=["dpr/Navigation-v0"],
-                    help="env ids (dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0) or 'all'")
+    ev.add_argument(
+        "--policy",
+        default="wave",
+        help="'wave' (the paper's hand-crafted policy), 'wave-markov' "
+        "(its phase read from the observation), 'random', or a model file MODEL.zip written by "
+        "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)",
+    )
+    ev.add_argument(
+        "--env",
+        nargs="+",
+        default=["dpr/Navigation-v0"],
+        help="env ids (dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0) or 'all'",
+    )
     ev.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-4"), help="e.g. 0-4 or 1,3,7 (default 0-4)")
     _swarm_arguments(ev, model_default=True)
     ev.add_argument("--steps", type=positive_int, default=2500, help="steps per episode (default 2500)")
-    ev.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
-                    help="episodes run in this many processes (default: up to 2)")
+    ev.add_argument(
+        "--workers",
+        type=positive_int,
+        default=min(2, os.cpu_count() or 1),
+        help="episodes run in this many processes (default: up to 2)",
+    )
     _env_kwarg_argument(ev, "object_start=paper")
     ev.add_argument("--json", help="also write episodes and summary to this new JSON file")
-    ev.add_argument("--rerun", metavar="OUT.rrd",
-                    help="also save every evaluated episode (replayed with full state) to this new rerun file")
+    ev.add_argument(
+        "--rerun",
+        metavar="OUT.rrd",
+        help="also save every evaluated episode (replayed with full state) to this new rerun file",
+    )
     ev.set_defaults(func=cmd_evaluate)
 
     rep = sub.add_parser(
@@ -620,15 +780,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="markdown results table and the paper's figures from `dpr evaluate --json` files",
         description="Results table (markdown) and figures (bars per task and policy; trajectories from one start) "
         "from `dpr evaluate --json` files. Files are merged: one policy evaluated task by task, or several "
-        "policies, give one row per (task, policy), with \"% of wave\" where the wave policy was evaluated on "
+        'policies, give one row per (task, policy), with "% of wave" where the wave policy was evaluated on '
         "the same seeds. Writes results.md, bars.png and trajectories.png into --out (never overwritten).",
     )
     rep.add_argument("evaluations", nargs="+", metavar="EVAL.json", help="files written by `dpr evaluate --json`")
     rep.add_argument("--out", required=True, metavar="DIR", help="folder for the report (created if missing)")
-    rep.add_argument("--label", nargs="+", metavar="NAME", help="display name of each file's policy, one per file "
-                     "in order (default: the policy's name; a model file's stem, e.g. navigation-bc-ppo)")
-    rep.add_argument("--seed", type=int, help="seed of the episodes drawn in trajectories.png (default: per task, "
-                     "the smallest seed every policy has)")
+    rep.add_argument(
+        "--label",
+        nargs="+",
+        metavar="NAME",
+        help="display name of each file's policy, one per file "
+        "in order (default: the policy's name; a model file's stem, e.g. navigation-bc-ppo)",
+    )
+    rep.add_argument(
+        "--seed",
+        type=int,
+        help="seed of the episodes drawn in trajectories.png (default: per task, the smallest seed every policy has)",
+    )
     rep.set_defaults(func=cmd_report)
 
     tr = sub.add_parser(
@@ -640,14 +808,18 @@ def build_parser() -> argparse.ArgumentParser:
         "`dpr evaluate --policy RUN/model.zip --env ID` runs it on the env it was trained on.",
     )
     tr.add_argument("--algo", required=True, choices=("ppo", "a2c", "dqn"), help="DQN uses Discrete(2^N) actions")
-    tr.add_argument("--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, "
-                    "dpr/Manipulation-v0")
+    tr.add_argument(
+        "--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0"
+    )
     _swarm_arguments(tr)
     tr.add_argument("--timesteps", type=positive_int, help="env steps to train for (default: the preset's n_timesteps)")
-    tr.add_argument("--n-envs", type=positive_int, default=1,
-                    help="parallel envs (subprocesses when > 1; default 1)")
-    tr.add_argument("--preset", choices=("default", "paper"), default="default",
-                    help="default: laptop-sized entry of the env id; paper: Shen et al.'s (10M steps)")
+    tr.add_argument("--n-envs", type=positive_int, default=1, help="parallel envs (subprocesses when > 1; default 1)")
+    tr.add_argument(
+        "--preset",
+        choices=("default", "paper"),
+        default="default",
+        help="default: laptop-sized entry of the env id; paper: Shen et al.'s (10M steps)",
+    )
     tr.add_argument("--steps-per-episode", type=positive_int, default=2500, help="episode length (default 2500)")
     _run_arguments(tr, "n_steps=256 or learning_rate=lin_1e-3")
     tr.set_defaults(func=cmd_train)
@@ -664,17 +836,36 @@ def build_parser() -> argparse.ArgumentParser:
     ft.add_argument("--env", required=True, help="env id the model was trained on, e.g. dpr/Navigation-v0")
     ft.add_argument("--algo", choices=("ppo", "a2c"), help="algorithm to fine-tune with (default: the model's)")
     ft.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
-    ft.add_argument("--critic-warmup", type=int, default=20_000,
-                    help="env steps that train only the value head first (default 20000; 0 to skip)")
-    ft.add_argument("--anchor", nargs="+", metavar="DATASET",
-                    help="demonstration datasets (from `dpr collect`) to anchor every update to: after each update, "
-                    "a few steps of the behaviour-cloning loss on their frames, scaled by --anchor-weight and decaying "
-                    "by --anchor-decay per update (DAPG's demonstration term)")
-    ft.add_argument("--anchor-weight", type=float, default=1.0, help="the anchor's scale at the first update (default 1)")
-    ft.add_argument("--anchor-decay", type=float, default=0.99, help="the anchor's scale is multiplied by this after "
-                    "each update (default 0.99: about a third left after 100 updates)")
-    ft.add_argument("--n-envs", type=positive_int, default=min(2, os.cpu_count() or 1),
-                    help="parallel envs (subprocesses when > 1; default: min(2, CPUs))")
+    ft.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=20_000,
+        help="env steps that train only the value head first (default 20000; 0 to skip)",
+    )
+    ft.add_argument(
+        "--anchor",
+        nargs="+",
+        metavar="DATASET",
+        help="demonstration datasets (from `dpr collect`) to anchor every update to: after each update, "
+        "a few steps of the behaviour-cloning loss on their frames, scaled by --anchor-weight and decaying "
+        "by --anchor-decay per update (DAPG's demonstration term)",
+    )
+    ft.add_argument(
+        "--anchor-weight", type=float, default=1.0, help="the anchor's scale at the first update (default 1)"
+    )
+    ft.add_argument(
+        "--anchor-decay",
+        type=float,
+        default=0.99,
+        help="the anchor's scale is multiplied by this after "
+        "each update (default 0.99: about a third left after 100 updates)",
+    )
+    ft.add_argument(
+        "--n-envs",
+        type=positive_int,
+        default=min(2, os.cpu_count() or 1),
+        help="parallel envs (subprocesses when > 1; default: min(2, CPUs))",
+    )
     _run_arguments(ft, "learning_rate=1e-5")
     ft.set_defaults(func=cmd_finetune)
 
@@ -688,29 +879,63 @@ def build_parser() -> argparse.ArgumentParser:
         "small budget of `make run` (Navigation, N=9, about 10 minutes on 2 CPU cores).",
     )
     pi.add_argument("--out", default="runs/pipeline", help="run folder (default runs/pipeline; resumed if present)")
-    pi.add_argument("--tasks", nargs="+", default=["navigation"], choices=(*TASK_NAMES, ALL_ENVS),
-                    help="tasks to run (default navigation; 'all' for the four)")
+    pi.add_argument(
+        "--tasks",
+        nargs="+",
+        default=["navigation"],
+        choices=(*TASK_NAMES, ALL_ENVS),
+        help="tasks to run (default navigation; 'all' for the four)",
+    )
     pi.add_argument("--n-robots", type=positive_int, default=9, help="swarm size N (default 9)")
     pi.add_argument("--episodes", type=positive_int, default=40, help="demonstration episodes per task (default 40)")
     pi.add_argument("--demo-seed", type=int, default=1000, help="first demonstration seed (default 1000)")
     pi.add_argument("--bc-epochs", type=positive_int, default=15, help="behaviour-cloning epochs (default 15)")
-    pi.add_argument("--critic-warmup", type=int, default=10_000, help="value-only steps before fine-tuning (default 10000)")
+    pi.add_argument(
+        "--critic-warmup", type=int, default=10_000, help="value-only steps before fine-tuning (default 10000)"
+    )
     pi.add_argument("--finetune-steps", type=positive_int, default=30_000, help="fine-tuning steps (default 30000)")
-    pi.add_argument("--anchor", action="store_true", help="anchor fine-tuning to the task's demonstrations "
-                    "(`dpr finetune --anchor` with its default weight and decay)")
-    pi.add_argument("--approach-reward", type=float, default=1.0, metavar="W",
-                    help="Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the "
-                    "swarm-ball approach shaping (the env's approach_reward; default 1, 0 for none)")
-    pi.add_argument("--finetune-algos", nargs="+", default=["ppo"], choices=("ppo", "a2c"),
-                    help="algorithms that fine-tune the clone (default ppo)")
-    pi.add_argument("--scratch-algos", nargs="*", default=["ppo"], choices=("ppo", "a2c", "dqn"),
-                    help="algorithms trained from scratch for the same total env steps (default ppo)")
-    pi.add_argument("--eval-seeds", type=lambda text: parse_seeds(text, "--eval-seeds"), default=parse_seeds("100-104"),
-                    help="evaluation seeds, never used for training (default 100-104)")
+    pi.add_argument(
+        "--anchor",
+        action="store_true",
+        help="anchor fine-tuning to the task's demonstrations "
+        "(`dpr finetune --anchor` with its default weight and decay)",
+    )
+    pi.add_argument(
+        "--approach-reward",
+        type=float,
+        default=1.0,
+        metavar="W",
+        help="Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the "
+        "swarm-ball approach shaping (the env's approach_reward; default 1, 0 for none)",
+    )
+    pi.add_argument(
+        "--finetune-algos",
+        nargs="+",
+        default=["ppo"],
+        choices=("ppo", "a2c"),
+        help="algorithms that fine-tune the clone (default ppo)",
+    )
+    pi.add_argument(
+        "--scratch-algos",
+        nargs="*",
+        default=["ppo"],
+        choices=("ppo", "a2c", "dqn"),
+        help="algorithms trained from scratch for the same total env steps (default ppo)",
+    )
+    pi.add_argument(
+        "--eval-seeds",
+        type=lambda text: parse_seeds(text, "--eval-seeds"),
+        default=parse_seeds("100-104"),
+        help="evaluation seeds, never used for training (default 100-104)",
+    )
     pi.add_argument("--seed", type=int, default=0, help="seed of BC and RL (default 0)")
     pi.add_argument("--steps", type=positive_int, default=2500, help="steps per episode, everywhere (default 2500)")
-    pi.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
-                    help="worker processes for collection, RL envs and evaluation (default: min(2, CPUs))")
+    pi.add_argument(
+        "--workers",
+        type=positive_int,
+        default=min(2, os.cpu_count() or 1),
+        help="worker processes for collection, RL envs and evaluation (default: min(2, CPUs))",
+    )
     pi.set_defaults(func=cmd_pipeline)
 
     bc = sub.add_parser(
@@ -722,32 +947,60 @@ def build_parser() -> argparse.ArgumentParser:
         "Saves model.zip, bc_log.json and config.yaml into a new run folder; "
         "`dpr evaluate --policy RUN/model.zip --env ID` runs the model.",
     )
-    bc.add_argument("--dataset", required=True, nargs="+", help="dataset folder(s) written by `dpr collect` on the "
-                    "same env; validation episodes come from the first")
+    bc.add_argument(
+        "--dataset",
+        required=True,
+        nargs="+",
+        help="dataset folder(s) written by `dpr collect` on the same env; validation episodes come from the first",
+    )
     bc.add_argument("--env", required=True, help="env id the dataset was recorded on, e.g. dpr/Navigation-v0")
-    bc.add_argument("--algo", choices=("ppo", "a2c", "dqn"), default="ppo",
-                    help="model to clone into (default ppo; dqn: its Q-network as a classifier over 2^N actions)")
+    bc.add_argument(
+        "--algo",
+        choices=("ppo", "a2c", "dqn"),
+        default="ppo",
+        help="model to clone into (default ppo; dqn: its Q-network as a classifier over 2^N actions)",
+    )
     bc.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
     bc.add_argument("--robot-model", choices=ROBOT_MODEL_NAMES, help="only checked: it must be the dataset's")
     bc.add_argument("--epochs", type=positive_int, default=20, help="maximum epochs (default 20)")
     bc.add_argument("--batch-size", type=positive_int, default=256, help="frames per gradient step (default 256)")
     bc.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
-    bc.add_argument("--val-fraction", type=float, default=0.2,
-                    help="fraction of episodes held out for validation (default 0.2)")
-    bc.add_argument("--patience", type=positive_int, default=3,
-                    help="stop after this many epochs without a better validation log-likelihood (default 3)")
+    bc.add_argument(
+        "--val-fraction", type=float, default=0.2, help="fraction of episodes held out for validation (default 0.2)"
+    )
+    bc.add_argument(
+        "--patience",
+        type=positive_int,
+        default=3,
+        help="stop after this many epochs without a better validation log-likelihood (default 3)",
+    )
     bc.add_argument("--seed", type=int, default=0, help="seed of the model, the split and the shuffling (default 0)")
     bc.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
-    bc.add_argument("--dagger-rounds", type=int, default=0,
-                    help="DAgger rounds after cloning: roll the clone out, label its states with --expert, clone "
-                    "again on everything (default 0: plain behaviour cloning)")
+    bc.add_argument(
+        "--dagger-rounds",
+        type=int,
+        default=0,
+        help="DAgger rounds after cloning: roll the clone out, label its states with --expert, clone "
+        "again on everything (default 0: plain behaviour cloning)",
+    )
     bc.add_argument("--dagger-episodes", type=positive_int, default=10, help="episodes per DAgger round (default 10)")
-    bc.add_argument("--dagger-seed", type=int, default=50_000,
-                    help="first seed of the DAgger episodes; must not be a demonstration seed (default 50000)")
-    bc.add_argument("--expert", default="wave-markov",
-                    help="policy that labels the DAgger states; a function of the observation (default wave-markov)")
-    bc.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
-                    help="processes that roll out DAgger episodes (default: min(2, CPUs))")
+    bc.add_argument(
+        "--dagger-seed",
+        type=int,
+        default=50_000,
+        help="first seed of the DAgger episodes; must not be a demonstration seed (default 50000)",
+    )
+    bc.add_argument(
+        "--expert",
+        default="wave-markov",
+        help="policy that labels the DAgger states; a function of the observation (default wave-markov)",
+    )
+    bc.add_argument(
+        "--workers",
+        type=positive_int,
+        default=min(2, os.cpu_count() or 1),
+        help="processes that roll out DAgger episodes (default: min(2, CPUs))",
+    )
     bc.set_defaults(func=cmd_bc)
 
     co = sub.add_parser(
@@ -758,11 +1011,19 @@ def build_parser() -> argparse.ArgumentParser:
         "resumes (seeds already recorded are skipped). An --out folder holding a dataset of another env, policy, "
         "kwargs or features is refused and left untouched.",
     )
-    co.add_argument("--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0")
-    co.add_argument("--policy", default="wave",
-                    help="'wave' (default), 'wave-markov', 'random' or a model .zip: any policy `dpr evaluate` accepts")
-    co.add_argument("--label-policy", help="record this policy's action on every observation instead of the "
-                    "action --policy took (DAgger data: a clone drives, an expert labels), e.g. wave-markov")
+    co.add_argument(
+        "--env", required=True, help="env id: dpr/Navigation-v0, dpr/Gate-v0, dpr/Unresponsive-v0, dpr/Manipulation-v0"
+    )
+    co.add_argument(
+        "--policy",
+        default="wave",
+        help="'wave' (default), 'wave-markov', 'random' or a model .zip: any policy `dpr evaluate` accepts",
+    )
+    co.add_argument(
+        "--label-policy",
+        help="record this policy's action on every observation instead of the "
+        "action --policy took (DAgger data: a clone drives, an expert labels), e.g. wave-markov",
+    )
     co.add_argument("--episodes", type=positive_int, default=10, help="number of episodes (seeds) to hold (default 10)")
     co.add_argument("--out", required=True, help="dataset folder (created, or resumed if it holds the same dataset)")
     co.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
@@ -771,12 +1032,19 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--pixels", action="store_true", help="also record render() frames as observation.image (PNG)")
     co.add_argument("--image-size", type=positive_int, default=96, help="frame size for --pixels (default 96)")
     co.add_argument("--mcap", action="store_true", help="also write one MCAP log per episode into OUT/mcap/")
-    co.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1),
-                    help="rollout processes (default: up to 2)")
+    co.add_argument(
+        "--workers", type=positive_int, default=min(2, os.cpu_count() or 1), help="rollout processes (default: up to 2)"
+    )
     _env_kwarg_argument(co, "object_type=box")
-    co.add_argument("--backend", choices=("processes", "ray"), default="processes",
-                    help="run rollouts in local worker processes (default) or as Ray tasks (pip install -e '.[distributed]')")
-    co.add_argument("--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)")
+    co.add_argument(
+        "--backend",
+        choices=("processes", "ray"),
+        default="processes",
+        help="run rollouts in local worker processes (default) or as Ray tasks (pip install -e '.[distributed]')",
+    )
+    co.add_argument(
+        "--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)"
+    )
     co.add_argument("--json", help="also write the summary to this new JSON file")
     co.set_defaults(func=cmd_collect)
 
@@ -787,7 +1055,11 @@ def build_parser() -> argparse.ArgumentParser:
         "observations, rewards and flags with the recording. Exit status 1 when any episode differs.",
     )
     rp.add_argument("dataset", help="dataset folder written by `dpr collect`")
-    rp.add_argument("--episodes", type=lambda text: parse_seeds(text, "--episodes"), help="episode indices, e.g. 0-4 or 1,3 (default: all)")
+    rp.add_argument(
+        "--episodes",
+        type=lambda text: parse_seeds(text, "--episodes"),
+        help="episode indices, e.g. 0-4 or 1,3 (default: all)",
+    )
     rp.set_defaults(func=cmd_replay)
 
     be = sub.add_parser(
@@ -813,11 +1085,17 @@ def build_parser() -> argparse.ArgumentParser:
         "start and see them side by side. Without --save or --serve a rerun viewer is spawned.",
     )
     vi.add_argument("source", nargs="?", help="dataset folder or .mcap file (omit with --env)")
-    vi.add_argument("--episode", nargs="+", type=_episode_index, metavar="K",
-                    help="dataset episode indices to show side by side (default 0)")
+    vi.add_argument(
+        "--episode",
+        nargs="+",
+        type=_episode_index,
+        metavar="K",
+        help="dataset episode indices to show side by side (default 0)",
+    )
     vi.add_argument("--env", help="env id to roll policies out on, e.g. dpr/Navigation-v0")
-    vi.add_argument("--policies", type=_policy_names, help="comma-separated policies for --env (default wave), "
-                    "e.g. wave,random")
+    vi.add_argument(
+        "--policies", type=_policy_names, help="comma-separated policies for --env (default wave), e.g. wave,random"
+    )
     vi.add_argument("--seed", type=int, default=0, help="reset seed of every rollout (default 0)")
     _swarm_arguments(vi)
     vi.add_argument("--steps", type=positive_int, default=2500, help="max steps per rollout (default 2500)")

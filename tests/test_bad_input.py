@@ -80,7 +80,15 @@ def test_n_dead_edges_are_accepted():
 
 @pytest.mark.parametrize(
     "robot_model, width",
-    [("paddle", 77.5), ("paddle", 50.0), ("paddle", 0.0), ("paddle", -10.0), ("disk", 105.0), ("disk", 90.0), ("disk", 77.6)],
+    [
+        ("paddle", 77.5),
+        ("paddle", 50.0),
+        ("paddle", 0.0),
+        ("paddle", -10.0),
+        ("disk", 105.0),
+        ("disk", 90.0),
+        ("disk", 77.6),
+    ],
 )
 def test_gate_narrower_than_one_robot(robot_model, width):
     with pytest.raises(ValueError, match="gate_width"):
@@ -187,7 +195,9 @@ def test_step_before_reset_raises():
         env.step(np.zeros(2, dtype=np.int8))
 
 
-@pytest.mark.parametrize("action", [np.array([True, False, True, False]), [1, 0, 1, 0], (0, 0, 0, 1), np.array([1.0, 0.0, 0.0, 1.0])])
+@pytest.mark.parametrize(
+    "action", [np.array([True, False, True, False]), [1, 0, 1, 0], (0, 0, 0, 1), np.array([1.0, 0.0, 0.0, 1.0])]
+)
 def test_multibinary_accepts_equivalent_forms(action):
     env = gym.make("dpr/Navigation-v0", robot_model="disk", n_robots=N)
     env.reset(seed=0)

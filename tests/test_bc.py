@@ -14,7 +14,8 @@ from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.frames import FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.imitation import behaviour_clone
-from dpr.imitation.bc import check_features, measure
+from dpr.imitation.bc import measure
+from dpr.imitation.loss import check_features
 from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
 from dpr.rl.evaluation import evaluate
 
@@ -47,7 +48,14 @@ def test_run_folder_holds_model_log_and_config(cloned, dataset):
     log = json.loads(cloned.log_path.read_text())
     assert [row["epoch"] for row in log["epochs"]] == list(range(41))
     for row in log["epochs"]:
-        assert {"train_nll", "val_nll", "val_accuracy", "train_accuracy", "val_exact_match", "val_expand_recall"} <= set(row)
+        assert {
+            "train_nll",
+            "val_nll",
+            "val_accuracy",
+            "train_accuracy",
+            "val_exact_match",
+            "val_expand_recall",
+        } <= set(row)
         assert 0 <= row["val_exact_match"] <= row["val_accuracy"] <= 1
         assert len(row["val_accuracy_per_robot"]) == 4 and 0 <= row["val_accuracy"] <= 1
     config = yaml.safe_load(cloned.config_path.read_text())
@@ -75,8 +83,8 @@ def test_cloning_learns_the_training_actions_and_keeps_the_best_validation_weigh
 
 
 def test_value_head_is_left_alone(dataset, tmp_path):
-    from dpr.rl.hyperparams import load_hyperparams
-    from dpr.rl.train import build_model, make_vec_env
+    from dpr.policies.hyperparams import load_hyperparams
+    from dpr.policies.sb3 import build_model, make_vec_env
 
     result = behaviour_clone(dataset, ENV, epochs=2, out=tmp_path / "run", log=lambda line: None, **FAST)
     model, _ = load_model(result.model_path)
@@ -103,13 +111,47 @@ def test_saved_model_evaluates_unchanged(cloned):
 
 def test_cli_bc_then_evaluate(dataset, tmp_path, capsys):
     out = tmp_path / "cli"
-    assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--algo", "a2c", "--epochs", "2",
-                "--batch-size", "64", "--out", str(out)]) == 0
+    assert (
+        run(
+            [
+                "bc",
+                "--dataset",
+                str(dataset),
+                "--env",
+                ENV,
+                "--algo",
+                "a2c",
+                "--epochs",
+                "2",
+                "--batch-size",
+                "64",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1].startswith("best validation accuracy ")
     assert read_model_info(out / "model.zip").algo == "a2c"
-    assert run(["evaluate", "--policy", str(out / "model.zip"), "--env", ENV, "--seeds", "100", "--steps", "32",
-                "--workers", "1"]) == 0
+    assert (
+        run(
+            [
+                "evaluate",
+                "--policy",
+                str(out / "model.zip"),
+                "--env",
+                ENV,
+                "--seeds",
+                "100",
+                "--steps",
+                "32",
+                "--workers",
+                "1",
+            ]
+        )
+        == 0
+    )
 
 
 # -- bad input -----------------------------------------------------------------------------------------------------
@@ -120,8 +162,9 @@ def test_missing_dataset_is_named(tmp_path):
 
 
 def test_dataset_of_another_env_names_both(dataset, tmp_path):
-    with pytest.raises(ValueError, match=r"recorded on dpr/Navigation-v0.*dpr/Gate-v0"):
+    with pytest.raises(ValueError, match=r"^dataset_dirs: .*recorded on dpr/Navigation-v0.*dpr/Gate-v0") as error:
         behaviour_clone(dataset, "dpr/Gate-v0", out=tmp_path / "run")
+    assert error.value.parameter == "dataset_dirs"  # a ParameterError, which the CLI says as --dataset
     assert not (tmp_path / "run").exists()
 
 
@@ -143,10 +186,11 @@ def test_existing_out_and_bad_arguments_are_refused(dataset, tmp_path, capsys):
     out = tmp_path / "taken"
     out.mkdir()
     (out / "file").write_text("x")
-    with pytest.raises(ValueError, match="already exists"):
+    with pytest.raises(ValueError, match="^out: .*already exists") as error:
         behaviour_clone(dataset, ENV, out=out)
+    assert error.value.parameter == "out"
     assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--out", str(out)]) == 2
-    assert "already exists" in capsys.readouterr().err
+    assert "--out: " in (err := capsys.readouterr().err) and "already exists" in err
     with pytest.raises(ValueError, match="algo must be one of"):
         behaviour_clone(dataset, ENV, algo="sac", out=tmp_path / "sac")
     with pytest.raises(ValueError, match="val_fraction"):
@@ -157,8 +201,9 @@ def test_existing_out_and_bad_arguments_are_refused(dataset, tmp_path, capsys):
 def test_dqn_clone_classifies_the_recorded_actions_as_integers(dataset, tmp_path):
     """DQN: the Q-network learns the demonstrated MultiBinary actions as Discrete(2^N) classes, its target
     network is the trained Q-network, and the model runs on the discrete-action env."""
-    result = behaviour_clone(dataset, ENV, algo="dqn", epochs=150, patience=150, out=tmp_path / "dqn",
-                             log=lambda line: None, **FAST)
+    result = behaviour_clone(
+        dataset, ENV, algo="dqn", epochs=150, patience=150, out=tmp_path / "dqn", log=lambda line: None, **FAST
+    )
     info = read_model_info(result.model_path)
     assert info.algo == "dqn" and info.env_kwargs["action_type"] == "discrete"
     first, last = result.history[0], result.history[-1]

@@ -5,7 +5,6 @@ import json
 import pytest
 from helpers import run_cli as run
 
-
 SMALL = ["--robot-model", "disk", "--n-robots", "4", "--steps", "20", "--workers", "1"]
 
 
@@ -23,8 +22,18 @@ def test_evaluate_writes_episodes_and_summary(tmp_path, capsys):
 
 def test_evaluate_passes_env_kwargs(tmp_path):
     out = tmp_path / "eval.json"
-    argv = ["evaluate", "--env", "dpr/Manipulation-v0", "--seeds", "0", *SMALL, "--env-kwarg", "object_type=box",
-            "--json", str(out)]
+    argv = [
+        "evaluate",
+        "--env",
+        "dpr/Manipulation-v0",
+        "--seeds",
+        "0",
+        *SMALL,
+        "--env-kwarg",
+        "object_type=box",
+        "--json",
+        str(out),
+    ]
     assert run(argv) == 0
     assert json.loads(out.read_text())["env_kwargs"]["object_type"] == "box"
 

@@ -34,8 +34,18 @@ COLUMNS = ("observation.state", "action", "next.reward", "next.done", "next.succ
 CLI_EPISODES = 30  # long enough that Ctrl-C or SIGKILL always lands mid-run, even on a busy machine
 CLI_STEPS = 3000
 CLI_ARGS = [
-    "--env", NAV, "--robot-model", "disk", "--n-robots", "9", "--steps", str(CLI_STEPS),
-    "--episodes", str(CLI_EPISODES), "--workers", "2",
+    "--env",
+    NAV,
+    "--robot-model",
+    "disk",
+    "--n-robots",
+    "9",
+    "--steps",
+    str(CLI_STEPS),
+    "--episodes",
+    str(CLI_EPISODES),
+    "--workers",
+    "2",
 ]
 
 
@@ -110,8 +120,12 @@ def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:
     with open(log, "ab") as handle:
         return subprocess.Popen(
             [sys.executable, "-m", "dpr.cli", "collect", *CLI_ARGS, "--out", str(out)],
-            cwd=REPO, stdout=handle, stderr=subprocess.STDOUT, start_new_session=True,
-            env={**os.environ, "SDL_VIDEODRIVER": "dummy"}, preexec_fn=_sigint_as_a_terminal_delivers_it,
+            cwd=REPO,
+            stdout=handle,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env={**os.environ, "SDL_VIDEODRIVER": "dummy"},
+            preexec_fn=_sigint_as_a_terminal_delivers_it,
         )
 
 
@@ -244,7 +258,8 @@ def test_recorded_frames_equal_an_independent_rollout(small_dataset):
 def test_replay_reports_every_episode_equal(small_dataset):
     checks = replay_dataset(small_dataset)
     assert [(c.episode_index, c.seed, c.frames, c.equal, c.first_mismatch) for c in checks] == [
-        (0, 0, 40, True, None), (1, 1, 40, True, None),
+        (0, 0, 40, True, None),
+        (1, 1, 40, True, None),
     ]
     assert all(v == 0.0 for c in checks for v in c.max_abs_difference.values())
 
@@ -472,7 +487,7 @@ def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch, s
 def test_mcap_log_per_episode_matches_the_dataset(tmp_path):
     root = tmp_path / "ds"
     collect(root, small_spec(), episodes=1, workers=1, mcap=True)
-    stale = root / "mcap" / "seed-000001.mcap.part"  # a log a killed run had in flight
+    stale = root / "mcap" / ".seed-000001.mcap.123.abcd1234.dpr-tmp"  # a log a killed run had in flight
     stale.write_bytes(b"partial")
     collect(root, small_spec(), episodes=2, workers=1, mcap=True)
     assert not stale.exists()
@@ -506,7 +521,11 @@ def test_pixels_record_the_rendered_frames(tmp_path):
     assert data["observation.image"].dtype == np.uint8 and data["observation.image"].shape == (30, 32, 32, 3)
 
     kwargs = {
-        "n_robots": 4, "robot_model": "disk", "max_episode_steps": 30, "render_mode": "rgb_array", "render_size": 32,
+        "n_robots": 4,
+        "robot_model": "disk",
+        "max_episode_steps": 30,
+        "render_mode": "rgb_array",
+        "render_size": 32,
     }
     assert reader.episodes[0]["env_kwargs"] == kwargs
     expected = reference_rollout(NAV, kwargs, "wave", 3, render=True)
@@ -519,8 +538,23 @@ def test_pixels_record_the_rendered_frames(tmp_path):
 def test_discrete_actions_are_recorded_as_int64(tmp_path, capsys):
     root = tmp_path / "ds"
     argv = [
-        "collect", "--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--steps", "40", "--episodes", "2",
-        "--workers", "1", "--env-kwarg", "action_type=discrete", "--out", str(root),
+        "collect",
+        "--env",
+        NAV,
+        "--robot-model",
+        "disk",
+        "--n-robots",
+        "4",
+        "--steps",
+        "40",
+        "--episodes",
+        "2",
+        "--workers",
+        "1",
+        "--env-kwarg",
+        "action_type=discrete",
+        "--out",
+        str(root),
     ]
     assert run_cli(argv) == 0
     reader = LeRobotReader(root)
@@ -542,8 +576,24 @@ def test_discrete_actions_are_recorded_as_int64(tmp_path, capsys):
 
 
 def collect_argv(out: Path, *extra: str) -> list[str]:
-    return ["collect", "--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--steps", "20", "--episodes", "1",
-            "--workers", "1", "--out", str(out), *extra]
+    return [
+        "collect",
+        "--env",
+        NAV,
+        "--robot-model",
+        "disk",
+        "--n-robots",
+        "4",
+        "--steps",
+        "20",
+        "--episodes",
+        "1",
+        "--workers",
+        "1",
+        "--out",
+        str(out),
+        *extra,
+    ]
 
 
 @pytest.mark.parametrize(
@@ -611,4 +661,4 @@ def test_cli_replay_refuses_missing_folder_and_episodes(small_dataset, tmp_path,
     assert run_cli(["replay", str(tmp_path / "absent")]) == 2
     assert str(tmp_path / "absent") in capsys.readouterr().err
     assert run_cli(["replay", str(small_dataset), "--episodes", "0-2"]) == 2
-    assert "episodes [2]" in capsys.readouterr().err
+    assert "--episodes: [2] are not in the dataset" in capsys.readouterr().err

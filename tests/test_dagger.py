@@ -22,11 +22,10 @@ from dpr.imitation import behaviour_clone
 from dpr.imitation.bc import measure
 from dpr.imitation.dagger import dagger
 from dpr.policies.features import SwarmFeatures
+from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import make_policy
-from dpr.policies.sb3 import ModelInfo, load_model, load_model_policy, write_model_info
+from dpr.policies.sb3 import ModelInfo, build_model, load_model, load_model_policy, make_vec_env, write_model_info
 from dpr.policies.wave import MarkovWavePolicy, WavePolicy
-from dpr.rl.hyperparams import load_hyperparams
-from dpr.rl.train import build_model, make_vec_env
 
 ENV = "dpr/Navigation-v0"
 N = 4
@@ -129,7 +128,9 @@ def test_label_policy_is_in_the_metadata_only_when_set(labelled, demos):
     assert (info["dpr"]["policy"], info["dpr"]["label_policy"]) == ("random", "wave-markov")
     episodes = LeRobotReader(labelled).episodes
     assert [(e["seed"], e["policy"], e["label_policy"]) for e in episodes] == [
-        (10, "random", "wave-markov"), (11, "random", "wave-markov")]
+        (10, "random", "wave-markov"),
+        (11, "random", "wave-markov"),
+    ]
     plain = json.loads((demos / "meta/info.json").read_text())
     assert "label_policy" not in plain["dpr"]
     assert [e["label_policy"] for e in LeRobotReader(demos).episodes] == ["", "", ""]
@@ -154,9 +155,34 @@ def test_resuming_with_another_label_policy_is_refused(tmp_path):
 
 def test_cli_collect_label_policy(tmp_path):
     out = tmp_path / "ds"
-    assert run(["collect", "--env", ENV, "--policy", "random", "--label-policy", "wave-markov", "--robot-model",
-                "disk", "--n-robots", "4", "--steps", "10", "--episodes", "1", "--workers", "1",
-                "--env-kwarg", "obs_last_action=true", "--out", str(out)]) == 0
+    assert (
+        run(
+            [
+                "collect",
+                "--env",
+                ENV,
+                "--policy",
+                "random",
+                "--label-policy",
+                "wave-markov",
+                "--robot-model",
+                "disk",
+                "--n-robots",
+                "4",
+                "--steps",
+                "10",
+                "--episodes",
+                "1",
+                "--workers",
+                "1",
+                "--env-kwarg",
+                "obs_last_action=true",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     (episode,) = LeRobotReader(out).episodes
     assert (episode["policy"], episode["label_policy"]) == ("random", "wave-markov")
 
@@ -193,7 +219,9 @@ def test_two_datasets_train_together_and_validate_on_the_first(cloned_two, demos
     assert train_sets and val_sets and len(train_sets) + len(val_sets) == len(served)
     for train_set in train_sets:
         assert [(p.root, p.episode_indices) for p in train_set.datasets] == [
-            (demos.resolve(), result.train_episodes), (labelled.resolve(), [0, 1])]
+            (demos.resolve(), result.train_episodes),
+            (labelled.resolve(), [0, 1]),
+        ]
         assert len(train_set) == STEPS * (len(result.train_episodes) + 2)
     for val_set in val_sets:
         assert (val_set.root, val_set.episode_indices) == (demos.resolve(), result.val_episodes)
@@ -248,9 +276,11 @@ def test_change_weight_reweights_the_loss(demos, tmp_path):
 
 def test_datasets_that_differ_are_refused_before_the_run_folder_exists(demos, others, tmp_path, capsys):
     out = tmp_path / "run"
-    for name, words in (("n5", ["'n_robots': 5", "'n_robots': 4"]),
-                        ("no_memory", ["obs_last_action"]),
-                        ("steps20", [", 20)", ", 30)"])):
+    for name, words in (
+        ("n5", ["'n_robots': 5", "'n_robots': 4"]),
+        ("no_memory", ["obs_last_action"]),
+        ("steps20", [", 20)", ", 30)"]),
+    ):
         with pytest.raises(ValueError, match="must match") as info:
             behaviour_clone([demos, others[name]], ENV, out=out, **FAST)
         for word in [str(others[name]), str(demos), *words]:
@@ -323,8 +353,12 @@ def test_dagger_refuses_demo_seeds_and_a_used_folder(demos, tmp_path):
     (out / "file").write_text("x")
     with pytest.raises(ValueError, match="already exists"):
         dagger(demos, ENV, out, rounds=1, episodes_per_round=2, workers=1, epochs=1, **FAST)
-    for bad, words in (({"rounds": -1}, "rounds"), ({"episodes_per_round": 0}, "episodes_per_round"),
-                       ({"first_seed": -5}, "first_seed"), ({"expert": "oracle"}, "policy must be one of")):
+    for bad, words in (
+        ({"rounds": -1}, "rounds"),
+        ({"episodes_per_round": 0}, "episodes_per_round"),
+        ({"first_seed": -5}, "first_seed"),
+        ({"expert": "oracle"}, "policy must be one of"),
+    ):
         with pytest.raises(ValueError, match=words):
             dagger(demos, ENV, tmp_path / "bad", **{"workers": 1, **bad})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
@@ -332,15 +366,54 @@ def test_dagger_refuses_demo_seeds_and_a_used_folder(demos, tmp_path):
 
 def test_cli_bc_dagger(demos, tmp_path, capsys):
     out = tmp_path / "cli"
-    assert run(["bc", "--dataset", str(demos), "--env", ENV, "--epochs", "1", "--batch-size", "128",
-                "--dagger-rounds", "1", "--dagger-episodes", "2", "--dagger-seed", "700", "--workers", "1",
-                "--out", str(out)]) == 0
+    assert (
+        run(
+            [
+                "bc",
+                "--dataset",
+                str(demos),
+                "--env",
+                ENV,
+                "--epochs",
+                "1",
+                "--batch-size",
+                "128",
+                "--dagger-rounds",
+                "1",
+                "--dagger-episodes",
+                "2",
+                "--dagger-seed",
+                "700",
+                "--workers",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     stdout = capsys.readouterr().out
     assert "DAgger: 1 round(s)" in stdout and f"model: {out / 'model.zip'}" in stdout
     assert sorted(p.name for p in out.iterdir()) == ["data-1", "model.zip", "round-0", "round-1"]
     assert [int(e["seed"]) for e in LeRobotReader(out / "data-1").episodes] == [700, 701]
-    assert run(["bc", "--dataset", str(demos), "--env", ENV, "--dagger-rounds", "1", "--dagger-seed", "1",
-                "--out", str(tmp_path / "overlap")]) == 2
+    assert (
+        run(
+            [
+                "bc",
+                "--dataset",
+                str(demos),
+                "--env",
+                ENV,
+                "--dagger-rounds",
+                "1",
+                "--dagger-seed",
+                "1",
+                "--out",
+                str(tmp_path / "overlap"),
+            ]
+        )
+        == 2
+    )
     assert "overlap" in capsys.readouterr().err and not (tmp_path / "overlap").exists()
 
 
@@ -436,9 +509,11 @@ def test_swarm_features_match_the_wave_on_a_swarm_around_the_goal():
 def test_swarm_features_refuse_other_observation_spaces():
     state = gym.spaces.Box(-np.inf, np.inf, (6 * 9,), dtype=np.float32)
     SwarmFeatures(state, 9)
-    for space in (gym.spaces.Box(-1, 1, (6 * 9 - 1,), dtype=np.float32),  # fewer values than 9 robots have
-                  gym.spaces.Box(0, 255, (96, 96, 3), dtype=np.uint8),
-                  gym.spaces.Dict({"state": state})):
+    for space in (
+        gym.spaces.Box(-1, 1, (6 * 9 - 1,), dtype=np.float32),  # fewer values than 9 robots have
+        gym.spaces.Box(0, 255, (96, 96, 3), dtype=np.uint8),
+        gym.spaces.Dict({"state": state}),
+    ):
         with pytest.raises(ValueError, match="SwarmFeatures needs the 1-D state observation of 9 robots"):
             SwarmFeatures(space, 9)
     hyper = load_hyperparams("ppo", ENV, overrides=SWARM_NET)

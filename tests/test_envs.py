@@ -312,8 +312,15 @@ def test_returned_data_is_not_live_env_state(make_env, env_id):
                     if isinstance(value, np.ndarray) and value.dtype.kind == "f":
                         value[...] = 0.0
             obs, reward, terminated, truncated, info = env.step(rng.integers(0, 2, 4).astype(np.int8))
-            out.append((obs.copy(), reward, info["total_distance"], info["projected_displacement"],
-                        np.array(info["centre_of_mass"]).copy()))
+            out.append(
+                (
+                    obs.copy(),
+                    reward,
+                    info["total_distance"],
+                    info["projected_displacement"],
+                    np.array(info["centre_of_mass"]).copy(),
+                )
+            )
         return out
 
     clean, scribbled = run(False), run(True)
@@ -654,7 +661,12 @@ def _bits(value, n):
 def test_discrete_decoding_msb_is_robot_zero(make_env, robot_model):
     n = 4
     env = make_env(robot_model=robot_model, n_robots=n, action_type="discrete")
-    for action, expected in ((2**n - 1, [1, 1, 1, 1]), (0, [0, 0, 0, 0]), (2 ** (n - 1), [1, 0, 0, 0]), (1, [0, 0, 0, 1])):
+    for action, expected in (
+        (2**n - 1, [1, 1, 1, 1]),
+        (0, [0, 0, 0, 0]),
+        (2 ** (n - 1), [1, 0, 0, 0]),
+        (1, [0, 0, 0, 1]),
+    ):
         env.reset(seed=0)
         for _ in range(3):
             obs, *_ = env.step(action)
@@ -700,3 +712,28 @@ def test_continuous_partial_expansion(make_env, robot_model):
     e = expansions(obs, n)
     assert 0.3 < e[0] < 0.7, e
     assert e[1] > 0.85, e
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs", "parameter"),
+    [
+        ("dpr/Manipulation-v0", {"object_mass": float("inf")}, "object_mass"),
+        ("dpr/Manipulation-v0", {"object_mass": float("nan")}, "object_mass"),
+        ("dpr/Manipulation-v0", {"object_size": 1e300}, "object_size"),
+        ("dpr/Manipulation-v0", {"object_size": 1e-300}, "object_size"),
+        ("dpr/Manipulation-v0", {"object_size": "30"}, "object_size"),
+        ("dpr/Manipulation-v0", {"approach_reward": float("inf")}, "approach_reward"),
+        ("dpr/Navigation-v0", {"reward_threshold_d": float("inf")}, "reward_threshold_d"),
+        ("dpr/Navigation-v0", {"start_radius": (450.0, float("inf"))}, "start_radius"),
+        ("dpr/Navigation-v0", {"start_radius": (550.0, 450.0)}, "start_radius"),
+        ("dpr/Gate-v0", {"gate_width": float("inf")}, "gate_width"),
+    ],
+)
+def test_float_kwargs_must_be_finite_and_in_range(env_id, kwargs, parameter):
+    """A non-finite or absurd float kwarg is refused at construction (an infinite mass used to abort the
+    interpreter inside chipmunk; an infinite size recorded NaN data)."""
+    from dpr.checks import ParameterError
+
+    with pytest.raises(ParameterError, match=f"^{parameter}: ") as error:
+        gym.make(env_id, **kwargs)
+    assert error.value.parameter == parameter

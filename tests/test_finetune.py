@@ -17,13 +17,19 @@ import dpr.rl.train as train_module
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.envs import ENV_IDS
 from dpr.imitation import behaviour_clone
-from dpr.imitation.bc import actor_parameters
+from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import make_policy
-from dpr.policies.sb3 import load_model, read_model_info
+from dpr.policies.sb3 import (
+    actor_parameters,
+    build_model,
+    load_initial_policy,
+    load_model,
+    make_vec_env,
+    read_model_info,
+)
 from dpr.rl.evaluation import evaluate
-from dpr.rl.hyperparams import load_hyperparams
 from dpr.rl.pipeline import PipelineConfig, run_pipeline
-from dpr.rl.train import TrainConfig, build_model, load_initial_policy, make_vec_env, train, warm_up_critic
+from dpr.rl.train import TrainConfig, train, warm_up_critic
 
 ENV = "dpr/Navigation-v0"
 SMALL_ENV = {"n_robots": 4, "robot_model": "disk"}
@@ -47,8 +53,15 @@ def cloned(tmp_path_factory):
 
 
 def finetune_config(init_from, **kwargs) -> TrainConfig:
-    settings = dict(preset="finetune", timesteps=64, critic_warmup=64, steps_per_episode=STEPS, env_kwargs=MEMORY,
-                    hyperparams=TINY_PPO, **SMALL_ENV)
+    settings = dict(
+        preset="finetune",
+        timesteps=64,
+        critic_warmup=64,
+        steps_per_episode=STEPS,
+        env_kwargs=MEMORY,
+        hyperparams=TINY_PPO,
+        **SMALL_ENV,
+    )
     settings.update(kwargs)
     return TrainConfig("ppo", ENV, init_from=str(init_from), **settings)
 
@@ -99,8 +112,9 @@ def test_dqn_has_no_finetune_preset():
 def test_initial_policy_is_the_cloned_one(cloned):
     model = fresh_model()
     source, _ = load_model(cloned.model_path)
-    assert any(not torch.equal(value, source.policy.state_dict()[name])
-               for name, value in model.policy.state_dict().items())  # a new model's weights are its own
+    assert any(
+        not torch.equal(value, source.policy.state_dict()[name]) for name, value in model.policy.state_dict().items()
+    )  # a new model's weights are its own
     load_initial_policy(model, cloned.model_path)
     for name, value in source.policy.state_dict().items():
         assert torch.equal(model.policy.state_dict()[name], value), name
@@ -123,9 +137,10 @@ def test_critic_warmup_changes_the_value_head_only(cloned):
 
 def test_initial_policy_for_another_swarm_or_network_is_refused(cloned):
     other_n = fresh_model(env_kwargs={**ENV_KWARGS, "n_robots": 5})
-    message = rf"(?s)--from: {re.escape(str(cloned.model_path))}: its observation_space .*\(29,\).*differs.*\(36,\)"
-    with pytest.raises(ValueError, match=message):
+    message = rf"(?s)init_from: {re.escape(str(cloned.model_path))}: its observation_space .*\(29,\).*differs.*\(36,\)"
+    with pytest.raises(ValueError, match=message) as error:
         load_initial_policy(other_n, cloned.model_path)
+    assert error.value.parameter == "init_from"
     no_memory = fresh_model(env_kwargs=SMALL_ENV)
     with pytest.raises(ValueError, match=r"(?s)observation_space Box\(.*\(29,\).*differs.*\(24,\)"):
         load_initial_policy(no_memory, cloned.model_path)
@@ -172,8 +187,21 @@ def test_finetuned_model_evaluates_with_its_env_kwargs(finetuned, tmp_path):
     with pytest.raises(ValueError, match="obs_last_action=True; obs_last_action=False"):
         evaluate([ENV], path, seeds=[100], steps=20, env_kwargs={"obs_last_action": False})
     report = tmp_path / "eval.json"
-    argv = ["evaluate", "--policy", path, "--env", ENV, "--seeds", "100", "--steps", "20", "--workers", "1",
-            "--json", str(report)]
+    argv = [
+        "evaluate",
+        "--policy",
+        path,
+        "--env",
+        ENV,
+        "--seeds",
+        "100",
+        "--steps",
+        "20",
+        "--workers",
+        "1",
+        "--json",
+        str(report),
+    ]
     assert run(argv) == 0
     assert json.loads(report.read_text())["env_kwargs"] == ENV_KWARGS
 
@@ -185,9 +213,9 @@ def test_warmup_needs_init_from_and_dqn_cannot_start_from_a_clone(cloned, tmp_pa
     with pytest.raises(ValueError, match="algo 'dqn' cannot start from a cloned policy"):
         TrainConfig("dqn", ENV, init_from=str(cloned.model_path))
     for bad in (-1, True, 1.5):
-        with pytest.raises(ValueError, match="critic_warmup must be an integer >= 0"):
+        with pytest.raises(ValueError, match="critic_warmup: (expected an integer|must be >= 0)"):
             TrainConfig("ppo", ENV, critic_warmup=bad, init_from=str(cloned.model_path))
-    with pytest.raises(ValueError, match="no model file at .*missing.zip"):
+    with pytest.raises(ValueError, match="^init_from: no model file at .*missing.zip"):
         train(finetune_config(tmp_path / "missing.zip"), tmp_path / "run", **QUIET)
     assert not (tmp_path / "run").exists()  # refused before the run folder was made
 
@@ -210,8 +238,25 @@ def test_cli_refuses_a_model_of_another_task_or_swarm(cloned, tmp_path, capsys):
 
 def test_cli_finetunes_a_ppo_clone_with_a2c(cloned, tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--algo", "a2c", "--timesteps", "32",
-            "--critic-warmup", "16", "--n-envs", "1", "--seed", "3", "--out", str(out)]
+    argv = [
+        "finetune",
+        "--from",
+        str(cloned.model_path),
+        "--env",
+        ENV,
+        "--algo",
+        "a2c",
+        "--timesteps",
+        "32",
+        "--critic-warmup",
+        "16",
+        "--n-envs",
+        "1",
+        "--seed",
+        "3",
+        "--out",
+        str(out),
+    ]
     assert run(argv) == 0
     assert f"model: {out / 'model.zip'}" in capsys.readouterr().out
     config = yaml.safe_load((out / "config.yaml").read_text())
@@ -228,7 +273,7 @@ def _demos(cloned):
 
 
 def _demonstration_nll(model_path, demos) -> float:
-    from dpr.imitation.bc import batch_stats
+    from dpr.imitation.loss import batch_stats
     from dpr.rl.anchor import load_demonstrations
 
     model, _ = load_model(model_path)
@@ -242,11 +287,26 @@ def test_anchor_holds_the_actor_at_the_demonstrations(cloned, tmp_path):
     closer to the demonstrated actions than both that run and the clone it started from."""
     fast = {**TINY_PPO, "learning_rate": 1e-3}
     demos = _demos(cloned)
-    free = train(finetune_config(cloned.model_path, critic_warmup=0, hyperparams=fast, seed=1), tmp_path / "free", **QUIET)
-    anchored = train(finetune_config(cloned.model_path, critic_warmup=0, hyperparams=fast, seed=1, anchor_datasets=[demos],
-                                     anchor_weight=1.0, anchor_decay=1.0), tmp_path / "anchored", **QUIET)
-    nll = {name: _demonstration_nll(path, demos) for name, path in
-           (("clone", cloned.model_path), ("free", free.model_path), ("anchored", anchored.model_path))}
+    free = train(
+        finetune_config(cloned.model_path, critic_warmup=0, hyperparams=fast, seed=1), tmp_path / "free", **QUIET
+    )
+    anchored = train(
+        finetune_config(
+            cloned.model_path,
+            critic_warmup=0,
+            hyperparams=fast,
+            seed=1,
+            anchor_datasets=[demos],
+            anchor_weight=1.0,
+            anchor_decay=1.0,
+        ),
+        tmp_path / "anchored",
+        **QUIET,
+    )
+    nll = {
+        name: _demonstration_nll(path, demos)
+        for name, path in (("clone", cloned.model_path), ("free", free.model_path), ("anchored", anchored.model_path))
+    }
     assert nll["anchored"] < nll["clone"] and nll["anchored"] < nll["free"], nll
     record = yaml.safe_load(anchored.config_path.read_text())["anchor"]
     assert record["datasets"] == [str(Path(demos).resolve())] and record["frames"] == 3 * STEPS
@@ -261,18 +321,44 @@ def test_anchor_refuses_bad_settings_before_writing(cloned, tmp_path):
     with pytest.raises(ValueError, match="algo 'dqn' cannot be anchored"):
         TrainConfig("dqn", ENV, anchor_datasets=[_demos(cloned)])
     other = tmp_path / "n5"  # demonstrations of 5 robots cannot anchor a 4-robot policy
-    collect(other, CollectSpec(ENV, policy="wave-markov", steps=10, env_kwargs=MEMORY, n_robots=5, robot_model="disk"),
-            episodes=1, workers=1)
-    with pytest.raises(ValueError, match=rf"(?s)--anchor: {re.escape(str(other))} does not fit.*shape \[5\]"):
+    collect(
+        other,
+        CollectSpec(ENV, policy="wave-markov", steps=10, env_kwargs=MEMORY, n_robots=5, robot_model="disk"),
+        episodes=1,
+        workers=1,
+    )
+    with pytest.raises(ValueError, match=rf"(?s)^anchor_datasets: {re.escape(str(other))} does not fit.*shape \[5\]"):
         train(finetune_config(cloned.model_path, anchor_datasets=[str(other)]), tmp_path / "run", **QUIET)
     assert not (tmp_path / "run").exists()
 
 
 def test_cli_finetune_with_an_anchor(cloned, tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--timesteps", "32", "--critic-warmup", "0",
-            "--n-envs", "1", "--anchor", _demos(cloned), "--anchor-weight", "0.5", "--anchor-decay", "0.9",
-            "--hyperparam", "n_steps=32", "--hyperparam", "batch_size=32", "--out", str(out)]
+    argv = [
+        "finetune",
+        "--from",
+        str(cloned.model_path),
+        "--env",
+        ENV,
+        "--timesteps",
+        "32",
+        "--critic-warmup",
+        "0",
+        "--n-envs",
+        "1",
+        "--anchor",
+        _demos(cloned),
+        "--anchor-weight",
+        "0.5",
+        "--anchor-decay",
+        "0.9",
+        "--hyperparam",
+        "n_steps=32",
+        "--hyperparam",
+        "batch_size=32",
+        "--out",
+        str(out),
+    ]
     assert run(argv) == 0
     record = yaml.safe_load((out / "config.yaml").read_text())["anchor"]
     assert (record["weight"], record["decay"], record["frames"]) == (0.5, 0.9, 3 * STEPS)
@@ -297,9 +383,9 @@ def test_task_names_are_the_env_ids_keys():
         ({"tasks": []}, "tasks must be among"),
         ({"finetune_algos": ["dqn"]}, "finetune_algos must be among"),
         ({"scratch_algos": ["sac"]}, "scratch_algos must be among"),
-        ({"episodes": 1}, "episodes must be >= 2"),
-        ({"steps": 0}, "steps must be an integer >= 1"),
-        ({"critic_warmup": -1}, "critic_warmup must be an integer >= 0"),
+        ({"episodes": 1}, "episodes: must be >= 2"),
+        ({"steps": 0}, "steps: must be >= 1"),
+        ({"critic_warmup": -1}, "critic_warmup: must be >= 0"),
         ({"approach_reward": -1.0}, "approach_reward must be a number >= 0"),
         ({"approach_reward": "1"}, "approach_reward must be a number >= 0"),
     ],
@@ -319,8 +405,19 @@ def test_pipeline_shapes_only_manipulation_rewards():
         gym.make(ENV_IDS[task], **config.rl_env_kwargs(task)).close()
 
 
-PIPELINE = dict(tasks=["navigation"], n_robots=4, episodes=2, steps=30, bc_epochs=1, critic_warmup=32,
-                finetune_steps=64, scratch_algos=["ppo"], eval_seeds=[100], workers=1, anchor=True)
+PIPELINE = dict(
+    tasks=["navigation"],
+    n_robots=4,
+    episodes=2,
+    steps=30,
+    bc_epochs=1,
+    critic_warmup=32,
+    finetune_steps=64,
+    scratch_algos=["ppo"],
+    eval_seeds=[100],
+    workers=1,
+    anchor=True,
+)
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
 
@@ -394,8 +491,11 @@ def test_pipeline_evaluates_every_method_on_the_same_swarm(pipeline):
 
 def test_pipeline_report_has_a_row_per_method(pipeline):
     _, report = pipeline
-    rows = [line.split("|") for line in (report / "results.md").read_text().splitlines()
-            if line.startswith("| Navigation |")]
+    rows = [
+        line.split("|")
+        for line in (report / "results.md").read_text().splitlines()
+        if line.startswith("| Navigation |")
+    ]
     assert [row[2].strip() for row in rows] == METHODS
 
 
@@ -407,7 +507,7 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
     skipped = [line for line in lines if line.endswith("skipped")]
     assert len(skipped) == 1 + 1 + 2 + 4 + 1  # dataset, bc, bc-ppo and ppo, four evaluations, report
-    with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
+    with pytest.raises(ValueError, match="^out: .* holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "finetune_steps": 128}), out, **QUIET)
     with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "eval_seeds": [100, 101]}), out, **QUIET)

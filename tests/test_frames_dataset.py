@@ -214,8 +214,9 @@ def test_lru_cache_bound(root, count_reads):
 def test_reads_only_the_needed_columns(root, monkeypatch):
     seen = []
     original = LeRobotReader.episode
-    monkeypatch.setattr(LeRobotReader, "episode", lambda self, i, columns=None: seen.append(columns) or original(
-        self, i, columns))
+    monkeypatch.setattr(
+        LeRobotReader, "episode", lambda self, i, columns=None: seen.append(columns) or original(self, i, columns)
+    )
     FrameDataset(root)[0]
     assert seen == [["observation.state", "action"]]
 
@@ -308,8 +309,9 @@ def frames_of(batches):
     """Multiset of (episode, frame, observation, action) over DataLoader batches."""
     out = Counter()
     for batch in batches:
-        for e, f, o, a in zip(batch["episode_index"], batch["frame_index"], batch["observation"], batch["action"],
-                              strict=True):
+        for e, f, o, a in zip(
+            batch["episode_index"], batch["frame_index"], batch["observation"], batch["action"], strict=True
+        ):
             out[(int(e), int(f), tuple(o.tolist()), tuple(a.tolist()))] += 1
     return out
 
@@ -317,9 +319,7 @@ def frames_of(batches):
 @pytest.mark.parametrize("num_workers", [0, 2])
 def test_dataloader_returns_every_frame_once(many_root, num_workers):
     ds = FrameDataset(many_root, frame_stack=2, cache_episodes=3)
-    sequential = frames_of(
-        {k: v.unsqueeze(0) for k, v in ds[i].items()} for i in range(len(ds))
-    )
+    sequential = frames_of({k: v.unsqueeze(0) for k, v in ds[i].items()} for i in range(len(ds)))
     assert sum(sequential.values()) == len(ds) == len(sequential)
     sampler = EpisodeBlockSampler(ds, block_episodes=3, seed=0)
     sampler.set_epoch(1)

@@ -196,7 +196,7 @@ def test_manipulation_object_features_stay_at_6n(make_env):
     obs, _ = env.reset(seed=5)
     policy = WavePolicy.from_env(env)  # pushes the object within a few steps
     moved = False
-    for step in range(20):
+    for _ in range(20):
         action = policy(obs)
         obs, *_ = env.step(action)
         world = base.world
@@ -265,8 +265,14 @@ def test_parallel_env_refuses_it():
 @pytest.fixture(scope="module")
 def manipulation_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("last_action") / "manip"
-    spec = CollectSpec(MANIPULATION, policy="wave-markov", n_robots=N, robot_model="disk", steps=30,
-                       env_kwargs={"obs_last_action": True})
+    spec = CollectSpec(
+        MANIPULATION,
+        policy="wave-markov",
+        n_robots=N,
+        robot_model="disk",
+        steps=30,
+        env_kwargs={"obs_last_action": True},
+    )
     collect(root, spec, episodes=2, workers=1)
     return root
 

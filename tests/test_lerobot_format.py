@@ -181,10 +181,26 @@ def test_tasks_and_pandas_layout(tmp_path):
 def test_episode_meta_extras_round_trip_and_are_checked(tmp_path):
     rng = np.random.default_rng(5)
     metas = [
-        {"seed": 7, "env_id": "dpr/Navigation-v0", "env_kwargs": {"n_robots": 4, "start_radius": [450, 550]},
-         "policy": "wave", "n_robots": 4, "robot_model": "disk", "success": True, "score": 1.5},
-        {"seed": np.int64(8), "env_id": "dpr/Gate-v0", "env_kwargs": {}, "policy": "wave", "n_robots": 4,
-         "robot_model": "disk", "success": False, "score": 2},
+        {
+            "seed": 7,
+            "env_id": "dpr/Navigation-v0",
+            "env_kwargs": {"n_robots": 4, "start_radius": [450, 550]},
+            "policy": "wave",
+            "n_robots": 4,
+            "robot_model": "disk",
+            "success": True,
+            "score": 1.5,
+        },
+        {
+            "seed": np.int64(8),
+            "env_id": "dpr/Gate-v0",
+            "env_kwargs": {},
+            "policy": "wave",
+            "n_robots": 4,
+            "robot_model": "disk",
+            "success": False,
+            "score": 2,
+        },
     ]
     root = tmp_path / "ds"
     write_dataset(root, [make_episode(rng, 3), make_episode(rng, 2)], metas=metas)
@@ -245,8 +261,12 @@ def test_stats_match_numpy(tmp_path):
     np.testing.assert_array_equal(image["min"].ravel(), pixels.min(0))
     first = episodes[0]["observation.image"].reshape(-1, 3) / 255.0
     for key, q in (("q01", 0.01), ("q10", 0.1), ("q50", 0.5), ("q90", 0.9)):
-        np.testing.assert_allclose(reader.episode_stats(0)["observation.image"][key].ravel(),
-                                   np.quantile(first, q, axis=0), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(
+            reader.episode_stats(0)["observation.image"][key].ravel(),
+            np.quantile(first, q, axis=0),
+            rtol=1e-12,
+            atol=1e-15,
+        )
     # stats.json is plain JSON a policy can normalise with
     on_disk = json.loads((root / "meta/stats.json").read_text())
     assert set(on_disk) == set(reader.features)
@@ -303,8 +323,12 @@ def test_open_resumes_without_duplicating(tmp_path):
         add_episode(w, more[0], "navigate")
         assert w.save_episode() == 2
     after = snapshot(root)
-    for name in ("data/chunk-000/file-000.parquet", "data/chunk-000/file-001.parquet",
-                 "meta/episodes/chunk-000/file-000.parquet", "meta/episodes/chunk-000/file-001.parquet"):
+    for name in (
+        "data/chunk-000/file-000.parquet",
+        "data/chunk-000/file-001.parquet",
+        "meta/episodes/chunk-000/file-000.parquet",
+        "meta/episodes/chunk-000/file-001.parquet",
+    ):
         assert after[name] == before[name], f"{name} was rewritten"
     reader = LeRobotReader(root)
     assert (reader.num_episodes, reader.num_frames, reader.tasks) == (3, 12, ["navigate"])
@@ -440,8 +464,10 @@ def test_sigkill_during_recording_keeps_every_committed_episode(tmp_path):
         state = reader.episode(e)["observation.state"]
         np.testing.assert_array_equal(state[:, 0], e * 1000 + np.arange(30 + e % 7))
         assert reader.episodes[e]["seed"] == e
-    features = {"observation.state": {"dtype": "float32", "shape": [4], "names": None},
-                "next.done": {"dtype": "bool", "shape": [1], "names": None}}
+    features = {
+        "observation.state": {"dtype": "float32", "shape": [4], "names": None},
+        "next.done": {"dtype": "bool", "shape": [1], "names": None},
+    }
     with LeRobotWriter.open(root, fps=10, features=features, robot_type="disk") as w:
         committed = w.num_episodes
         assert committed == reader.num_episodes
@@ -596,8 +622,9 @@ def test_add_frame_checks_keys_shapes_and_dtypes(tmp_path):
         assert w.buffered_frames == 0  # nothing half-added
         # exact conversions are accepted: 0/1 ints for a float action, a Python float that float32 holds exactly,
         # a 0-d value for a shape-[1] feature
-        w.add_frame({**good, "action": np.array([0, 1, 1], np.int8), "next.reward": 0.5, "next.done": True},
-                    task="navigate")
+        w.add_frame(
+            {**good, "action": np.array([0, 1, 1], np.int8), "next.reward": 0.5, "next.done": True}, task="navigate"
+        )
         w.save_episode()
     got = LeRobotReader(tmp_path / "ds").episode(0)
     np.testing.assert_array_equal(got["action"], [[0.0, 1.0, 1.0]])
@@ -630,8 +657,13 @@ def test_real_rollout_round_trip(tmp_path):
         obs, _ = env.reset(seed=3)
         policy = WavePolicy.from_env(env)
         policy.reset()
-        with LeRobotWriter.create(tmp_path / "ds", fps=10, features=features, robot_type="disk",
-                                  info_extra={"dpr": {"env_id": "dpr/Navigation-v0"}}) as w:
+        with LeRobotWriter.create(
+            tmp_path / "ds",
+            fps=10,
+            features=features,
+            robot_type="disk",
+            info_extra={"dpr": {"env_id": "dpr/Navigation-v0"}},
+        ) as w:
             for _ in range(20):
                 action = policy(obs)
                 next_obs, reward, terminated, truncated, info = env.step(action)
@@ -645,8 +677,11 @@ def test_real_rollout_round_trip(tmp_path):
                 }
                 w.add_frame(frame, task="navigate the swarm to the goal")
                 for name, value in frame.items():
-                    recorded[name].append(np.array(value, dtype=np.uint8 if name == "observation.image" else
-                                                   features[name]["dtype"]).reshape(features[name]["shape"]))
+                    recorded[name].append(
+                        np.array(
+                            value, dtype=np.uint8 if name == "observation.image" else features[name]["dtype"]
+                        ).reshape(features[name]["shape"])
+                    )
                 obs = next_obs
             w.save_episode({"seed": 3, "env_id": "dpr/Navigation-v0", "policy": "wave"})
     finally:

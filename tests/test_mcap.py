@@ -12,6 +12,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from dpr.atomic import is_temporary
+from dpr.checks import ParameterError
 from dpr.datasets.mcap import (
     MAGNET_DECIMALS,
     MCAP_FORMAT,
@@ -37,16 +39,38 @@ def rollout(path: Path, env_id: str, steps: int = 30, seed: int = 7, magnets: bo
     obs, info = env.reset(seed=seed)
     world = env.unwrapped.world
     swarm = world.swarm
-    seen: dict[str, list] = {key: [] for key in ("positions", "angles", "velocities", "angular_velocities",
-                                                 "expansions", "com", "object_poses", "object_velocities",
-                                                 "magnets", "actions", "rewards", "terminated", "truncated")}
+    seen: dict[str, list] = {
+        key: []
+        for key in (
+            "positions",
+            "angles",
+            "velocities",
+            "angular_velocities",
+            "expansions",
+            "com",
+            "object_poses",
+            "object_velocities",
+            "magnets",
+            "actions",
+            "rewards",
+            "terminated",
+            "truncated",
+        )
+    }
     seen["metrics"] = {key: [] for key in METRIC_KEYS}
 
     def snapshot() -> None:
-        for key, value in (("positions", swarm.position), ("angles", swarm.angle), ("velocities", swarm.velocity),
-                           ("angular_velocities", swarm.angular_velocity), ("expansions", swarm.expansion),
-                           ("com", world.centre_of_mass), ("object_poses", world.object_pose),
-                           ("object_velocities", world.object_velocity), ("magnets", swarm.magnet_segments())):
+        for key, value in (
+            ("positions", swarm.position),
+            ("angles", swarm.angle),
+            ("velocities", swarm.velocity),
+            ("angular_velocities", swarm.angular_velocity),
+            ("expansions", swarm.expansion),
+            ("com", world.centre_of_mass),
+            ("object_poses", world.object_pose),
+            ("object_velocities", world.object_velocity),
+            ("magnets", swarm.magnet_segments()),
+        ):
             seen[key].append(np.array(value, copy=True))
 
     metadata = episode_metadata(env, seed=seed, policy="wave")
@@ -83,9 +107,14 @@ def check_round_trip(episode, seen: dict, steps: int) -> None:
     assert episode.n_steps == steps and episode.n_robots == n
     np.testing.assert_array_equal(episode.steps, np.arange(steps + 1))
     np.testing.assert_allclose(episode.times, np.arange(steps + 1) * 0.1)
-    for field, key in (("positions", "positions"), ("angles", "angles"), ("velocities", "velocities"),
-                       ("angular_velocities", "angular_velocities"), ("expansions", "expansions"),
-                       ("centres_of_mass", "com")):
+    for field, key in (
+        ("positions", "positions"),
+        ("angles", "angles"),
+        ("velocities", "velocities"),
+        ("angular_velocities", "angular_velocities"),
+        ("expansions", "expansions"),
+        ("centres_of_mass", "com"),
+    ):
         assert_bit_exact(getattr(episode, field), np.stack(seen[key]))
     assert_bit_exact(episode.rewards, seen["rewards"])
     for key in ("projected_displacement", "net_displacement", "total_distance"):
@@ -134,8 +163,7 @@ def test_manipulation_round_trip_covers_the_object(tmp_path):
 
 def test_gate_walls_discrete_actions_and_no_magnets(tmp_path):
     path = tmp_path / "gate.mcap"
-    seen = rollout(path, "dpr/Gate-v0", steps=5, n_robots=4, robot_model="disk", action_type="discrete",
-                   magnets=False)
+    seen = rollout(path, "dpr/Gate-v0", steps=5, n_robots=4, robot_model="disk", action_type="discrete", magnets=False)
     episode = read_mcap(path)
     assert episode.magnets is None
     assert len(episode.walls) == 2 and all(wall.shape[1] == 2 for wall in episode.walls)
@@ -211,7 +239,12 @@ def test_schemas_are_json_schema_documents_that_the_messages_follow(tmp_path):
             assert message.log_time == decoded.get("step", 0) * 100_000_000
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert counts == {
-        "/scene": 1, "/swarm/state": 13, "/swarm/magnets": 13, "/object": 13, "/action": 12, "/reward": 12
+        "/scene": 1,
+        "/swarm/state": 13,
+        "/swarm/magnets": 13,
+        "/object": 13,
+        "/action": 12,
+        "/reward": 12,
     }
 
 
@@ -255,10 +288,27 @@ def write_minimal_steps(writer: McapEpisodeWriter, steps: int, n: int) -> None:
     writer.write_scene(goal=[1.0, -2.0], walls=[np.array([[0, 0], [1, 0], [1, 1.0]])])
     metrics = {key: 0.5 for key in METRIC_KEYS} | {"is_success": False}
     for step in range(steps + 1):
-        outcome = {} if step == 0 else {"action": np.ones(n, dtype=np.int8), "reward": 0.25 * step,
-                                         "terminated": False, "truncated": step == steps, "metrics": metrics}
-        writer.write_step(step, positions=np.full((n, 2), 0.1 * step), angles=np.zeros(n), velocities=np.zeros((n, 2)),
-                          angular_velocities=np.zeros(n), expansions=np.full(n, 0.5), alive=np.ones(n, bool), **outcome)
+        outcome = (
+            {}
+            if step == 0
+            else {
+                "action": np.ones(n, dtype=np.int8),
+                "reward": 0.25 * step,
+                "terminated": False,
+                "truncated": step == steps,
+                "metrics": metrics,
+            }
+        )
+        writer.write_step(
+            step,
+            positions=np.full((n, 2), 0.1 * step),
+            angles=np.zeros(n),
+            velocities=np.zeros((n, 2)),
+            angular_velocities=np.zeros(n),
+            expansions=np.full(n, 0.5),
+            alive=np.ones(n, bool),
+            **outcome,
+        )
 
 
 def test_hand_written_episode_with_lz4(tmp_path):
@@ -282,8 +332,15 @@ def test_non_finite_values_are_written_as_null_and_read_as_nan(tmp_path):
     path = tmp_path / "blowup.mcap"
     with McapEpisodeWriter(path, metadata={}) as writer:
         writer.write_scene(goal=[0.0, 0.0])
-        writer.write_step(0, positions=[[0.0, 0.0]], angles=[0.0], velocities=[[math.nan, math.inf]],
-                          angular_velocities=[0.0], expansions=[0.0], alive=[True])
+        writer.write_step(
+            0,
+            positions=[[0.0, 0.0]],
+            angles=[0.0],
+            velocities=[[math.nan, math.inf]],
+            angular_velocities=[0.0],
+            expansions=[0.0],
+            alive=[True],
+        )
     with path.open("rb") as stream:
         for _schema, _channel, message in make_reader(stream).iter_messages(topics=["/swarm/state"]):
             state = json.loads(message.data, parse_constant=lambda name: pytest.fail(f"non-JSON {name}"))
@@ -353,8 +410,9 @@ def test_nothing_under_the_final_name_until_close(tmp_path):
     writer = McapEpisodeWriter(path, metadata={})
     write_minimal_steps(writer, steps=3, n=2)
     assert not path.exists()
-    parts = list(tmp_path.glob("episode.mcap.*.part"))
-    assert parts == [writer.temp_path]
+    temporary = list(tmp_path.iterdir())
+    assert temporary == [writer.temp_path]  # one hidden temporary file, which dpr.atomic recognises as such
+    assert is_temporary(writer.temp_path) and writer.temp_path.name.startswith(".episode.mcap.")
     writer.close()
     assert path.is_file() and list(tmp_path.iterdir()) == [path]
     umask = os.umask(0)
@@ -380,6 +438,25 @@ def test_exception_inside_with_leaves_no_file_and_keeps_an_old_one(tmp_path):
     assert list(tmp_path.iterdir()) == [path] and path.read_bytes() == before
 
 
+def test_a_failed_rename_keeps_the_old_file_and_removes_the_temporary_one(tmp_path, monkeypatch):
+    path = tmp_path / "episode.mcap"
+    write_minimal(path, steps=2)
+    before = path.read_bytes()
+    writer = McapEpisodeWriter(path, metadata={})
+    write_minimal_steps(writer, steps=4, n=2)
+
+    def full_disk(source, target):
+        raise OSError("no space left on device")
+
+    monkeypatch.setattr(os, "replace", full_disk)
+    with pytest.raises(OSError, match="no space left"):
+        writer.close()
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == [path] and path.read_bytes() == before
+    writer.close()  # the failed close closed the writer: this is a no-op, not a second attempt
+    assert read_mcap(path).n_steps == 2
+
+
 def test_close_without_scene_or_steps_writes_nothing(tmp_path):
     path = tmp_path / "episode.mcap"
     writer = McapEpisodeWriter(path, metadata={})
@@ -396,9 +473,20 @@ def test_bad_writer_input_names_file_and_argument(tmp_path):
         McapEpisodeWriter(path, metadata={"format": "mine"})
     with pytest.raises(McapError, match="not JSON-serialisable"):
         McapEpisodeWriter(path, metadata={"env": object()})
+    with pytest.raises(ParameterError, match=r"^compression: expected one of \['zstd', 'lz4', 'none'\], got 'gzip'"):
+        McapEpisodeWriter(path, metadata={}, compression="gzip")
+    for chunk_size in (0, 1.5, True):
+        with pytest.raises(ParameterError, match="^chunk_size: ") as error:
+            McapEpisodeWriter(path, metadata={}, chunk_size=chunk_size)
+        assert error.value.parameter == "chunk_size"
     assert list(tmp_path.iterdir()) == []
-    state = dict(angles=np.zeros(2), velocities=np.zeros((2, 2)), angular_velocities=np.zeros(2),
-                 expansions=np.zeros(2), alive=np.ones(2, bool))
+    state = dict(
+        angles=np.zeros(2),
+        velocities=np.zeros((2, 2)),
+        angular_velocities=np.zeros(2),
+        expansions=np.zeros(2),
+        alive=np.ones(2, bool),
+    )
     with McapEpisodeWriter(path, metadata={}) as writer:
         writer.write_scene(goal=[0.0, 0.0])
         with pytest.raises(McapError, match="expected 0, got 1"):
@@ -411,7 +499,14 @@ def test_bad_writer_input_names_file_and_argument(tmp_path):
         with pytest.raises(McapError, match="action, reward, terminated, truncated, metrics required"):
             writer.write_step(1, positions=np.zeros((2, 2)), **state)
         with pytest.raises(McapError, match="metrics lacks total_distance"):
-            writer.write_step(1, positions=np.zeros((2, 2)), action=[0, 1], reward=0.0, terminated=False,
-                              truncated=False, metrics={"projected_displacement": 0, "net_displacement": 0,
-                                                        "is_success": False}, **state)
+            writer.write_step(
+                1,
+                positions=np.zeros((2, 2)),
+                action=[0, 1],
+                reward=0.0,
+                terminated=False,
+                truncated=False,
+                metrics={"projected_displacement": 0, "net_displacement": 0, "is_success": False},
+                **state,
+            )
     assert read_mcap(path).n_steps == 0  # the rejected calls wrote nothing

@@ -34,7 +34,9 @@ def test_square_loop(side):
     start = np.array([-400.0, 250.0])
     corners = np.array([(0, 0), (side, 0), (side, side), (0, side), (0, 0)], dtype=float)
     # subdivide each edge so the path has many points
-    path = np.concatenate([np.linspace(a, b, 5, endpoint=False) for a, b in zip(corners[:-1], corners[1:])] + [corners[-1:]])
+    path = np.concatenate(
+        [np.linspace(a, b, 5, endpoint=False) for a, b in zip(corners[:-1], corners[1:])] + [corners[-1:]]
+    )
     path = path + start
     assert M.total_distance(path) == pytest.approx(4 * side)
     assert M.net_displacement(path) == pytest.approx(0.0, abs=1e-9)
@@ -107,7 +109,9 @@ def test_tracker_agrees_with_array_functions(seed):
             prefix = path[: t + 1]
             assert tracker.total_distance == pytest.approx(M.total_distance(prefix), rel=1e-9)
             assert tracker.net_displacement == pytest.approx(M.net_displacement(prefix), rel=1e-9)
-            assert tracker.projected_displacement == pytest.approx(M.projected_displacement(prefix, goal), rel=1e-9, abs=1e-9)
+            assert tracker.projected_displacement == pytest.approx(
+                M.projected_displacement(prefix, goal), rel=1e-9, abs=1e-9
+            )
             assert tracker.success == M.success(prefix, goal)
             assert tracker.steps == t
     assert tracker.as_metrics() == M.EpisodeMetrics(

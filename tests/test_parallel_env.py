@@ -15,7 +15,6 @@ with warnings.catch_warnings():
 
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, TASK_CLASSES, parallel_env
 from dpr.envs.parallel import (
-    DEFAULT_MAX_EPISODE_STEPS,
     MAX_NEIGHBOURS,
     ParticleParallelEnv,
     local_observation_size,
@@ -51,7 +50,7 @@ def test_spaces_agents_and_defaults():
     env = parallel_env("manipulation", n_robots=5, robot_model="disk")
     assert env.possible_agents == [f"robot_{i}" for i in range(5)]
     assert env.agents == []  # until reset
-    assert env.max_episode_steps == DEFAULT_MAX_EPISODE_STEPS == MAX_EPISODE_STEPS
+    assert env.max_episode_steps == MAX_EPISODE_STEPS
     assert env.action_space("robot_2") == spaces.Discrete(2)
     assert env.observation_space("robot_2").shape == (6 * 5 + 4,)
     assert env.observation_space("robot_2") is env.observation_space("robot_2")
@@ -282,8 +281,9 @@ def test_agents_as_vec_env_trains_ppo_and_auto_resets():
     assert model.num_timesteps == 256
 
     # auto-reset at the end of an episode, SB3 style
-    venv = AgentsAsVecEnv(parallel_env("manipulation", robot_model="disk", n_robots=3, max_episode_steps=5,
-                                       action_type="continuous"))
+    venv = AgentsAsVecEnv(
+        parallel_env("manipulation", robot_model="disk", n_robots=3, max_episode_steps=5, action_type="continuous")
+    )
     venv.seed(11)
     first = venv.reset()
     assert first.shape == (3, 6 * 3 + 4)
@@ -355,8 +355,26 @@ def test_bench_scale_runs_small_and_writes_json(tmp_path, capsys):
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     out = tmp_path / "scale.json"
-    argv = ["--parts", "sizes", "episode", "--sizes", "9", "16", "--size-steps", "5", "--size-repeats", "1",
-            "--warmup", "2", "--episode-robots", "9", "--episode-steps", "10", "--json", str(out)]
+    argv = [
+        "--parts",
+        "sizes",
+        "episode",
+        "--sizes",
+        "9",
+        "16",
+        "--size-steps",
+        "5",
+        "--size-repeats",
+        "1",
+        "--warmup",
+        "2",
+        "--episode-robots",
+        "9",
+        "--episode-steps",
+        "10",
+        "--json",
+        str(out),
+    ]
     assert bench.main(argv) == 0
     results = json.loads(out.read_text())
     assert [row["n_robots"] for row in results["sizes"]["rows"]] == [9, 16, 9, 16]

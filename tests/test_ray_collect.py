@@ -38,8 +38,17 @@ def test_ray_backend_resumes_a_dataset(tmp_path):
 
 
 def test_address_needs_the_ray_backend(tmp_path, capsys):
-    argv = ["collect", "--env", "dpr/Navigation-v0", "--episodes", "1", "--out", str(tmp_path / "ds"),
-            "--address", "127.0.0.1:6379"]
+    argv = [
+        "collect",
+        "--env",
+        "dpr/Navigation-v0",
+        "--episodes",
+        "1",
+        "--out",
+        str(tmp_path / "ds"),
+        "--address",
+        "127.0.0.1:6379",
+    ]
     with pytest.raises(SystemExit) as exit_:
         main(argv)
     assert exit_.value.code == 2 and "--address" in capsys.readouterr().err

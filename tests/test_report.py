@@ -22,16 +22,37 @@ def evaluated(tmp_path_factory):
     paths = {}
     for policy in ("wave", "random"):
         paths[policy] = folder / f"{policy}.json"
-        argv = ["evaluate", "--policy", policy, "--env", "dpr/Navigation-v0", "--seeds", "0-1", "--steps", str(STEPS),
-                "--workers", "1", *SWARM, "--json", str(paths[policy])]
+        argv = [
+            "evaluate",
+            "--policy",
+            policy,
+            "--env",
+            "dpr/Navigation-v0",
+            "--seeds",
+            "0-1",
+            "--steps",
+            str(STEPS),
+            "--workers",
+            "1",
+            *SWARM,
+            "--json",
+            str(paths[policy]),
+        ]
         assert run(argv) == 0
     return paths
 
 
 def _episode(env_id, seed, displacement, success=False, trajectory=True):
-    episode = {"env_id": env_id, "policy": "?", "seed": seed, "projected_displacement": displacement,
-               "net_displacement": abs(displacement), "total_distance": abs(displacement), "success": success,
-               "steps": 100}
+    episode = {
+        "env_id": env_id,
+        "policy": "?",
+        "seed": seed,
+        "projected_displacement": displacement,
+        "net_displacement": abs(displacement),
+        "total_distance": abs(displacement),
+        "success": success,
+        "steps": 100,
+    }
     if trajectory:
         episode["goal"] = [0.0, 0.0]
         episode["trajectory"] = [[100.0 + seed, 50.0], [100.0 + seed - displacement, 50.0]]
@@ -41,8 +62,19 @@ def _episode(env_id, seed, displacement, success=False, trajectory=True):
 def _write(path, policy, episodes, steps=100):
     env_ids = list(dict.fromkeys(e["env_id"] for e in episodes))
     seeds = sorted({e["seed"] for e in episodes})
-    path.write_text(json.dumps({"policy": policy, "env_ids": env_ids, "env_kwargs": {}, "steps": steps,
-                                "seeds": seeds, "episodes": episodes, "summary": {}}))
+    path.write_text(
+        json.dumps(
+            {
+                "policy": policy,
+                "env_ids": env_ids,
+                "env_kwargs": {},
+                "steps": steps,
+                "seeds": seeds,
+                "episodes": episodes,
+                "summary": {},
+            }
+        )
+    )
     return path
 
 
@@ -53,13 +85,22 @@ NAV, GATE = "dpr/Navigation-v0", "dpr/Gate-v0"
 def synthetic(tmp_path):
     """Wave on Navigation and Gate; a model on Navigation (same seeds) and Gate (fewer seeds), in two files."""
     return [
-        _write(tmp_path / "wave.json", "wave",
-               [_episode(NAV, s, d, success=s == 2) for s, d in zip((0, 1, 2), (10.0, 20.0, 40.0))]
-               + [_episode(GATE, s, d) for s, d in zip((0, 1, 2), (8.0, 4.0, 6.0))]),
-        _write(tmp_path / "bc-gate.json", "models/navigation-bc-ppo.zip",
-               [_episode(GATE, s, d) for s, d in zip((0, 1), (1.0, 3.0))]),
-        _write(tmp_path / "bc-nav.json", "models/navigation-bc-ppo.zip",
-               [_episode(NAV, s, d) for s, d in zip((0, 1, 2), (5.0, 15.0, 30.0))]),
+        _write(
+            tmp_path / "wave.json",
+            "wave",
+            [_episode(NAV, s, d, success=s == 2) for s, d in zip((0, 1, 2), (10.0, 20.0, 40.0))]
+            + [_episode(GATE, s, d) for s, d in zip((0, 1, 2), (8.0, 4.0, 6.0))],
+        ),
+        _write(
+            tmp_path / "bc-gate.json",
+            "models/navigation-bc-ppo.zip",
+            [_episode(GATE, s, d) for s, d in zip((0, 1), (1.0, 3.0))],
+        ),
+        _write(
+            tmp_path / "bc-nav.json",
+            "models/navigation-bc-ppo.zip",
+            [_episode(NAV, s, d) for s, d in zip((0, 1, 2), (5.0, 15.0, 30.0))],
+        ),
     ]
 
 
@@ -84,8 +125,9 @@ def test_evaluation_json_round_trips_with_pairs_on_one_line():
 def test_evaluate_json_holds_goal_and_trajectory_ending_at_the_last_position(evaluated):
     payload = json.loads(evaluated["wave"].read_text())
     for episode in payload["episodes"]:
-        result = run_episode("dpr/Navigation-v0", "wave", episode["seed"], steps=STEPS,
-                             env_kwargs={"robot_model": "disk", "n_robots": 4})
+        result = run_episode(
+            "dpr/Navigation-v0", "wave", episode["seed"], steps=STEPS, env_kwargs={"robot_model": "disk", "n_robots": 4}
+        )
         assert episode["goal"] == pytest.approx(result.goal.tolist())
         assert len(episode["trajectory"]) == len(range(0, STEPS + 1, 10)) + 1
         assert episode["trajectory"][0] == pytest.approx(result.trajectory[0], abs=0.05)
@@ -118,8 +160,12 @@ def test_report_from_evaluate_files(evaluated, tmp_path, capsys):
 def test_table_rows_medians_and_percent_of_wave(synthetic):
     rows = _rows(results_table([load_evaluation(path) for path in synthetic]))
     # on Navigation the model is named by its method; on another task it keeps its whole name
-    assert [row[:2] for row in rows] == [["Navigation", "wave"], ["Navigation", "bc-ppo"],
-                                         ["Gate", "wave"], ["Gate", "navigation-bc-ppo"]]
+    assert [row[:2] for row in rows] == [
+        ["Navigation", "wave"],
+        ["Navigation", "bc-ppo"],
+        ["Gate", "wave"],
+        ["Gate", "navigation-bc-ppo"],
+    ]
     nav_wave, nav_bc, gate_wave, gate_bc = rows
     assert nav_wave[2:] == ["20.0", "10.0", "40.0", f"23.3 ± {np.std([10, 20, 40]):.1f}", "33%", "3", "0-2", "100%"]
     assert nav_bc[2] == "15.0" and nav_bc[9] == "75%"  # 15 / 20
@@ -161,8 +207,10 @@ def test_report_never_overwrites(synthetic, tmp_path, capsys):
         ("[1, 2]", "expected a JSON object"),
         (json.dumps({"policy": "wave", "episodes": []}), "missing key(s) ['env_ids', 'steps', 'seeds']"),
         (json.dumps({"policy": "wave", "env_ids": [], "steps": 10, "seeds": [0], "episodes": []}), "no episodes"),
-        (json.dumps({"policy": "wave", "env_ids": [], "steps": 10, "seeds": [0], "episodes": [{"seed": 0}]}),
-         "episode 0 lacks ['env_id', 'projected_displacement', 'success']"),
+        (
+            json.dumps({"policy": "wave", "env_ids": [], "steps": 10, "seeds": [0], "episodes": [{"seed": 0}]}),
+            "episode 0 lacks ['env_id', 'projected_displacement', 'success']",
+        ),
     ],
 )
 def test_bad_file_is_named(text, message, synthetic, tmp_path, capsys):
@@ -187,6 +235,17 @@ def test_files_without_trajectories(tmp_path):
     with pytest.warns(UserWarning, match="old.json: random on Navigation has no trajectories"):
         trajectory_figure([load_evaluation(new), load_evaluation(old)], tmp_path / "mixed.png")
     assert (tmp_path / "mixed.png").stat().st_size > 0
+
+
+def test_trajectories_without_a_common_seed_ask_for_one(tmp_path):
+    first = _write(tmp_path / "first.json", "wave", [_episode(NAV, s, 5.0) for s in (0, 1)])
+    second = _write(tmp_path / "second.json", "random", [_episode(NAV, s, 1.0) for s in (2, 3)])
+    evaluations = [load_evaluation(first), load_evaluation(second)]
+    with pytest.raises(ValueError, match=r"^seed: Navigation: no seed was evaluated for all of") as error:
+        trajectory_figure(evaluations, tmp_path / "none.png")
+    assert error.value.parameter == "seed" and not (tmp_path / "none.png").exists()
+    with pytest.warns(UserWarning, match="random on Navigation has no episode of seed 1"):
+        assert trajectory_figure(evaluations, tmp_path / "one.png", seed=1).stat().st_size > 0
 
 
 def test_a_model_named_after_its_task_is_labelled_by_its_method():

@@ -1,17 +1,25 @@
-"""Physics layer: neighbour search, world construction, collision filtering, magnets and the command rule."""
+"""Physics layer: neighbour search, world construction, collision filtering, magnets and the command rule; the
+robot-model registry and the package's import graph."""
 
+import ast
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pymunk
 import pytest
-from pymunk._chipmunk import ffi, lib
 from helpers import ROBOT_MODELS, robot_of_body, shift_robot
+from pymunk._chipmunk import ffi, lib
 
-from dpr.sim import ObjectSpec, World, grid_centres
+import dpr.sim
+from dpr.checks import ParameterError
+from dpr.sim import ROBOT_MODELS as SIM_ROBOT_MODELS
+from dpr.sim import ObjectSpec, World, grid_centres, swarm_class
 from dpr.sim import constants as C
+from dpr.sim.disk import DiskSwarm
 from dpr.sim.neighbours import pairs_within
+from dpr.sim.paddle import PaddleSwarm
 
 # ---------------------------------------------------------------------------------------------------------
 # Neighbour search
@@ -90,10 +98,86 @@ def test_world_centres_on_grid(robot_model):
 
 
 def test_world_rejects_bad_arguments():
-    with pytest.raises(ValueError, match="n_robots"):
-        World(0, "disk")
-    with pytest.raises(ValueError, match="robot_model"):
+    for n_robots in (0, -1, 2.0, True):
+        with pytest.raises(ParameterError, match="^n_robots: ") as error:
+            World(n_robots, "disk")
+        assert error.value.parameter == "n_robots"
+    with pytest.raises(ParameterError, match=r"^robot_model: expected one of \['paddle', 'disk'\], got 'wheel'"):
         World(3, "wheel")
+    with pytest.raises(ParameterError, match="^kind: expected one of"):
+        World(3, "disk", obj=ObjectSpec("cone", (500.0, 0.0)))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Robot-model registry and import graph
+
+
+def test_robot_model_registry():
+    assert SIM_ROBOT_MODELS == ROBOT_MODELS == ("paddle", "disk")
+    assert swarm_class("paddle") is PaddleSwarm and swarm_class("disk") is DiskSwarm
+    for model in SIM_ROBOT_MODELS:
+        assert swarm_class(model).model == model
+    with pytest.raises(ValueError, match="^robot_model: "):
+        swarm_class("wheel")
+
+
+def package_imports(package) -> dict[str, set[str]]:
+    """Module name -> the modules of ``package`` it imports (anywhere in it, function bodies included).
+    ``from pkg import name`` counts as importing ``pkg.name`` where that is a module, else ``pkg`` itself."""
+    root = Path(package.__file__).parent
+    prefix = package.__name__
+    modules = {
+        prefix if path.stem == "__init__" else f"{prefix}.{path.stem}": path for path in sorted(root.glob("*.py"))
+    }
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                assert node.level == 0, f"{path}: relative import"
+                for alias in node.names:
+                    submodule = f"{node.module}.{alias.name}"
+                    targets.add(submodule if submodule in modules else node.module)
+        graph[name] = {target for target in targets if target in modules and target != name}
+    return graph
+
+
+def import_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` as a list of modules (the first repeated at the end), or None."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(module: str) -> list[str] | None:
+        state[module] = 1
+        path.append(module)
+        for target in sorted(graph[module]):
+            if state.get(target) == 1:
+                return path[path.index(target) :] + [target]
+            if target not in state and (cycle := visit(target)):
+                return cycle
+        state[module] = 2
+        path.pop()
+        return None
+
+    for module in sorted(graph):
+        if module not in state and (cycle := visit(module)):
+            return cycle
+    return None
+
+
+def test_import_cycle_finder_finds_a_cycle():
+    assert import_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert import_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_sim_has_no_import_cycle():
+    graph = package_imports(dpr.sim)
+    assert {"dpr.sim.swarm", "dpr.sim.paddle", "dpr.sim.models"} <= set(graph)
+    assert "dpr.sim.swarm" in graph["dpr.sim.paddle"]  # the finder sees the edges that exist
+    assert import_cycle(graph) is None, " -> ".join(import_cycle(graph))
+    assert not graph["dpr.sim.swarm"] & {"dpr.sim.paddle", "dpr.sim.disk", "dpr.sim.models"}
 
 
 @pytest.mark.parametrize("robot_model", ROBOT_MODELS)

@@ -9,10 +9,10 @@ import pytest
 import yaml
 from helpers import run_cli as run
 
+from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import METADATA_MEMBER, load_model_policy, read_model_info
 from dpr.rl.evaluation import evaluate, run_episode
-from dpr.rl.hyperparams import load_hyperparams
 from dpr.rl.train import TrainConfig, train
 
 ENV = "dpr/Navigation-v0"
@@ -62,8 +62,10 @@ def test_presets_hold_the_papers_values_and_laptop_defaults(algo):
         (("ppo", ENV, "default", {"n_stepz": 64}), "unknown hyperparameter.*n_stepz.*n_steps"),
         (("ppo", ENV, "default", {"learning_rate": "cos_1e-3"}), "learning_rate"),
         (("a2c", ENV, "default", {"policy_kwargs": {"net_arch": [64, "wide"]}}), "net_arch"),
-        (("ppo", ENV, "default", {"policy_kwargs": {"features_extractor": "nope"}}),
-         r"features_extractor must be one of \('flatten', 'swarm'\), got 'nope'"),
+        (
+            ("ppo", ENV, "default", {"policy_kwargs": {"features_extractor": "nope"}}),
+            r"features_extractor must be one of \('flatten', 'swarm'\), got 'nope'",
+        ),
     ],
 )
 def test_bad_hyperparameters_are_refused(args, message):
@@ -138,21 +140,58 @@ def test_predict_is_deterministic(runs, algo):
     actions = [first(observation), first(observation), second(observation)]
     for action in actions[1:]:
         np.testing.assert_array_equal(action, actions[0])
-    assert env.action_space.contains(np.asarray(actions[0]).reshape(env.action_space.shape).astype(env.action_space.dtype))
+    assert env.action_space.contains(
+        np.asarray(actions[0]).reshape(env.action_space.shape).astype(env.action_space.dtype)
+    )
 
 
 def test_cli_trains_in_subprocess_envs_and_evaluates(tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["train", "--algo", "ppo", "--env", ENV, "--robot-model", "disk", "--n-robots", "4", "--timesteps", "128",
-            "--n-envs", "2", "--steps-per-episode", "64", "--seed", "7", "--hyperparam", "n_steps=32",
-            "--hyperparam", "batch_size=32", "--out", str(out)]
+    argv = [
+        "train",
+        "--algo",
+        "ppo",
+        "--env",
+        ENV,
+        "--robot-model",
+        "disk",
+        "--n-robots",
+        "4",
+        "--timesteps",
+        "128",
+        "--n-envs",
+        "2",
+        "--steps-per-episode",
+        "64",
+        "--seed",
+        "7",
+        "--hyperparam",
+        "n_steps=32",
+        "--hyperparam",
+        "batch_size=32",
+        "--out",
+        str(out),
+    ]
     assert run(argv) == 0
     assert f"model: {out / 'model.zip'}" in capsys.readouterr().out
     config = yaml.safe_load((out / "config.yaml").read_text())
     assert config["n_envs"] == 2 and config["seed"] == 7 and config["hyperparameters"]["n_steps"] == 32
     report = tmp_path / "eval.json"
-    argv = ["evaluate", "--policy", str(out / "model.zip"), "--env", ENV, "--seeds", "0", "--steps", "32",
-            "--workers", "1", "--json", str(report)]
+    argv = [
+        "evaluate",
+        "--policy",
+        str(out / "model.zip"),
+        "--env",
+        ENV,
+        "--seeds",
+        "0",
+        "--steps",
+        "32",
+        "--workers",
+        "1",
+        "--json",
+        str(report),
+    ]
     assert run(argv) == 0
     payload = json.loads(report.read_text())
     assert payload["env_kwargs"] == SMALL_ENV and payload["episodes"][0]["steps"] <= 32
@@ -195,7 +234,9 @@ def test_model_for_another_swarm_or_task_is_refused(runs, capsys):
     path = str(runs["ppo"].model_path)
     with pytest.raises(ValueError, match=r"trained with n_robots=4; n_robots=9 makes a different observation"):
         evaluate([ENV], path, seeds=[0], steps=8, env_kwargs={"n_robots": 9})
-    with pytest.raises(ValueError, match=r"observation space .*\(24,\).*\(54,\).*n_robots=4 \(the env has n_robots=9\)"):
+    with pytest.raises(
+        ValueError, match=r"observation space .*\(24,\).*\(54,\).*n_robots=4 \(the env has n_robots=9\)"
+    ):
         make_policy(path, gym.make(ENV, robot_model="disk", n_robots=9))
     with pytest.raises(ValueError, match="action space Discrete\\(16\\) vs the env's MultiBinary"):
         make_policy(str(runs["dqn"].model_path), gym.make(ENV, **SMALL_ENV))
@@ -209,7 +250,7 @@ def test_saved_model_loads_for_more_training(runs, tmp_path):
     """The fine-tuning path: load with schedules and a VecEnv, learn on, save with the same metadata."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from dpr.rl.models import load_model, save_model
+    from dpr.policies.sb3 import load_model, save_model
 
     info = read_model_info(runs["a2c"].model_path)
     vec_env = DummyVecEnv([lambda: gym.make(ENV, max_episode_steps=64, **info.env_kwargs)])
@@ -245,8 +286,23 @@ def test_collect_records_a_model_with_its_env_kwargs(runs, tmp_path):
 def test_view_rolls_out_a_model_beside_the_wave_policy(runs, tmp_path, capsys):
     model = str(runs["a2c"].model_path)
     out = tmp_path / "view.rrd"
-    argv = ["view", "--env", ENV, "--policies", f"wave,{model}", "--seed", "0", "--n-robots", "4",
-            "--robot-model", "disk", "--steps", "20", "--save", str(out)]
+    argv = [
+        "view",
+        "--env",
+        ENV,
+        "--policies",
+        f"wave,{model}",
+        "--seed",
+        "0",
+        "--n-robots",
+        "4",
+        "--robot-model",
+        "disk",
+        "--steps",
+        "20",
+        "--save",
+        str(out),
+    ]
     assert run(argv) == 0, capsys.readouterr().err
     assert out.is_file() and out.stat().st_size > 0
     bad = ["view", "--env", ENV, "--policies", model, "--seed", "0", "--steps", "20", "--save", str(tmp_path / "x.rrd")]

@@ -7,8 +7,8 @@ from collections import defaultdict
 
 import numpy as np
 import pytest
-from rerun.chunk import RrdReader
 from helpers import run_cli as run
+from rerun.chunk import RrdReader
 
 import dpr.viz
 from dpr.datasets.collect import CollectSpec, collect
@@ -77,7 +77,9 @@ def test_view_dataset_episodes_side_by_side(dataset, tmp_path):
         assert radii.min() >= 27.5 - 1e-4 and radii.max() <= 52.5 + 1e-4  # the disk model's radius range
         reward = entities[f"{base}/metrics/reward"]
         assert_timelines(reward, 1, STEPS - 1)
-        np.testing.assert_allclose(np.ravel(reward["Scalars:scalars"]), recorded["next.reward"][: STEPS - 1, 0], rtol=1e-6)
+        np.testing.assert_allclose(
+            np.ravel(reward["Scalars:scalars"]), recorded["next.reward"][: STEPS - 1, 0], rtol=1e-6
+        )
         for metric in ("distance_to_goal", "projected_displacement", "net_displacement", "total_distance"):
             assert_timelines(entities[f"{base}/metrics/{metric}"], 0, STEPS - 1)
         assert entities[f"{base}/scene/goal"]["Points2D:positions"] == [[[0.0, 0.0]]]
@@ -123,8 +125,20 @@ def test_view_mcap_file(dataset, tmp_path):
 def test_view_policies_side_by_side_on_gate(tmp_path):
     out = tmp_path / "live.rrd"
     steps = 30
-    argv = ["view", "--env", "dpr/Gate-v0", "--policies", "wave,random", "--seed", "3", "--steps", str(steps), *SMALL,
-            "--save", str(out)]
+    argv = [
+        "view",
+        "--env",
+        "dpr/Gate-v0",
+        "--policies",
+        "wave,random",
+        "--seed",
+        "3",
+        "--steps",
+        str(steps),
+        *SMALL,
+        "--save",
+        str(out),
+    ]
     assert run(argv) == 0
     entities, origins = read_rrd(out)
     assert {"/wave", "/random"} <= set(origins)
@@ -140,14 +154,25 @@ def test_view_policies_side_by_side_on_gate(tmp_path):
 
 def test_view_manipulation_logs_the_object(tmp_path):
     out = tmp_path / "box.rrd"
-    argv = ["view", "--env", "dpr/Manipulation-v0", "--env-kwarg", "object_type=box", "--steps", "8", *SMALL,
-            "--save", str(out)]
+    argv = [
+        "view",
+        "--env",
+        "dpr/Manipulation-v0",
+        "--env-kwarg",
+        "object_type=box",
+        "--steps",
+        "8",
+        *SMALL,
+        "--save",
+        str(out),
+    ]
     assert run(argv) == 0
     entities, _ = read_rrd(out)
     outlines = entities["/wave/scene/object"]
     assert_timelines(outlines, 0, 8)
-    expected = rollout_episode("dpr/Manipulation-v0", "wave", 0, n_robots=4, robot_model="disk", steps=8,
-                               env_kwargs={"object_type": "box"})
+    expected = rollout_episode(
+        "dpr/Manipulation-v0", "wave", 0, n_robots=4, robot_model="disk", steps=8, env_kwargs={"object_type": "box"}
+    )
     square = np.array(outlines["LineStrips2D:strips"][5][0])  # one closed 5-point outline per step
     assert square.shape == (5, 2)
     np.testing.assert_allclose(square[:4].mean(axis=0), expected.object_poses[5, 0:2], atol=1e-3)
@@ -178,6 +203,7 @@ def test_running_metrics_equal_the_episode_metrics_of_every_prefix():
 @pytest.fixture
 def no_viewer(monkeypatch):
     """Fails the test if a viewer or server would start."""
+
     def refuse(*args, **kwargs):
         raise AssertionError("a viewer was started")
 
@@ -192,7 +218,7 @@ def no_viewer(monkeypatch):
         (["{tmp}/broken.mcap"], "not a readable MCAP file"),
         (["{tmp}/not_a_dataset"], "info.json"),
         (["{tmp}/notes.txt"], "neither a dataset folder nor a .mcap file"),
-        (["{ds}", "--episode", "2"], "--episode 2: the dataset"),
+        (["{ds}", "--episode", "2"], "--episode: 2 is not in the dataset"),
         (["{ds}", "--episode", "0", "0"], "--episode lists an episode twice"),
         (["{ds}", "--episode", "-1"], "--episode takes episode indices >= 0"),
         (["{ds}/mcap/seed-000000.mcap", "--episode", "0"], "an MCAP file holds one episode"),
@@ -201,7 +227,7 @@ def no_viewer(monkeypatch):
         (["--env", "dpr/Navigation-v0", "--policies", "models/ppo.zip"], "models/ppo.zip"),
         (["--env", "dpr/Navigation-v0", "--policies", "wave,wave"], "lists a policy twice"),
         (["--env", "dpr/Navigation-v0", "--env-kwarg", "bogus=1"], "unexpected keyword argument 'bogus'"),
-        (["--env", "dpr/Navigation-v0", "--env-kwarg", "n_robots=3"], "--env-kwarg must not set ['n_robots']"),
+        (["--env", "dpr/Navigation-v0", "--env-kwarg", "n_robots=3"], "must not set ['n_robots']"),
         (["--env", "dpr/Nowhere-v0"], "--env: unknown env id"),
         ([], "give either SOURCE"),
         (["{ds}", "--env", "dpr/Navigation-v0"], "give either SOURCE"),
@@ -250,9 +276,26 @@ def test_dataset_without_dpr_metadata_is_refused(dataset):
 # -- dpr evaluate --rerun -----------------------------------------------------------------------------------------
 def test_evaluate_saves_every_episode_to_rerun(tmp_path, capsys):
     out = tmp_path / "eval.rrd"
-    argv = ["evaluate", "--env", "dpr/Navigation-v0", "dpr/Gate-v0", "--seeds", "0-1", "--robot-model", "disk",
-            "--n-robots", "4", "--steps", str(STEPS), "--workers", "1", "--json", str(tmp_path / "eval.json"),
-            "--rerun", str(out)]
+    argv = [
+        "evaluate",
+        "--env",
+        "dpr/Navigation-v0",
+        "dpr/Gate-v0",
+        "--seeds",
+        "0-1",
+        "--robot-model",
+        "disk",
+        "--n-robots",
+        "4",
+        "--steps",
+        str(STEPS),
+        "--workers",
+        "1",
+        "--json",
+        str(tmp_path / "eval.json"),
+        "--rerun",
+        str(out),
+    ]
     assert run(argv) == 0, capsys.readouterr().err
     entities, origins = read_rrd(out)
     names = ["/navigation_seed0", "/navigation_seed1", "/gate_seed0", "/gate_seed1"]
@@ -276,9 +319,31 @@ def test_evaluate_refuses_an_existing_rerun_file(tmp_path, capsys):
 # -- dpr train / finetune --rerun ---------------------------------------------------------------------------------
 def test_train_saves_its_checkpoints_and_final_model_rollouts_to_rerun(tmp_path, capsys):
     out = tmp_path / "train.rrd"
-    argv = ["train", "--algo", "ppo", "--env", "dpr/Navigation-v0", "--n-robots", "4", "--robot-model", "disk",
-            "--timesteps", "128", "--steps-per-episode", str(STEPS), "--hyperparam", "n_steps=32",
-            "--hyperparam", "batch_size=32", "--eval-episodes", "1", "--out", str(tmp_path / "run"), "--rerun", str(out)]
+    argv = [
+        "train",
+        "--algo",
+        "ppo",
+        "--env",
+        "dpr/Navigation-v0",
+        "--n-robots",
+        "4",
+        "--robot-model",
+        "disk",
+        "--timesteps",
+        "128",
+        "--steps-per-episode",
+        str(STEPS),
+        "--hyperparam",
+        "n_steps=32",
+        "--hyperparam",
+        "batch_size=32",
+        "--eval-episodes",
+        "1",
+        "--out",
+        str(tmp_path / "run"),
+        "--rerun",
+        str(out),
+    ]
     assert run(argv) == 0, capsys.readouterr().err
     checkpoints = sorted((tmp_path / "run" / "checkpoints").glob("*.zip"))
     assert checkpoints
@@ -289,8 +354,17 @@ def test_train_saves_its_checkpoints_and_final_model_rollouts_to_rerun(tmp_path,
 
 
 def test_train_refuses_a_rerun_path_that_is_not_rrd_before_training(tmp_path, capsys):
-    argv = ["train", "--algo", "ppo", "--env", "dpr/Navigation-v0", "--out", str(tmp_path / "run"),
-            "--rerun", str(tmp_path / "x.txt")]
+    argv = [
+        "train",
+        "--algo",
+        "ppo",
+        "--env",
+        "dpr/Navigation-v0",
+        "--out",
+        str(tmp_path / "run"),
+        "--rerun",
+        str(tmp_path / "x.txt"),
+    ]
     assert run(argv) == 2
     assert "must end in .rrd" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()

@@ -137,7 +137,11 @@ def test_accepts_pixels_state_dicts_and_object_features():
 @pytest.mark.parametrize("obs_type", ["state", "pixels_state"])
 def test_from_env(robot_model, action_type, obs_type):
     env = gym.make(
-        "dpr/Manipulation-v0", robot_model=robot_model, n_robots=4, action_type=action_type, obs_type=obs_type,
+        "dpr/Manipulation-v0",
+        robot_model=robot_model,
+        n_robots=4,
+        action_type=action_type,
+        obs_type=obs_type,
         image_size=32,
     )
     policy = WavePolicy.from_env(env)

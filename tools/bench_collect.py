@@ -29,22 +29,18 @@ import gymnasium as gym
 
 import dpr  # noqa: F401  (registers the ids)
 from dpr.datasets.collect import CollectSpec, collect
+from dpr.envs import MAX_EPISODE_STEPS
 from dpr.policies.registry import make_policy
+from dpr.rollout import roll_out
 
 
 def bare_rollout(spec: CollectSpec, seed: int) -> int:
-    """Env + policy only: what an episode costs when nothing is recorded."""
+    """Env + policy only (the rollout loop without hooks): what an episode costs when nothing is recorded."""
     env = gym.make(spec.env_id, **spec.make_kwargs())
-    observation, _ = env.reset(seed=seed)
-    policy = make_policy(spec.policy, env)
-    policy.reset(seed)
-    steps, done = 0, False
-    while not done:
-        observation, _, terminated, truncated, _ = env.step(policy(observation))
-        done = terminated or truncated
-        steps += 1
-    env.close()
-    return steps
+    try:
+        return roll_out(env, make_policy(spec.policy, env), seed).steps
+    finally:
+        env.close()
 
 
 def timed_collect(spec: CollectSpec, episodes: int, workers: int) -> float:
@@ -129,7 +125,7 @@ def main() -> int:
     parser.add_argument("--robot-model", choices=("paddle", "disk"), default="paddle")
     parser.add_argument("--n-robots", type=int, default=9)
     parser.add_argument("--episodes", type=int, default=4)
-    parser.add_argument("--steps", type=int, default=2500)
+    parser.add_argument("--steps", type=int, default=MAX_EPISODE_STEPS)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scale", action="store_true", help="run the scale benchmark instead")
     parser.add_argument("--out", type=Path, help="dataset folder for --scale (must not exist)")

@@ -39,6 +39,7 @@ import gymnasium as gym
 import numpy as np
 
 import dpr  # noqa: F401  (registers the ids)
+from dpr.envs import MAX_EPISODE_STEPS, PHYSICS_ERROR
 from dpr.policies.wave import WavePolicy
 from dpr.sim.neighbours import pairs_within
 
@@ -166,8 +167,15 @@ def closest_pairs(swarm) -> tuple[float, tuple[float, float], float]:
     return float(distance[closest]), (float(radius[i]), float(radius[j])), float(overlap.max())
 
 
-def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_radius: float | None = None,
-                  start_side: str | None = None, hold_steps: int | None = None) -> dict:
+def bench_episode(
+    n_robots: int,
+    steps: int,
+    tolerance: float,
+    seed: int,
+    start_radius: float | None = None,
+    start_side: str | None = None,
+    hold_steps: int | None = None,
+) -> dict:
     """One wave-policy episode of a large disk swarm. ``start_radius`` puts the swarm's centre that far from the
     goal (default: the env's 450-550, which a 1000-robot swarm covers); ``start_side``/``hold_steps`` override
     the disk model's wave defaults (hold 4; far side below ``DISK_NEAR_SIDE_FROM`` robots, near side from it on)."""
@@ -190,8 +198,8 @@ def bench_episode(n_robots: int, steps: int, tolerance: float, seed: int, start_
         checked = time.perf_counter()
         step_time += checked - started
         done_steps += 1
-        if "physics_error" in info:
-            errors.append(info["physics_error"])
+        if PHYSICS_ERROR in info:
+            errors.append(info[PHYSICS_ERROR])
         distance, radii, overlap = closest_pairs(swarm)
         if distance < min_distance:
             min_distance, closest_radii, closest_step = distance, radii, done_steps
@@ -248,13 +256,17 @@ def markdown(results: dict) -> str:
         s = results["sizes"]
         lines += ["| policy | N (disk) | ms/step (best) | us/robot-step | runs ms/step |", "|---|---|---|---|---|"]
         lines += [
-            f"| {r['policy']} | {r['n_robots']} | {r['ms_per_step']} | {r['us_per_robot_step']} | {r['runs_ms_per_step']} |"
+            f"| {r['policy']} | {r['n_robots']} | {r['ms_per_step']} | {r['us_per_robot_step']} "
+            f"| {r['runs_ms_per_step']} |"
             for r in s["rows"]
         ]
         lines.append("")
         for name, verdict in s["largest_over_smallest"].items():
             state = "met" if verdict["met"] else "MISSED"
-            lines.append(f"{name}: largest/smallest per robot-step **{verdict['ratio']}** (target <= {verdict['target']}: {state})")
+            lines.append(
+                f"{name}: largest/smallest per robot-step **{verdict['ratio']}** "
+                f"(target <= {verdict['target']}: {state})"
+            )
         lines.append("")
     if "episode" in results:
         e = results["episode"]
@@ -284,12 +296,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=20, help="untimed steps before timing (b)")
     parser.add_argument("--size-repeats", type=int, default=3, help="runs of each size, the fastest kept (b)")
     parser.add_argument("--episode-robots", type=int, default=1000, help="swarm size of the episode (c)")
-    parser.add_argument("--episode-steps", type=int, default=2500, help="episode length (c)")
-    parser.add_argument("--tolerance", type=float, default=5.0, help="soft-contact overlap below 2 contracted radii reported as within "
-                        "tolerance (c; not a pass/fail check)")
-    parser.add_argument("--episode-start-radius", type=float,
-                        help="distance of the swarm's start from the goal (c; default: the env's 450-550)")
-    parser.add_argument("--episode-side", choices=("near", "far"), help="wave start side (c; default: the disk model's)")
+    parser.add_argument("--episode-steps", type=int, default=MAX_EPISODE_STEPS, help="episode length (c)")
+    parser.add_argument(
+        "--tolerance",
+        type=float,
+        default=5.0,
+        help="soft-contact overlap below 2 contracted radii reported as within tolerance (c; not a pass/fail check)",
+    )
+    parser.add_argument(
+        "--episode-start-radius",
+        type=float,
+        help="distance of the swarm's start from the goal (c; default: the env's 450-550)",
+    )
+    parser.add_argument(
+        "--episode-side", choices=("near", "far"), help="wave start side (c; default: the disk model's)"
+    )
     parser.add_argument("--episode-hold", type=int, help="wave hold steps (c; default: the disk model's)")
     parser.add_argument("--profile", action="store_true", help="cProfile the largest wave-policy size (b)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
@@ -309,9 +330,15 @@ def main(argv: list[str] | None = None) -> int:
         results["sizes"] = bench_sizes(args.sizes, args.size_steps, args.warmup, args.size_repeats, args.profile)
     if "episode" in args.parts:
         results["load"]["episode"] = load()
-        results["episode"] = bench_episode(args.episode_robots, args.episode_steps, args.tolerance, seed=0,
-                                           start_radius=args.episode_start_radius, start_side=args.episode_side,
-                                           hold_steps=args.episode_hold)
+        results["episode"] = bench_episode(
+            args.episode_robots,
+            args.episode_steps,
+            args.tolerance,
+            seed=0,
+            start_radius=args.episode_start_radius,
+            start_side=args.episode_side,
+            hold_steps=args.episode_hold,
+        )
 
     print(markdown(results))
     for row in results.get("sizes", {}).get("rows", []):

@@ -344,8 +344,9 @@ def check_dataset(root: Path, recording: Recording | None = None, *, max_items: 
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     repo_id = f"local/{root.name}"
-    ds = report.attempt(f"LeRobotDataset({repo_id!r}, root=...) opens",
-                        lambda: LeRobotDataset(repo_id=repo_id, root=root))
+    ds = report.attempt(
+        f"LeRobotDataset({repo_id!r}, root=...) opens", lambda: LeRobotDataset(repo_id=repo_id, root=root)
+    )
     if ds is None:
         return report
     report.run("info.json as LeRobot writes it", lambda: _check_info(ds, expected))
@@ -357,14 +358,18 @@ def check_dataset(root: Path, recording: Recording | None = None, *, max_items: 
     report.run("meta.stats present and right", lambda: _check_stats(ds, expected))
     report.run("policy features (dataset_to_policy_features)", lambda: _check_policy_features(ds, expected))
 
-    dsd = report.attempt("LeRobotDataset(..., delta_timestamps=...) opens",
-                         lambda: LeRobotDataset(repo_id=repo_id, root=root, delta_timestamps=DELTA_TIMESTAMPS))
+    dsd = report.attempt(
+        "LeRobotDataset(..., delta_timestamps=...) opens",
+        lambda: LeRobotDataset(repo_id=repo_id, root=root, delta_timestamps=DELTA_TIMESTAMPS),
+    )
     if dsd is not None:
         report.run("delta_timestamps values and *_is_pad at episode boundaries", lambda: _check_delta(dsd, expected))
         report.run("DataLoader(batch_size=8, shuffle=True) runs one epoch", lambda: _check_dataloader(dsd, expected))
     if len(expected.episodes) > 1:
-        report.run("LeRobotDataset(..., episodes=[1]) selects one episode",
-                   lambda: _check_episode_subset(LeRobotDataset, repo_id, root, expected))
+        report.run(
+            "LeRobotDataset(..., episodes=[1]) selects one episode",
+            lambda: _check_episode_subset(LeRobotDataset, repo_id, root, expected),
+        )
     return report
 
 
@@ -382,8 +387,10 @@ def _compare_reader_with_recording(root: Path, expected: Expected) -> list[str]:
         for key, want in episode.items():
             got = np.asarray(data.get(key))
             if got.shape != want.shape or got.dtype != want.dtype or not np.array_equal(got, want):
-                problems.append(f"episode {e} {key!r}: reader gives {got.dtype}{got.shape}, recorded "
-                                f"{want.dtype}{want.shape} (equal values: {_safe_equal(got, want)})")
+                problems.append(
+                    f"episode {e} {key!r}: reader gives {got.dtype}{got.shape}, recorded "
+                    f"{want.dtype}{want.shape} (equal values: {_safe_equal(got, want)})"
+                )
     return problems
 
 
@@ -402,9 +409,20 @@ def _check_info(ds: Any, expected: Expected) -> list[str]:
     if not isinstance(info.get("fps"), int):
         fps = info.get("fps")
         problems.append(f"WARN: fps is {fps!r} ({type(fps).__name__}), LeRobot writes an int")
-    wanted_keys = ("robot_type", "total_episodes", "total_frames", "total_tasks", "chunks_size",
-                   "data_files_size_in_mb", "video_files_size_in_mb", "fps", "splits", "data_path",
-                   "video_path", "features")
+    wanted_keys = (
+        "robot_type",
+        "total_episodes",
+        "total_frames",
+        "total_tasks",
+        "chunks_size",
+        "data_files_size_in_mb",
+        "video_files_size_in_mb",
+        "fps",
+        "splits",
+        "data_path",
+        "video_path",
+        "features",
+    )
     missing = [k for k in wanted_keys if k not in info]
     if missing:
         problems.append(f"WARN: info.json lacks {missing} (LeRobot writes them; needed when it appends)")
@@ -415,8 +433,13 @@ def _check_info(ds: Any, expected: Expected) -> list[str]:
     if info.get("splits") not in (None, {"train": f"0:{len(expected.episodes)}"}):
         problems.append(f"WARN: splits={info.get('splits')!r}, LeRobot writes {{'train': '0:<total_episodes>'}}")
     features = info["features"]
-    defaults = {"timestamp": "float32", "frame_index": "int64", "episode_index": "int64", "index": "int64",
-                "task_index": "int64"}
+    defaults = {
+        "timestamp": "float32",
+        "frame_index": "int64",
+        "episode_index": "int64",
+        "index": "int64",
+        "task_index": "int64",
+    }
     for key, dtype in defaults.items():
         ft = features.get(key)
         if ft is None or ft["dtype"] != dtype or tuple(ft["shape"]) != (1,):
@@ -426,8 +449,10 @@ def _check_info(ds: Any, expected: Expected) -> list[str]:
         if got is None:
             problems.append(f"feature {key!r} missing from info.json")
         elif got["dtype"] != ft["dtype"] or tuple(got["shape"]) != tuple(ft["shape"]):
-            problems.append(f"feature {key!r}: info.json has {got['dtype']}{list(got['shape'])}, "
-                            f"expected {ft['dtype']}{list(ft['shape'])}")
+            problems.append(
+                f"feature {key!r}: info.json has {got['dtype']}{list(got['shape'])}, "
+                f"expected {ft['dtype']}{list(ft['shape'])}"
+            )
     return problems
 
 
@@ -454,12 +479,16 @@ def _check_parquet_schema(root: Path, expected: Expected) -> list[str]:
             if ft["dtype"] == "image":
                 fields = {typ.field(i).name for i in range(typ.num_fields)} if pa.types.is_struct(typ) else set()
                 if fields != {"bytes", "path"}:
-                    problems.append(f"WARN: {path.relative_to(root)} {key!r} is {typ}, LeRobot writes "
-                                    "struct<bytes: binary, path: string>")
+                    problems.append(
+                        f"WARN: {path.relative_to(root)} {key!r} is {typ}, LeRobot writes "
+                        "struct<bytes: binary, path: string>"
+                    )
             elif tuple(ft["shape"]) == (1,):
                 if pa.types.is_list(typ) or pa.types.is_fixed_size_list(typ) or pa.types.is_large_list(typ):
-                    problems.append(f"{path.relative_to(root)} {key!r} is {typ}: a shape-[1] feature must be a "
-                                    "scalar column (LeRobot fails to cast a list)")
+                    problems.append(
+                        f"{path.relative_to(root)} {key!r} is {typ}: a shape-[1] feature must be a "
+                        "scalar column (LeRobot fails to cast a list)"
+                    )
                 elif str(typ) != _arrow_name(ft["dtype"]):
                     problems.append(f"WARN: {path.relative_to(root)} {key!r} is {typ}, declared {ft['dtype']}")
             elif len(ft["shape"]) == 1:
@@ -569,9 +598,17 @@ def _check_episodes(ds: Any, expected: Expected, recording: Recording | None) ->
     episodes = ds.meta.episodes
     columns = set(episodes.column_names)
     problems = []
-    lerobot_columns = {"episode_index", "tasks", "length", "data/chunk_index", "data/file_index",
-                       "dataset_from_index", "dataset_to_index", "meta/episodes/chunk_index",
-                       "meta/episodes/file_index"}
+    lerobot_columns = {
+        "episode_index",
+        "tasks",
+        "length",
+        "data/chunk_index",
+        "data/file_index",
+        "dataset_from_index",
+        "dataset_to_index",
+        "meta/episodes/chunk_index",
+        "meta/episodes/file_index",
+    }
     if missing := sorted(lerobot_columns - columns):
         problems.append(f"WARN: episodes parquet lacks {missing} (LeRobot writes them; its tools use them)")
     if len(episodes) != len(expected.episodes):
@@ -610,8 +647,10 @@ def _check_data_file_of_episode(ds: Any, e: int, start: int, length: int) -> lis
     rows = table.filter(pc.equal(table["episode_index"], e))
     first = pc.min(rows["index"]).as_py() if rows.num_rows else None
     if rows.num_rows != length or first != start:
-        return [f"{path.relative_to(ds.root)} holds {rows.num_rows} rows of episode {e} from index {first}, "
-                f"expected {length} from {start}"]
+        return [
+            f"{path.relative_to(ds.root)} holds {rows.num_rows} rows of episode {e} from index {first}, "
+            f"expected {length} from {start}"
+        ]
     return []
 
 
@@ -669,10 +708,13 @@ def _check_vector_stats(key: str, stats: dict, data: np.ndarray | None, shape: t
     flat = data.reshape(len(data), -1).astype(np.float64)
     exact = {"min": flat.min(0), "max": flat.max(0), "mean": flat.mean(0), "std": flat.std(0)}
     for name, want in exact.items():
-        if name in stats and not np.allclose(np.asarray(stats[name], np.float64).reshape(-1), want,
-                                             rtol=1e-4, atol=1e-5):
-            problems.append(f"stats[{key!r}][{name!r}] differs from the data: max |diff| "
-                            f"{np.abs(np.asarray(stats[name], np.float64).reshape(-1) - want).max():.3g}")
+        if name in stats and not np.allclose(
+            np.asarray(stats[name], np.float64).reshape(-1), want, rtol=1e-4, atol=1e-5
+        ):
+            problems.append(
+                f"stats[{key!r}][{name!r}] differs from the data: max |diff| "
+                f"{np.abs(np.asarray(stats[name], np.float64).reshape(-1) - want).max():.3g}"
+            )
     if "count" in stats and int(np.asarray(stats["count"]).reshape(-1)[0]) != len(data):
         problems.append(f"stats[{key!r}]['count']={stats['count'].tolist()}, expected [{len(data)}]")
     return problems
@@ -705,8 +747,9 @@ def _check_policy_features(ds: Any, expected: Expected) -> list[str]:
             h, w, c = ft["shape"]
             got = tuple(policy_features[key].shape)
             if got != (c, h, w):
-                problems.append(f"policy feature {key!r} has shape {got}, expected {(c, h, w)} (names must be "
-                                f"{IMAGE_NAMES})")
+                problems.append(
+                    f"policy feature {key!r} has shape {got}, expected {(c, h, w)} (names must be {IMAGE_NAMES})"
+                )
     for key in ("observation.state", "action"):
         if key not in policy_features:
             problems.append(f"{key!r} is not a policy feature")
@@ -726,14 +769,18 @@ def _check_delta(dsd: Any, expected: Expected) -> list[str]:
                 pad_want = [not 0 <= t + d < length for d in deltas]
                 pad_got = item.get(f"{key}_is_pad")
                 if pad_got is None or pad_got.tolist() != pad_want:
-                    problems.append(f"dsd[{start + t}] (episode {e}, frame {t}) {key}_is_pad="
-                                    f"{None if pad_got is None else pad_got.tolist()}, expected {pad_want}")
+                    problems.append(
+                        f"dsd[{start + t}] (episode {e}, frame {t}) {key}_is_pad="
+                        f"{None if pad_got is None else pad_got.tolist()}, expected {pad_want}"
+                    )
                 rows = [min(max(t + d, 0), length - 1) for d in deltas]
                 want = expected.episodes[e][key][rows]
                 got = item[key].numpy()
                 if got.shape != want.shape or not np.array_equal(got, want):
-                    problems.append(f"dsd[{start + t}] (episode {e}, frame {t}) {key} is not frames {rows} of "
-                                    f"episode {e} clamped to it (shape {got.shape} vs {want.shape})")
+                    problems.append(
+                        f"dsd[{start + t}] (episode {e}, frame {t}) {key} is not frames {rows} of "
+                        f"episode {e} clamped to it (shape {got.shape} vs {want.shape})"
+                    )
             if len(problems) > 20:
                 return [*problems, "... (stopped after 20 differences)"]
     return problems
@@ -750,8 +797,13 @@ def _check_dataloader(dsd: Any, expected: Expected) -> list[str]:
     for batch in loader:
         b = len(batch["index"])
         seen += batch["index"].tolist()
-        shapes = {"observation.state": (b, 3, state_size), "action": (b, 2, n_actions),
-                  "observation.state_is_pad": (b, 3), "action_is_pad": (b, 2), "next.reward": (b,)}
+        shapes = {
+            "observation.state": (b, 3, state_size),
+            "action": (b, 2, n_actions),
+            "observation.state_is_pad": (b, 3),
+            "action_is_pad": (b, 2),
+            "next.reward": (b,),
+        }
         for key, ft in expected.features.items():
             if ft["dtype"] == "image":
                 h, w, c = ft["shape"]
@@ -764,8 +816,10 @@ def _check_dataloader(dsd: Any, expected: Expected) -> list[str]:
         if problems:
             break
     if not problems and sorted(seen) != list(range(expected.total)):
-        problems.append(f"one epoch yielded {len(seen)} frames / {len(set(seen))} distinct, expected "
-                        f"each of 0..{expected.total - 1} once")
+        problems.append(
+            f"one epoch yielded {len(seen)} frames / {len(set(seen))} distinct, expected "
+            f"each of 0..{expected.total - 1} once"
+        )
     return problems
 
 
@@ -783,8 +837,7 @@ def _check_episode_subset(dataset_cls: Any, repo_id: str, root: Path, expected: 
 # -- entry point ----------------------------------------------------------------------------------------------
 
 
-def record_and_check(workdir: Path, *, episodes: int, steps: int, seed: int,
-                     max_items: int = 2000) -> Iterator[Report]:
+def record_and_check(workdir: Path, *, episodes: int, steps: int, seed: int, max_items: int = 2000) -> Iterator[Report]:
     """Record the state-only and the pixel dataset under ``workdir`` and check each."""
     for name, pixels in (("navigation_state", False), ("navigation_pixels", True)):
         root = workdir / name
@@ -824,8 +877,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             workdir = args.keep if args.keep is not None else Path(tmp) / "datasets"
             workdir.mkdir(parents=True, exist_ok=True)
-            reports = list(record_and_check(workdir, episodes=args.episodes, steps=args.steps, seed=args.seed,
-                                            max_items=args.max_items))
+            reports = list(
+                record_and_check(
+                    workdir, episodes=args.episodes, steps=args.steps, seed=args.seed, max_items=args.max_items
+                )
+            )
         for report in reports:
             print(report.format())
         ok = all(r.ok for r in reports)

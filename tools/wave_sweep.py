@@ -18,21 +18,22 @@ import gymnasium as gym
 import numpy as np
 
 from dpr.cli import parse_seeds
+from dpr.envs import MAX_EPISODE_STEPS
 from dpr.policies.wave import START_SIDES, WavePolicy
+from dpr.rollout import roll_out
 
 
-def projected_displacement(env_id: str, robot_model: str, n_robots: int, steps: int, hold: int, side: str, seed: int) -> float:
+def projected_displacement(
+    env_id: str, robot_model: str, n_robots: int, steps: int, hold: int, side: str, seed: int
+) -> float:
     import dpr  # noqa: F401  (registers the ids in worker processes)
 
     env = gym.make(env_id, n_robots=n_robots, robot_model=robot_model, max_episode_steps=steps)
-    policy = WavePolicy.from_env(env, hold_steps=hold, start_side=side)
-    observation, info = env.reset(seed=seed)
-    done = False
-    while not done:
-        observation, _, terminated, truncated, info = env.step(policy(observation))
-        done = terminated or truncated
-    env.close()
-    return float(info["projected_displacement"])
+    try:
+        result = roll_out(env, WavePolicy.from_env(env, hold_steps=hold, start_side=side), seed)
+    finally:
+        env.close()
+    return result.metrics.projected_displacement
 
 
 def main() -> int:
@@ -43,7 +44,7 @@ def main() -> int:
     parser.add_argument("--holds", type=int, nargs="+", default=[2, 4, 6, 10])
     parser.add_argument("--sides", nargs="+", choices=START_SIDES, default=list(START_SIDES))
     parser.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-4"))
-    parser.add_argument("--steps", type=int, default=2500)
+    parser.add_argument("--steps", type=int, default=MAX_EPISODE_STEPS)
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     grid = [(hold, side) for hold in args.holds for side in args.sides]

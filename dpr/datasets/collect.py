@@ -27,13 +27,20 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from dpr.atomic import is_temporary
+from dpr.checks import ParameterError, check_choice, check_int
+from dpr.datasets import features as F
+from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
-from dpr.envs import ENV_IDS
-from dpr.metrics import EpisodeMetrics, episode_metrics
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.metrics import EpisodeMetrics
 from dpr.policies.registry import check_policy_name, make_policy
+from dpr.rollout import roll_out
+from dpr.sim.constants import FPS
 
-FPS = 10  # the envs' control rate (metadata["render_fps"])
 MCAP_FOLDER = "mcap"
+# gym.make kwargs that CollectSpec sets from its own fields
+RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "render_size", "max_episode_steps")
 
 
 @dataclass(frozen=True)
@@ -44,7 +51,7 @@ class CollectSpec:
     policy: str = "wave"
     n_robots: int = 9
     robot_model: str = "paddle"
-    steps: int = 2500
+    steps: int = MAX_EPISODE_STEPS
     pixels: bool = False
     image_size: int = 96
     env_kwargs: dict = field(default_factory=dict)  # any further gym.make kwargs (e.g. object_type="box")
@@ -52,23 +59,23 @@ class CollectSpec:
     label_policy: str | None = None
 
     def __post_init__(self):
-        if self.env_id not in ENV_IDS.values():
-            raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
+        check_choice("env_id", self.env_id, ENV_IDS.values())
         check_policy_name(self.policy)
         if self.label_policy is not None:
             check_policy_name(self.label_policy)
         for name in ("n_robots", "steps", "image_size"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-        reserved = {"n_robots", "robot_model", "render_mode", "render_size", "max_episode_steps"} & set(self.env_kwargs)
+            check_int(name, getattr(self, name), 1)
+        reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
-            raise ValueError(f"env_kwargs must not set {sorted(reserved)}: they are CollectSpec fields")
+            raise ParameterError("env_kwargs", f"must not set {reserved}: they are CollectSpec fields")
         if self.policy.endswith(".zip"):  # a model records on the env it was trained on, with the same kwargs
             from dpr.policies.sb3 import model_env_kwargs
 
-            model_env_kwargs(self.policy, self.env_id,
-                             {"n_robots": self.n_robots, "robot_model": self.robot_model, **self.env_kwargs})
+            model_env_kwargs(
+                self.policy,
+                self.env_id,
+                {"n_robots": self.n_robots, "robot_model": self.robot_model, **self.env_kwargs},
+            )
 
     def make_kwargs(self) -> dict:
         """The ``gym.make`` kwargs that reproduce an episode (stored with every episode)."""
@@ -82,31 +89,6 @@ class CollectSpec:
         import dpr  # noqa: F401  (registers the ids in worker processes)
 
         return gym.make(self.env_id, **self.make_kwargs())
-
-
-def dataset_features(env: gym.Env, pixels: bool = False, image_size: int = 96) -> dict[str, dict]:
-    """LeRobot features for ``env``'s state observation and action (named per robot), rewards and flags."""
-    base = env.unwrapped
-    if base.obs_type != "state":
-        raise ValueError(f"datasets record the state observation; make the env with obs_type='state', got {base.obs_type!r}")
-    n = base.n_robots
-    state_names = base.state_names
-    if base.action_type == "discrete":
-        action = {"dtype": "int64", "shape": [1], "names": ["action"]}
-    else:
-        action = {"dtype": "float32", "shape": [n], "names": [f"robot{i}.expand" for i in range(n)]}
-    features = {
-        "observation.state": {"dtype": "float32", "shape": [len(state_names)], "names": state_names},
-        "action": action,
-        "next.reward": {"dtype": "float32", "shape": [1], "names": None},
-        "next.done": {"dtype": "bool", "shape": [1], "names": None},
-        "next.success": {"dtype": "bool", "shape": [1], "names": None},
-    }
-    if pixels:
-        features["observation.image"] = {
-            "dtype": "image", "shape": [image_size, image_size, 3], "names": ["height", "width", "channels"],
-        }
-    return features
 
 
 @dataclass
@@ -123,6 +105,7 @@ class EpisodeRecord:
     images: np.ndarray | None = None  # [T, H, W, 3] uint8
     physics_error: str | None = None
     seconds: float = 0.0
+    trajectory: np.ndarray | None = None  # [T + 1, 2] the agent's positions (what the metrics are computed from)
 
     @property
     def frames(self) -> int:
@@ -139,95 +122,100 @@ class SavedEpisode:
 
 
 def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> EpisodeRecord:
-    """Roll ``spec.policy`` out from ``reset(seed=seed)`` until the episode ends; optionally log it to MCAP."""
+    """Roll ``spec.policy`` out from ``reset(seed=seed)`` until the episode ends (:func:`dpr.rollout.roll_out`,
+    whose rule for a physics error applies: the step that blew up is not recorded); optionally log it to MCAP."""
     started = time.perf_counter()
     env = spec.make_env()
     base = env.unwrapped
-    observation, info = env.reset(seed=seed)
     policy = make_policy(spec.policy, env)
-    policy.reset(seed)
-    labeller = None
-    if spec.label_policy is not None:
-        labeller = make_policy(spec.label_policy, env)
-        labeller.reset(seed)
-    discrete = base.action_type == "discrete"
-    observations, actions, rewards, dones, successes, images = [], [], [], [], [], []
-    trajectory = [base._agent_position()]
-    physics_error = None
+    labeller = None if spec.label_policy is None else make_policy(spec.label_policy, env)
+    observations, actions, dones, successes, images = [], [], [], [], []
     writer = None
-    if mcap_path is not None:
-        from dpr.datasets.mcap import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
 
-        writer = McapEpisodeWriter(mcap_path, metadata=episode_metadata(env, seed=seed, policy=spec.policy))
-        log_env_scene(writer, env)
-        log_env_step(writer, env, 0, None, None, None, None, info)
+    def on_reset(observation, info) -> None:
+        nonlocal writer
+        if labeller is not None:
+            labeller.reset(seed)
+        if spec.pixels:
+            images.append(env.render())
+        if mcap_path is not None:
+            from dpr.datasets.mcap import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
+
+            writer = McapEpisodeWriter(mcap_path, metadata=episode_metadata(env, seed=seed, policy=spec.policy))
+            log_env_scene(writer, env)
+            log_env_step(writer, env, 0, None, None, None, None, info)
+
+    def on_step(step) -> None:
+        observations.append(step.observation)
+        actions.append(step.action if labeller is None else labeller(step.observation))
+        dones.append(step.done)
+        successes.append(step.info["is_success"])
+        if writer is not None:
+            from dpr.datasets.mcap import log_env_step
+
+            log_env_step(writer, env, step.index, step.action, step.reward, step.terminated, step.truncated, step.info)
+        if spec.pixels and not step.done:  # the frame of the next step shows the state it starts from
+            images.append(env.render())
+
     try:
-        done = False
-        while not done:
-            if spec.pixels:
-                images.append(env.render())
-            action = policy(observation)
-            observations.append(observation)
-            actions.append(action if labeller is None else labeller(observation))
-            observation, reward, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-            rewards.append(reward)
-            dones.append(done)
-            successes.append(info["is_success"])
-            if "physics_error" in info:
-                physics_error = info["physics_error"]
-            else:
-                trajectory.append(base._agent_position())
-            if writer is not None:
-                log_env_step(writer, env, len(actions), action, reward, terminated, truncated, info)
+        result = roll_out(env, policy, seed, on_reset=on_reset, on_step=on_step)
     except BaseException:
         if writer is not None:
             writer.abort()
         raise
+    finally:
+        env.close()
     if writer is not None:
         writer.close()
-    env.close()
-    action_array = np.array(actions, dtype=np.int64).reshape(-1, 1) if discrete else np.array(actions, dtype=np.float32)
+    frames = len(actions)
+    if base.action_type == "discrete":
+        action_array = np.array(actions, dtype=np.int64).reshape(frames, 1)
+    else:
+        action_array = np.array(actions, dtype=np.float32).reshape(frames, base.n_robots)
     return EpisodeRecord(
         seed=seed,
-        observations=np.array(observations, dtype=np.float32),
+        observations=np.array(observations, dtype=np.float32).reshape(frames, base.state_size),
         actions=action_array,
-        rewards=np.array(rewards, dtype=np.float32),
+        rewards=result.rewards.astype(np.float32),
         dones=np.array(dones, dtype=bool),
         successes=np.array(successes, dtype=bool),
-        metrics=episode_metrics(np.array(trajectory), base.goal),
-        images=np.array(images, dtype=np.uint8) if spec.pixels else None,
-        physics_error=physics_error,
+        metrics=result.metrics,
+        # (after a physics error, the image of the state the blown-up step started from has no frame)
+        images=np.array(images[:frames], dtype=np.uint8).reshape(frames, spec.image_size, spec.image_size, 3)
+        if spec.pixels
+        else None,
+        physics_error=result.physics_error,
         seconds=time.perf_counter() - started,
+        trajectory=result.trajectory,
     )
 
 
-def save_record(writer: LeRobotWriter, spec: CollectSpec, record: EpisodeRecord, task: str, mcap_file: str | None) -> int:
+def save_record(
+    writer: LeRobotWriter, spec: CollectSpec, record: EpisodeRecord, task: str, mcap_file: str | None
+) -> int:
     """Append ``record`` to the dataset as one episode; returns its index."""
     frames = {
-        "observation.state": record.observations,
-        "action": record.actions,
-        "next.reward": record.rewards,
-        "next.done": record.dones,
-        "next.success": record.successes,
+        F.OBSERVATION: record.observations,
+        F.ACTION: record.actions,
+        F.REWARD: record.rewards,
+        F.DONE: record.dones,
+        F.SUCCESS: record.successes,
     }
     if record.images is not None:
-        frames["observation.image"] = record.images
+        frames[F.IMAGE] = record.images
     writer.add_frames(frames, task=task)
+    metrics = record.metrics
     meta = {
-        "seed": record.seed,
-        "env_id": spec.env_id,
-        "env_kwargs": spec.make_kwargs(),
-        "policy": spec.policy,
-        "label_policy": spec.label_policy or "",
-        "n_robots": spec.n_robots,
-        "robot_model": spec.robot_model,
-        "projected_displacement": record.metrics.projected_displacement,
-        "net_displacement": record.metrics.net_displacement,
-        "total_distance": record.metrics.total_distance,
-        "success": bool(record.metrics.success),
-        "physics_error": record.physics_error or "",
-        "mcap_file": mcap_file or "",
+        F.SEED: record.seed,
+        F.ENV_ID: spec.env_id,
+        F.ENV_KWARGS: spec.make_kwargs(),
+        F.POLICY: spec.policy,
+        F.LABEL_POLICY: spec.label_policy or "",
+        F.N_ROBOTS: spec.n_robots,
+        F.ROBOT_MODEL: spec.robot_model,
+        **{name: getattr(metrics, name) for name in F.METRIC_FIELDS},  # (success is a bool already)
+        F.PHYSICS_ERROR: record.physics_error or "",
+        F.MCAP_FILE: mcap_file or "",
     }
     return writer.save_episode(meta)
 
@@ -259,7 +247,7 @@ def _recorded_seeds(root: Path) -> set[int]:
     if not (root / "meta" / "info.json").is_file():
         return set()
     reader = LeRobotReader(root)
-    return {int(episode["seed"]) for episode in reader.episodes if "seed" in episode}
+    return {int(episode[F.SEED]) for episode in reader.episodes if F.SEED in episode}
 
 
 def _ignore_sigint() -> None:
@@ -295,18 +283,28 @@ def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
 BACKENDS = ("processes", "ray")
 
 
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ParameterError("backend", "'ray' needs Ray: pip install -e '.[distributed]'") from None
+    return ray
+
+
 def _ray_results(jobs: list, workers: int, address: str | None) -> Iterator[EpisodeRecord]:
     """The rollouts as Ray tasks, yielded in job order, with at most ``2 * workers`` in flight (memory stays
     bounded). Starts a local Ray cluster of ``workers`` CPUs unless ``address`` names a running one; on a
     multi-node cluster, MCAP paths must lie on a filesystem every node shares."""
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("--backend ray needs Ray: pip install -e '.[distributed]'") from None
+    ray = _import_ray()
     started_here = not ray.is_initialized()
     if started_here:
-        ray.init(address=address, num_cpus=None if address else workers, include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
+        ray.init(
+            address=address,
+            num_cpus=None if address else workers,
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+        )
     rollout_task = ray.remote(num_cpus=1)(_rollout_job)
     window = max(2, 2 * workers)
     pending: list = []
@@ -325,7 +323,9 @@ def _ray_results(jobs: list, workers: int, address: str | None) -> Iterator[Epis
             ray.shutdown()
 
 
-def _results(jobs: list, workers: int, backend: str = "processes", address: str | None = None) -> Iterator[EpisodeRecord]:
+def _results(
+    jobs: list, workers: int, backend: str = "processes", address: str | None = None
+) -> Iterator[EpisodeRecord]:
     if backend == "ray":
         yield from _ray_results(jobs, workers, address)
         return
@@ -358,19 +358,13 @@ def collect(
     """Record ``episodes`` episodes of seeds ``seed .. seed + episodes - 1`` into the dataset at ``root``,
     skipping seeds it already holds. ``progress(record, episode_index)`` is called after each saved episode.
     Ctrl-C stops after the episodes already saved (the summary says ``interrupted``)."""
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    check_int("episodes", episodes, 1)
+    check_int("seed", seed, 0)
+    check_choice("backend", backend, BACKENDS)
     if address is not None and backend != "ray":
-        raise ValueError("address is for backend='ray' (the Ray cluster to run on)")
+        raise ParameterError("address", "is for backend='ray' (the Ray cluster to run on)")
     if backend == "ray":
-        try:
-            import ray  # noqa: F401
-        except ImportError:
-            raise ValueError("backend 'ray' needs Ray: pip install -e '.[distributed]'") from None
+        _import_ray()
     root = Path(root)
     probe = spec.make_env()
     try:
@@ -382,9 +376,9 @@ def collect(
     finally:
         probe.close()
     # what must match to resume: the env, its kwargs, the policy, and whether episodes carry MCAP logs
-    info_extra = {"dpr": {"env_id": spec.env_id, "policy": spec.policy, "env_kwargs": spec.make_kwargs(), "mcap": mcap}}
+    info_extra = {"dpr": {F.ENV_ID: spec.env_id, F.POLICY: spec.policy, F.ENV_KWARGS: spec.make_kwargs(), "mcap": mcap}}
     if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
-        info_extra["dpr"]["label_policy"] = spec.label_policy
+        info_extra["dpr"][F.LABEL_POLICY] = spec.label_policy
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
     started = time.perf_counter()
@@ -396,7 +390,7 @@ def collect(
         mcap_dir = root / MCAP_FOLDER
         if mcap:
             mcap_dir.mkdir(exist_ok=True)
-            for leftover in mcap_dir.glob("*.part"):  # logs of episodes a killed run had in flight
+            for leftover in filter(is_temporary, mcap_dir.iterdir()):  # logs of episodes a killed run had in flight
                 leftover.unlink()
         jobs = [
             (spec, s, mcap_dir / f"seed-{s:06d}.mcap" if mcap else None)
@@ -451,11 +445,14 @@ def collect(
     )
 
 
+_DISTANCES = tuple(name for name in F.METRIC_FIELDS if name != "success")
+
+
 def _metric_summary(records: list[SavedEpisode]) -> dict:
     if not records:
         return {}
     out = {}
-    for name in ("projected_displacement", "net_displacement", "total_distance"):
+    for name in _DISTANCES:
         values = np.array([getattr(r.metrics, name) for r in records])
         out[name] = {"median": float(np.median(values)), "min": float(values.min()), "max": float(values.max())}
     out["success_rate"] = float(np.mean([r.metrics.success for r in records]))
@@ -474,7 +471,7 @@ def format_summary(summary: CollectSummary) -> str:
     if summary.metrics:
         m = summary.metrics
         lines.append(f"success     {m['success_rate']:.0%}")
-        for name in ("projected_displacement", "net_displacement", "total_distance"):
+        for name in _DISTANCES:
             s = m[name]
             lines.append(f"{name:<24s} median {s['median']:.1f}  min {s['min']:.1f}  max {s['max']:.1f}")
     return "\n".join(lines)

@@ -28,6 +28,8 @@ import numpy as np
 import torch
 from torch.utils.data import ConcatDataset, Dataset, Sampler
 
+from dpr.checks import ParameterError, check_int
+from dpr.datasets import features as F
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
 
 __all__ = ["ConcatFrames", "EpisodeBlockSampler", "FrameDataset"]
@@ -36,11 +38,9 @@ NUMERIC_KINDS = frozenset("biuf")  # numpy dtype kinds a vector feature may have
 NORMALISATION_STATS = ("min", "max", "mean", "std", "q01", "q10", "q50", "q90", "q99")
 
 
-def _positive_int(value: Any, name: str) -> int:
-    """``value`` as an int >= 1, or ValueError naming the argument (bools are rejected: ``True`` is not a count)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    return int(value)
+def _int(name: str, value: Any, minimum: int) -> int:
+    """``value`` (an int or a numpy integer, not a bool) as an int >= ``minimum`` (:func:`dpr.checks.check_int`)."""
+    return check_int(name, int(value) if isinstance(value, np.integer) else value, minimum)
 
 
 def _vector_feature(features: Mapping[str, dict], key: str, argument: str, where: Path) -> int:
@@ -84,20 +84,22 @@ def _select_episodes(episodes: Sequence[int] | None, num_episodes: int, where: P
     if episodes is None:
         return list(range(num_episodes))
     if isinstance(episodes, (str, bytes)) or not isinstance(episodes, Sequence | np.ndarray):
-        raise ValueError(f"episodes must be a list of episode indices or None, got {episodes!r}")
+        raise ParameterError("episodes", f"must be a list of episode indices or None, got {episodes!r}")
     selected: list[int] = []
     for e in episodes:
         if isinstance(e, bool) or not isinstance(e, (int, np.integer)):
-            raise ValueError(f"episodes must hold ints, got {e!r} in {list(episodes)!r}")
+            raise ParameterError("episodes", f"must hold ints, got {e!r} in {list(episodes)!r}")
         selected.append(int(e))
     if not selected:
-        raise ValueError("episodes must not be empty (pass None for all episodes)")
+        raise ParameterError("episodes", "must not be empty (pass None for all episodes)")
     unknown = [e for e in selected if not 0 <= e < num_episodes]
     if unknown:
-        raise ValueError(f"episodes: unknown episode indices {unknown}; {where} has episodes 0..{num_episodes - 1}")
+        raise ParameterError(
+            "episodes", f"unknown episode indices {unknown}; {where} has episodes 0..{num_episodes - 1}"
+        )
     if len(set(selected)) != len(selected):
         repeated = sorted({e for e in selected if selected.count(e) > 1})
-        raise ValueError(f"episodes: episode indices {repeated} are listed more than once")
+        raise ParameterError("episodes", f"episode indices {repeated} are listed more than once")
     return selected
 
 
@@ -121,8 +123,8 @@ class FrameDataset(Dataset):
         self,
         root: str | os.PathLike,
         *,
-        observation_key: str = "observation.state",
-        action_key: str = "action",
+        observation_key: str = F.OBSERVATION,
+        action_key: str = F.ACTION,
         frame_stack: int = 1,
         episodes: list[int] | None = None,
         cache_episodes: int = 8,
@@ -130,8 +132,8 @@ class FrameDataset(Dataset):
         image_key: str = "observation.image",
         dtype: torch.dtype = torch.float32,
     ):
-        self.frame_stack = _positive_int(frame_stack, "frame_stack")
-        self.cache_episodes = _positive_int(cache_episodes, "cache_episodes")
+        self.frame_stack = _int("frame_stack", frame_stack, 1)
+        self.cache_episodes = _int("cache_episodes", cache_episodes, 1)
         if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
             raise ValueError(f"dtype must be a floating torch.dtype, got {dtype!r}")
         self.dtype = dtype
@@ -339,8 +341,9 @@ class ConcatFrames(ConcatDataset):
             raise ValueError("ConcatFrames needs one or more FrameDataset")
         dims = {(part.observation_dim, part.action_dim) for part in parts}
         if len(dims) > 1:
-            raise DatasetError(f"datasets differ in (observation, action) width: {sorted(dims)}; "
-                               f"{[str(part.root) for part in parts]}")
+            raise DatasetError(
+                f"datasets differ in (observation, action) width: {sorted(dims)}; {[str(part.root) for part in parts]}"
+            )
         super().__init__(parts)
 
     @property
@@ -386,15 +389,14 @@ class EpisodeBlockSampler(Sampler[int]):
     once per epoch by each DataLoader worker. ``shuffle=False`` yields ``0 .. len - 1`` in order.
     """
 
-    def __init__(self, dataset: FrameDataset | ConcatFrames, block_episodes: int = 8, seed: int = 0,
-                 shuffle: bool = True):
+    def __init__(
+        self, dataset: FrameDataset | ConcatFrames, block_episodes: int = 8, seed: int = 0, shuffle: bool = True
+    ):
         super().__init__()
         if not isinstance(dataset, (FrameDataset, ConcatFrames)):
             raise ValueError(f"dataset must be a FrameDataset or ConcatFrames, got {type(dataset).__name__}")
-        self.block_episodes = _positive_int(block_episodes, "block_episodes")
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f"seed must be an int >= 0, got {seed!r}")
-        self.seed = int(seed)
+        self.block_episodes = _int("block_episodes", block_episodes, 1)
+        self.seed = _int("seed", seed, 0)
         self.shuffle = bool(shuffle)
         self.epoch = 0
         self._ranges = dataset.episode_ranges
@@ -402,9 +404,7 @@ class EpisodeBlockSampler(Sampler[int]):
 
     def set_epoch(self, epoch: int) -> None:
         """Select the order of epoch ``epoch`` (an int >= 0)."""
-        if isinstance(epoch, bool) or not isinstance(epoch, (int, np.integer)) or epoch < 0:
-            raise ValueError(f"epoch must be an int >= 0, got {epoch!r}")
-        self.epoch = int(epoch)
+        self.epoch = _int("epoch", epoch, 0)
 
     def blocks(self) -> list[np.ndarray]:
         """This epoch's item order as one array per block (their concatenation is what ``__iter__`` yields)."""

@@ -467,8 +467,10 @@ def _extra_array(field: pa.Field, value: Any, where: str) -> pa.Array:
         return pa.array([_json_text(field.name, value, where)], type=pa.string())
     value = _plain_extra(value)
     if isinstance(value, (dict, list, tuple, np.ndarray)):
-        raise DatasetError(f"{where}: episode_meta[{field.name!r}] was a {field.type} in earlier episodes, got a "
-                           f"{type(value).__name__}")
+        raise DatasetError(
+            f"{where}: episode_meta[{field.name!r}] was a {field.type} in earlier episodes, got a "
+            f"{type(value).__name__}"
+        )
     try:
         return pa.array([value], type=field.type)
     except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError) as exc:
@@ -639,9 +641,7 @@ def _tasks_table(tasks: list[str]) -> pa.Table:
     """LeRobot's layout: pandas DataFrame indexed by task with an int64 task_index column, via from_pandas."""
     import pandas as pd  # lazy: only needed when a new task appears
 
-    frame = pd.DataFrame(
-        {"task_index": np.arange(len(tasks), dtype=np.int64)}, index=pd.Index(tasks, dtype=object)
-    )
+    frame = pd.DataFrame({"task_index": np.arange(len(tasks), dtype=np.int64)}, index=pd.Index(tasks, dtype=object))
     return pa.Table.from_pandas(frame)
 
 
@@ -881,8 +881,10 @@ class LeRobotWriter:
         if frame.keys() != self._user_features.keys():
             missing = sorted(self._user_features.keys() - frame.keys())
             extra = sorted(frame.keys() - self._user_features.keys())
-            raise DatasetError(f"{self.root}: add_frame: frame keys differ from the features: missing features "
-                               f"{missing}, unknown features {extra}")
+            raise DatasetError(
+                f"{self.root}: add_frame: frame keys differ from the features: missing features "
+                f"{missing}, unknown features {extra}"
+            )
         if not isinstance(task, str) or not task:
             raise DatasetError(f"{self.root}: add_frame: task must be a non-empty string, got {task!r}")
         # Convert everything before appending anything, so a bad frame leaves the buffer as it was.
@@ -898,8 +900,10 @@ class LeRobotWriter:
         self._check_open()
         if not isinstance(frames, Mapping) or frames.keys() != self._user_features.keys():
             given = sorted(frames.keys()) if isinstance(frames, Mapping) else type(frames)
-            raise DatasetError(f"{self.root}: add_frames: frames must map exactly the features "
-                               f"{sorted(self._user_features)} to arrays, got {given}")
+            raise DatasetError(
+                f"{self.root}: add_frames: frames must map exactly the features "
+                f"{sorted(self._user_features)} to arrays, got {given}"
+            )
         if not isinstance(task, str) or not task:
             raise DatasetError(f"{self.root}: add_frames: task must be a non-empty string, got {task!r}")
         lengths = {name: np.shape(value)[0] if np.ndim(value) else None for name, value in frames.items()}
@@ -917,8 +921,10 @@ class LeRobotWriter:
         if spec["dtype"] == "image":
             arr = np.asarray(value)
             if arr.dtype != np.uint8 or arr.shape != shape:
-                raise DatasetError(f"{self.root}: add_frame: feature {name!r} expects a uint8 image of shape "
-                                   f"{shape}, got {arr.dtype} {arr.shape}")
+                raise DatasetError(
+                    f"{self.root}: add_frame: feature {name!r} expects a uint8 image of shape "
+                    f"{shape}, got {arr.dtype} {arr.shape}"
+                )
             return [_encode_png(image) for image in arr] if leading else _encode_png(arr)
         arr = np.asarray(value)
         if arr.shape != shape:
@@ -937,8 +943,10 @@ class LeRobotWriter:
             cast = arr.astype(target)
             exact = np.array_equal(cast.astype(arr.dtype), arr, equal_nan=arr.dtype.kind == "f" and target.kind == "f")
         if not exact:
-            raise DatasetError(f"{self.root}: add_frame: feature {name!r} expects {target}; the {arr.dtype} values "
-                               "given do not convert to it exactly")
+            raise DatasetError(
+                f"{self.root}: add_frame: feature {name!r} expects {target}; the {arr.dtype} values "
+                "given do not convert to it exactly"
+            )
         return cast
 
     def clear_episode(self) -> None:
@@ -1002,7 +1010,9 @@ class LeRobotWriter:
         columns: dict[str, Any] = {}
         for name, spec in self._user_features.items():
             blocks = self._buffer[name]  # per add_frame(s) call: a list of PNGs, or an array [k, *shape]
-            columns[name] = [png for block in blocks for png in block] if spec["dtype"] == "image" else np.concatenate(blocks)
+            columns[name] = (
+                [png for block in blocks for png in block] if spec["dtype"] == "image" else np.concatenate(blocks)
+            )
         frame_index = np.arange(n, dtype=np.int64)
         columns["timestamp"] = (frame_index / self.fps).astype(np.float32)
         columns["frame_index"] = frame_index
@@ -1347,8 +1357,10 @@ class LeRobotReader:
                 raise ValueError(f"images decode to {out.shape[1:]}, the feature says {shape}")
             return out
         dtype = np.dtype(spec["dtype"])
-        if pa.types.is_list(array.type) or pa.types.is_fixed_size_list(array.type) or pa.types.is_large_list(
-            array.type
+        if (
+            pa.types.is_list(array.type)
+            or pa.types.is_fixed_size_list(array.type)
+            or pa.types.is_large_list(array.type)
         ):
             values = array.flatten().to_numpy(zero_copy_only=False)
         else:
@@ -1371,9 +1383,7 @@ class LeRobotReader:
                 parts[name].append(data[name][lo:hi])
             start = min(stop, ep_stop)
             index += 1
-        return {
-            name: np.concatenate(chunks) if chunks else self._empty(name) for name, chunks in parts.items()
-        }
+        return {name: np.concatenate(chunks) if chunks else self._empty(name) for name, chunks in parts.items()}
 
     def _empty(self, name: str) -> np.ndarray:
         spec = self.features[name]

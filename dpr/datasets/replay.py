@@ -1,7 +1,8 @@
 """Re-run recorded episodes from their stored seed, env kwargs and actions, and compare with the recording.
 
 A dataset is trustworthy when every replayed observation equals the recorded one bit for bit: the simulator
-is deterministic, so any difference means the recording, the simulator or the env kwargs changed.
+is deterministic, so any difference means the recording, the simulator or the env kwargs changed. The replay
+is :func:`dpr.rollout.roll_out` with a policy that plays the recorded actions back.
 """
 
 from __future__ import annotations
@@ -11,9 +12,13 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from dpr.checks import ParameterError
+from dpr.datasets import features as F
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
+from dpr.rollout import ReplayPolicy, roll_out
 
-COMPARED = ("observation.state", "next.reward", "next.done", "next.success")
+COMPARED = (F.OBSERVATION, F.REWARD, F.DONE, F.SUCCESS)
+REPLAY_META = (F.SEED, F.ENV_ID, F.ENV_KWARGS)  # what an episode's meta must hold to be replayed
 
 
 @dataclass
@@ -22,8 +27,8 @@ class ReplayCheck:
     seed: int
     frames: int
     equal: bool
-    max_abs_difference: dict[str, float]  # per compared feature (0.0 when equal)
-    first_mismatch: int | None  # the first frame where anything differs
+    max_abs_difference: dict[str, float]  # per compared feature, over the frames both hold (0.0 when equal)
+    first_mismatch: int | None  # the first frame where anything differs (or that only one of them holds)
 
     def as_dict(self) -> dict:
         return self.__dict__.copy()
@@ -40,37 +45,47 @@ def _env_action(action: np.ndarray, action_type: str):
 def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
     """Replay episode ``index`` of ``reader``'s dataset and compare every frame."""
     if not 0 <= index < reader.num_episodes:
-        raise ValueError(f"episode index must be in [0, {reader.num_episodes}), got {index}")
+        raise ParameterError("index", f"must be in [0, {reader.num_episodes}), got {index}")
     meta = reader.episodes[index]
-    missing = [key for key in ("seed", "env_id", "env_kwargs") if key not in meta]
+    missing = [key for key in REPLAY_META if key not in meta]
     if missing:
         raise DatasetError(f"{reader.root}: episode {index} lacks {missing}; it was not recorded by dpr collect")
     import dpr  # noqa: F401  (registers the ids)
 
-    recorded = reader.episode(index, columns=["action", *COMPARED])
-    kwargs = dict(meta["env_kwargs"])
+    recorded = reader.episode(index, columns=[F.ACTION, *COMPARED])
+    kwargs = dict(meta[F.ENV_KWARGS])
     kwargs.pop("render_mode", None)  # frames are not compared; skip rendering
     kwargs.pop("render_size", None)
-    env = gym.make(meta["env_id"], **kwargs)
+    env = gym.make(meta[F.ENV_ID], **kwargs)
     action_type = env.unwrapped.action_type
-    observation, _ = env.reset(seed=int(meta["seed"]))
-    frames = len(recorded["action"])
-    replayed = {key: np.empty_like(recorded[key]) for key in COMPARED}
-    for t in range(frames):
-        replayed["observation.state"][t] = observation
-        observation, reward, terminated, truncated, info = env.step(_env_action(recorded["action"][t], action_type))
-        replayed["next.reward"][t] = reward
-        replayed["next.done"][t] = terminated or truncated
-        replayed["next.success"][t] = info["is_success"]
-    env.close()
+    frames = len(recorded[F.ACTION])
+    replayed = {key: [] for key in COMPARED}
+
+    def on_step(step) -> None:
+        replayed[F.OBSERVATION].append(step.observation)
+        replayed[F.REWARD].append(step.reward)
+        replayed[F.DONE].append(step.done)
+        replayed[F.SUCCESS].append(step.info["is_success"])
+
+    policy = ReplayPolicy([_env_action(action, action_type) for action in recorded[F.ACTION]])
+    try:
+        roll_out(env, policy, int(meta[F.SEED]), frames, on_step=on_step)
+    finally:
+        env.close()
     differences, first = {}, None
     for key in COMPARED:
-        a, b = recorded[key].reshape(frames, -1), replayed[key].reshape(frames, -1)
-        unequal = np.flatnonzero(~(a == b).all(axis=1))
-        differences[key] = float(np.abs(a.astype(float) - b.astype(float)).max()) if len(unequal) else 0.0
+        width = int(np.prod(recorded[key].shape[1:], dtype=int))
+        a = recorded[key].reshape(frames, width)
+        b = np.array(replayed[key], dtype=recorded[key].dtype).reshape(-1, width)
+        both = min(len(a), len(b))
+        a_common, b_common = a[:both], b[:both]
+        unequal = np.flatnonzero(~(a_common == b_common).all(axis=1))
+        differences[key] = float(np.abs(a_common.astype(float) - b_common.astype(float)).max()) if len(unequal) else 0.0
+        if len(b) != len(a):  # the replay ended before the recording did (or the recording holds no frame for it)
+            unequal = np.append(unequal, both)
         if len(unequal):
             first = int(unequal[0]) if first is None else min(first, int(unequal[0]))
-    return ReplayCheck(index, int(meta["seed"]), frames, first is None, differences, first)
+    return ReplayCheck(index, int(meta[F.SEED]), frames, first is None, differences, first)
 
 
 def replay_dataset(root, episodes: list[int] | None = None, progress=None) -> list[ReplayCheck]:
@@ -79,7 +94,7 @@ def replay_dataset(root, episodes: list[int] | None = None, progress=None) -> li
     indices = list(range(reader.num_episodes)) if episodes is None else list(episodes)
     bad = [i for i in indices if not 0 <= i < reader.num_episodes]
     if bad:
-        raise ValueError(f"episodes {bad} are not in the dataset {root} (it holds 0..{reader.num_episodes - 1})")
+        raise ParameterError("episodes", f"{bad} are not in the dataset {root} (it holds 0..{reader.num_episodes - 1})")
     checks = []
     for index in indices:
         checks.append(replay_episode(reader, index))

@@ -1,7 +1,7 @@
 """Gymnasium environments of the particle-robot tasks.
 
 ``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v0``, ``dpr/Unresponsive-v0`` and
-``dpr/Manipulation-v0`` (each ``max_episode_steps=2500``).
+``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``).
 """
 
 from gymnasium.envs.registration import register, registry
@@ -10,17 +10,17 @@ from dpr.envs.gate import GateEnv
 from dpr.envs.manipulation import ManipulationEnv
 from dpr.envs.navigation import NavigationEnv
 from dpr.envs.parallel import parallel_env
-from dpr.envs.particle_env import ACTION_TYPES, OBS_TYPES, REWARDS, ParticleSwarmEnv
+from dpr.envs.particle_env import (
+    ACTION_TYPES,
+    AGENT_POSITION,
+    MAX_EPISODE_STEPS,
+    OBS_TYPES,
+    PHYSICS_ERROR,
+    REWARDS,
+    ParticleSwarmEnv,
+)
+from dpr.envs.tasks import ENV_IDS, TASK_CLASSES
 from dpr.envs.unresponsive import UnresponsiveEnv
-
-MAX_EPISODE_STEPS = 2500
-TASK_CLASSES = {
-    "navigation": NavigationEnv,
-    "gate": GateEnv,
-    "unresponsive": UnresponsiveEnv,
-    "manipulation": ManipulationEnv,
-}
-ENV_IDS = {task: f"dpr/{cls.__name__.removesuffix('Env')}-v0" for task, cls in TASK_CLASSES.items()}
 
 for _task, _cls in TASK_CLASSES.items():
     if ENV_IDS[_task] not in registry:
@@ -32,9 +32,11 @@ for _task, _cls in TASK_CLASSES.items():
 
 __all__ = [
     "ACTION_TYPES",
+    "AGENT_POSITION",
     "ENV_IDS",
     "MAX_EPISODE_STEPS",
     "OBS_TYPES",
+    "PHYSICS_ERROR",
     "REWARDS",
     "TASK_CLASSES",
     "GateEnv",

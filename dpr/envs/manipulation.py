@@ -1,16 +1,19 @@
 """Manipulation: push an object to the goal."""
 
 import math
-import numbers
 
 import numpy as np
 
-from dpr.envs.particle_env import ParticleSwarmEnv
-from dpr.sim.objects import OBJECT_TYPES, direction_angle
+from dpr.checks import check_number
+from dpr.envs.particle_env import GOAL_CLEARANCE, ParticleSwarmEnv
 from dpr.sim.constants import GRID_PITCH
+from dpr.sim.objects import OBJECT_TYPES, direction_angle
 from dpr.sim.world import ObjectSpec
 
 OBJECT_STARTS = ("touching", "paper")
+OBJECT_MASS_RANGE = (0.01, 1e5)
+OBJECT_SIZE_RANGE = (5.0, 500.0)
+APPROACH_REWARD_RANGE = (0.0, 100.0)
 
 
 def _square_point(direction: np.ndarray, half_side: float) -> np.ndarray:
@@ -18,7 +21,9 @@ def _square_point(direction: np.ndarray, half_side: float) -> np.ndarray:
     return direction * half_side / np.abs(direction).max()
 
 
-def _distance_ahead(offsets: np.ndarray, direction: np.ndarray, robot_radius: float, object_type: str, size: float) -> float:
+def _distance_ahead(
+    offsets: np.ndarray, direction: np.ndarray, robot_radius: float, object_type: str, size: float
+) -> float:
     """The smallest distance along ``direction`` at which the object clears every robot (centres at
     ``offsets``, contracted radius ``robot_radius``): the object then touches the first robot in its path,
     not a point in empty space in front of the swarm's bounding box. A box faces the swarm with one side."""
@@ -67,7 +72,9 @@ class ManipulationEnv(ParticleSwarmEnv):
 
     ## Arguments
     Navigation's, plus ``object_type="ball"`` (or ``"box"``), ``object_mass=100.0``, ``object_size=30.0``
-    (the ball's radius, or half the box's side), ``approach_reward=0.0`` (the shaping weight, see Rewards)
+    (the ball's radius, or half the box's side), ``approach_reward=0.0`` (the shaping weight, see Rewards);
+    each must be finite, with ``object_mass`` in [0.01, 1e5], ``object_size`` in [5, 500] and
+    ``approach_reward`` in [0, 100]
     and ``object_start``: ``"touching"`` (default) or
     ``"paper"``, the 2021 code's placement on a square of half side ``ceil(sqrt(N)) / 2 * 77.5 + size / 4``
     around the swarm's centre, which overlaps the contracted front row (by about 16 units at N=9) so that
@@ -95,12 +102,11 @@ class ManipulationEnv(ParticleSwarmEnv):
         self.object_start = object_start
         if object_type not in OBJECT_TYPES:
             raise ValueError(f"object_type must be one of {OBJECT_TYPES}, got {object_type!r}")
-        if not object_mass > 0:
-            raise ValueError(f"object_mass must be > 0, got {object_mass!r}")
-        if not object_size > 0:
-            raise ValueError(f"object_size must be > 0, got {object_size!r}")
-        if isinstance(approach_reward, bool) or not isinstance(approach_reward, numbers.Real) or not approach_reward >= 0:
-            raise ValueError(f"approach_reward must be a number >= 0, got {approach_reward!r}")
+        # Finite and bounded: chipmunk aborts the interpreter on an infinite mass, and a size of 1e-300 or 1e300
+        # fails mid-episode.
+        check_number("object_mass", object_mass, *OBJECT_MASS_RANGE)
+        check_number("object_size", object_size, *OBJECT_SIZE_RANGE)
+        check_number("approach_reward", approach_reward, *APPROACH_REWARD_RANGE)
         self.approach_reward = float(approach_reward)
         self._gap = 0.0  # the swarm-object distance after the last step (for the shaping)
         self.object_type = object_type
@@ -125,14 +131,35 @@ class ManipulationEnv(ParticleSwarmEnv):
             self._gap = gap
         return reward
 
+    def _start_distances(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Besides the swarm's: the object, placed in front of the swarm, starts GOAL_CLEARANCE short of the goal."""
+        ahead = np.array([self._object_offset(offsets, direction) for direction in directions])
+        return np.maximum(super()._start_distances(offsets, directions), ahead + self.object_size + GOAL_CLEARANCE)
+
+    def _object_offset(self, offsets: np.ndarray, toward_goal: np.ndarray) -> float:
+        """How far ahead of the swarm's centre, along ``toward_goal``, the object starts."""
+        if self.object_start == "paper":
+            half_side = math.ceil(math.sqrt(self.n_robots)) / 2 * GRID_PITCH + self.object_size / 4
+            return float(half_side / np.abs(toward_goal).max())  # along toward_goal to _square_point
+        # 1 unit of air between the object and the nearest contracted robot
+        return _distance_ahead(
+            offsets, toward_goal, self.swarm_class.contracted_radius + 1.0, self.object_type, self.object_size
+        )
+
     def _object(self, start: np.ndarray, centres: np.ndarray) -> ObjectSpec:
         toward_goal = (self.goal - start) / np.linalg.norm(self.goal - start)
         if self.object_start == "paper":
-            position = start + _square_point(toward_goal, math.ceil(math.sqrt(self.n_robots)) / 2 * GRID_PITCH + self.object_size / 4)
+            position = start + _square_point(
+                toward_goal, math.ceil(math.sqrt(self.n_robots)) / 2 * GRID_PITCH + self.object_size / 4
+            )
         else:
             # 1 unit of air between the object and the nearest contracted robot
             ahead = _distance_ahead(
-                centres - start, toward_goal, self.swarm_class.contracted_radius + 1.0, self.object_type, self.object_size
+                centres - start,
+                toward_goal,
+                self.swarm_class.contracted_radius + 1.0,
+                self.object_type,
+                self.object_size,
             )
             position = start + toward_goal * ahead
         return ObjectSpec(

@@ -16,7 +16,8 @@ class NavigationEnv(ParticleSwarmEnv):
     ``"discrete"``: ``Discrete(2^N)`` (N <= 16), the binary number whose most significant bit is robot 0.
     ``"continuous"``: ``Box(0, 1, (N,))``, a target expansion per robot (0 contracted, 1 expanded).
     A robot accepts a new target only once it has reached its previous one (within 10 degrees of stroke); a
-    full stroke takes about 5 steps (the motors need time to spin the paddles up). Actions of the wrong shape, dtype or range raise ``ValueError``.
+    full stroke takes about 5 steps (the motors need time to spin the paddles up). Actions of the wrong shape,
+    dtype or range raise ``ValueError``.
 
     ## Observation Space
     ``obs_type="state"`` (default): ``Box(6N,)`` float32, robot-major: for each robot x, y (goal frame), vx,
@@ -44,14 +45,16 @@ class NavigationEnv(ParticleSwarmEnv):
     state), with ``info["physics_error"]`` set.
 
     ## Info
-    ``is_success``, ``centre_of_mass``, ``projected_displacement``, ``net_displacement``, ``total_distance``
-    (the metrics so far), ``object_position`` in Manipulation; after reset also ``dead_robots``.
+    ``is_success``, ``centre_of_mass``, ``agent_position`` (what the task moves: the centre, or the object),
+    ``projected_displacement``, ``net_displacement``, ``total_distance`` (the metrics so far),
+    ``object_position`` in Manipulation; after reset also ``dead_robots``.
 
     ## Arguments
     ``gymnasium.make("dpr/Navigation-v0", n_robots=9, robot_model="paddle", action_type="multibinary",
     obs_type="state", reward="piecewise", reward_threshold_d=450.0, start_radius=(450, 550),
-    obs_last_action=False, image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"`` (the paper's robot,
-    16 motor-driven paddles) or ``"disk"`` (one body whose radius changes; tens of times faster).
+    obs_last_action=False, image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"``
+    (the paper's robot, 16 motor-driven paddles) or ``"disk"`` (one body whose radius changes; tens of times faster).
+    ``reward_threshold_d`` and both ends of ``start_radius`` must be finite, > 0 and <= 1e5.
     ``render_mode="rgb_array"`` draws robots, paddles, magnets, walls, object and goal, headless.
     ``env.unwrapped.world.space`` is the pymunk Space.
 

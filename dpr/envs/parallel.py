@@ -43,10 +43,12 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from dpr.envs.particle_env import OBJECT_FEATURES, ROBOT_FEATURES, ParticleSwarmEnv
+from dpr.checks import check_int
+from dpr.envs.particle_env import MAX_EPISODE_STEPS, OBJECT_FEATURES, ROBOT_FEATURES, ParticleSwarmEnv
+from dpr.envs.tasks import TASK_CLASSES
+from dpr.sim.constants import FPS
 from dpr.sim.neighbours import pairs_within
 
-DEFAULT_MAX_EPISODE_STEPS = 2500  # the registered ids' TimeLimit (dpr.envs.MAX_EPISODE_STEPS)
 MAX_NEIGHBOURS = 8  # neighbour slots of a local observation (a robot on the start grid has 8 within magnet range)
 PER_AGENT_ACTION_TYPES = ("multibinary", "continuous")
 # The state vector stores positions / 1000 (dpr.envs.particle_env.LENGTH_SCALE); neighbour search needs units.
@@ -127,9 +129,7 @@ def _check_flag(name: str, value: Any) -> bool:
 
 
 def _check_count(name: str, value: Any) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
+    return check_int(name, int(value) if isinstance(value, np.integer) else value, 1)
 
 
 class ParticleParallelEnv(ParallelEnv):
@@ -164,26 +164,24 @@ class ParticleParallelEnv(ParallelEnv):
 
     ## Arguments
     ``task`` (``"navigation"``, ``"gate"``, ``"unresponsive"``, ``"manipulation"``), ``max_episode_steps``
-    (2500), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, with ``local_obs``),
-    and the super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``, ``reward``,
-    ``render_mode``, task options such as ``n_dead``...). Only ``obs_type="state"`` is supported.
+    (``MAX_EPISODE_STEPS``), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, with
+    ``local_obs``), and the super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``,
+    ``reward``, ``render_mode``, task options such as ``n_dead``...). Only ``obs_type="state"`` is supported.
     ``state()`` returns the global state; ``swarm_env`` is the wrapped super-agent env.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "is_parallelizable": True}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": FPS, "is_parallelizable": True}
 
     def __init__(
         self,
         task: str = "navigation",
         *,
-        max_episode_steps: int = DEFAULT_MAX_EPISODE_STEPS,
+        max_episode_steps: int = MAX_EPISODE_STEPS,
         local_obs: bool = False,
         shared_reward: bool = True,
         max_neighbours: int = MAX_NEIGHBOURS,
         **env_kwargs: Any,
     ):
-        from dpr.envs import TASK_CLASSES  # here, not at module level: dpr.envs imports this module
-
         if task not in TASK_CLASSES:
             raise ValueError(f"task must be one of {tuple(TASK_CLASSES)}, got {task!r}")
         action_type = env_kwargs.get("action_type", "multibinary")
@@ -313,8 +311,10 @@ class ParticleParallelEnv(ParallelEnv):
                     f"actions for unknown agent(s) {unknown[:5]!r}; agents are robot_0 .. robot_{self.n_robots - 1}"
                 )
             missing = [agent for agent in self.agents if agent not in actions]
-            raise ValueError(f"no action for agent(s) {missing[:5]!r} ({len(missing)} missing): every agent in "
-                             "env.agents needs an action at every step, dead robots included")
+            raise ValueError(
+                f"no action for agent(s) {missing[:5]!r} ({len(missing)} missing): every agent in "
+                "env.agents needs an action at every step, dead robots included"
+            )
         n = self.n_robots
         values = [actions[agent] for agent in self.possible_agents]
         try:
@@ -386,8 +386,10 @@ def _agents_as_vec_env_class() -> type:
             observation_space = parallel_env.observation_space(agents[0])
             action_space = parallel_env.action_space(agents[0])
             for agent in agents[1:]:
-                if parallel_env.observation_space(agent) != observation_space or \
-                        parallel_env.action_space(agent) != action_space:
+                if (
+                    parallel_env.observation_space(agent) != observation_space
+                    or parallel_env.action_space(agent) != action_space
+                ):
                     raise ValueError(
                         f"AgentsAsVecEnv needs one observation space and one action space for all agents; "
                         f"{agent!r} differs from {agents[0]!r}"

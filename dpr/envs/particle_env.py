@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -9,10 +10,16 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from dpr.checks import ParameterError, check_int, check_number
 from dpr.metrics import SUCCESS_RADIUS, MetricTracker
 from dpr.sim import ROBOT_MODELS, World, swarm_class
 from dpr.sim import constants as C
 from dpr.sim.world import ObjectSpec, grid_centres
+
+MAX_DISTANCE = 1e5  # bound of length kwargs (start radius, reward threshold): finite, and far beyond any task
+GOAL_CLEARANCE = 100.0  # the least gap between the goal and the front of the swarm (or its object) at the start
+START_ANGLES = 720  # start angles checked for the clearances (their worst case gets a unit of rounding margin)
+MAX_EPISODE_STEPS = 2500  # every registered task's TimeLimit, and the default episode length everywhere
 
 ACTION_TYPES = ("multibinary", "discrete", "continuous")
 OBS_TYPES = ("state", "pixels", "pixels_state")
@@ -23,6 +30,10 @@ OBJECT_FEATURES = 4  # x, y, vx, vy
 HELD_STEPS_CAP = 20  # obs_last_action: steps an action has been held, counted up to twice the paper's hold
 LENGTH_SCALE = 1.0 / 1000.0
 GOAL = np.zeros(2)
+# info keys: what the task moves (the swarm's centre, or the object), on every reset and step; and the message
+# of a step whose physics blew up (the episode is truncated there; see dpr.rollout for what callers do with it)
+AGENT_POSITION = "agent_position"
+PHYSICS_ERROR = "physics_error"
 
 
 SWARM_KWARGS = ("n_robots", "robot_model")  # what CollectSpec, TrainConfig and rollouts take as their own fields
@@ -55,7 +66,7 @@ class ParticleSwarmEnv(gym.Env):
     """Base class of the particle-robot tasks: a swarm of N robots must bring an agent (its centre of mass,
     or an object) to the goal at the origin. Subclasses set up walls, dead robots or an object."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": C.FPS}
     task = ""
     task_description = ""  # one sentence for datasets (LeRobot's per-frame "task" string)
     has_object = False
@@ -74,8 +85,7 @@ class ParticleSwarmEnv(gym.Env):
         render_size: int = 512,
         render_mode: str | None = None,
     ):
-        if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)) or n_robots < 1:
-            raise ValueError(f"n_robots must be an integer >= 1, got {n_robots!r}")
+        check_int("n_robots", int(n_robots) if isinstance(n_robots, np.integer) else n_robots, 1)
         _choice("robot_model", robot_model, ROBOT_MODELS)
         _choice("action_type", action_type, ACTION_TYPES)
         _choice("obs_type", obs_type, OBS_TYPES)
@@ -86,11 +96,12 @@ class ParticleSwarmEnv(gym.Env):
                 f"action_type='discrete' needs Discrete(2^N) actions; n_robots must be <= {MAX_DISCRETE_ROBOTS}"
                 f" for it, got {n_robots} (use 'multibinary' or 'continuous')"
             )
-        if not reward_threshold_d > 0:
-            raise ValueError(f"reward_threshold_d must be > 0, got {reward_threshold_d!r}")
-        low, high = start_radius
-        if not 0 < low <= high:
-            raise ValueError(f"start_radius must be (low, high) with 0 < low <= high, got {start_radius!r}")
+        check_number("reward_threshold_d", reward_threshold_d, maximum=MAX_DISTANCE, above=0)
+        if not isinstance(start_radius, (tuple, list, np.ndarray)) or len(start_radius) != 2:
+            raise ParameterError("start_radius", f"expected (low, high), got {start_radius!r}")
+        low, high = (check_number("start_radius", r, maximum=MAX_DISTANCE, above=0) for r in start_radius)
+        if not low <= high:
+            raise ParameterError("start_radius", f"expected (low, high) with low <= high, got {start_radius!r}")
         if not isinstance(obs_last_action, (bool, np.bool_)):
             raise ValueError(f"obs_last_action must be True or False, got {obs_last_action!r}")
         if obs_last_action and obs_type == "pixels":
@@ -135,12 +146,9 @@ class ParticleSwarmEnv(gym.Env):
             "pixels_state": spaces.Dict({"pixels": pixel_space, "state": state_space}),
         }[obs_type]
 
-        # A fixed camera centred on the goal that always holds the start circle and the swarm.
-        swarm_half = (math.ceil(math.sqrt(n)) / 2) * C.GRID_PITCH
-        self.view_half_extent = self.start_radius[1] + swarm_half + 2 * self.swarm_class.expanded_radius
-
         self.world: World | None = None
         self.goal = GOAL.copy()
+
         self.start = np.zeros(2)
         self._tracker: MetricTracker | None = None
         self._renderer = None
@@ -156,10 +164,35 @@ class ParticleSwarmEnv(gym.Env):
     def _object(self, start: np.ndarray, centres: np.ndarray) -> ObjectSpec | None:
         return None
 
+    def _start_distances(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """The least start-to-goal distance the task needs for each unit ``direction`` (A, 2) from the start
+        toward the goal, given the robots' offsets (N, 2) from the swarm's centre: here, the goal lies
+        :data:`GOAL_CLEARANCE` beyond the swarm's expanded front. Tasks with walls or an object add theirs."""
+        front = (offsets @ directions.T).max(axis=0) + self.swarm_class.expanded_radius
+        return front + GOAL_CLEARANCE
+
+    @functools.cached_property
+    def start_shift(self) -> float:
+        """How much farther than ``start_radius`` every start is drawn, so that at any start angle the goal
+        (and the task's walls or object) clear the swarm: the most any angle needs beyond the circle's inner
+        radius, 0 where the swarm fits (every task at N <= 16). Deterministic in the kwargs, so that the RNG
+        draws, and every start that already fitted, stay as they were."""
+        angles = np.linspace(0.0, 2 * math.pi, START_ANGLES, endpoint=False)
+        directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        offsets = grid_centres(self.n_robots, (0.0, 0.0))
+        needed = float(self._start_distances(offsets, directions).max())
+        return max(0.0, math.ceil(needed - self.start_radius[0]))
+
+    @functools.cached_property
+    def view_half_extent(self) -> float:
+        """Half the side of a fixed camera centred on the goal that holds every start and the swarm."""
+        swarm_half = (math.ceil(math.sqrt(self.n_robots)) / 2) * C.GRID_PITCH
+        return self.start_radius[1] + self.start_shift + swarm_half + 2 * self.swarm_class.expanded_radius
+
     # -- gymnasium API ------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        radius = self.np_random.uniform(*self.start_radius)
+        radius = self.np_random.uniform(*self.start_radius) + self.start_shift
         angle = self.np_random.uniform(0.0, 2 * math.pi)
         self.start = self.goal + radius * np.array([math.cos(angle), math.sin(angle)])
         dead = self._dead_robots()
@@ -193,7 +226,7 @@ class ParticleSwarmEnv(gym.Env):
         self.world.step(targets)
         if not self.world.is_sane():
             info = self._info()
-            info["physics_error"] = "non-finite or exploding body state; episode truncated"
+            info[PHYSICS_ERROR] = "non-finite or exploding body state; episode truncated"
             return _copy(self._last_obs), 0.0, False, True, info
         self._tracker.update(self._agent_position())
         reward = self._reward(previous)
@@ -242,8 +275,12 @@ class ParticleSwarmEnv(gym.Env):
             if not 0 <= value < 2**n:
                 raise ValueError(f"action must be in [0, {2**n}) for action_type='discrete', got {value}")
             return ((int(value) & joint_action_bits(n)) > 0).astype(float)
-        if self.action_type == "multibinary" and isinstance(action, np.ndarray) and action.shape == (n,) \
-                and action.dtype.kind == "i":
+        if (
+            self.action_type == "multibinary"
+            and isinstance(action, np.ndarray)
+            and action.shape == (n,)
+            and action.dtype.kind == "i"
+        ):
             # the common case, a policy's integer array, in two calls: x & ~1 is 0 only for x in {0, 1}
             if not np.bitwise_and(action, -2).any():
                 return action.astype(float)
@@ -308,6 +345,7 @@ class ParticleSwarmEnv(gym.Env):
         info = {
             "is_success": tracker.success,
             "centre_of_mass": self.world.centre_of_mass.copy(),
+            AGENT_POSITION: self._agent_position(),
             "projected_displacement": tracker.projected_displacement,
             "net_displacement": tracker.net_displacement,
             "total_distance": tracker.total_distance,

@@ -23,7 +23,9 @@ GOAL = (40, 170, 70)
 
 
 def _box(length: float, width: float) -> np.ndarray:
-    return np.array([(-length / 2, -width / 2), (length / 2, -width / 2), (length / 2, width / 2), (-length / 2, width / 2)])
+    return np.array(
+        [(-length / 2, -width / 2), (length / 2, -width / 2), (length / 2, width / 2), (-length / 2, width / 2)]
+    )
 
 
 _PADDLE1 = _box(C.PADDLE_LENGTH, C.PADDLE_WIDTH)
@@ -79,7 +81,9 @@ class SceneRenderer:
         if world.object_body is not None:
             spec = world.object_spec
             if spec.kind == "ball":
-                pygame.draw.circle(s, OBJECT, self.to_pixels(world.object_pose[0:2]).tolist(), max(1.0, spec.size * scale))
+                pygame.draw.circle(
+                    s, OBJECT, self.to_pixels(world.object_pose[0:2]).tolist(), max(1.0, spec.size * scale)
+                )
             else:
                 corners = _place(_box(2 * spec.size, 2 * spec.size), world.object_pose[None])[0]
                 pygame.draw.polygon(s, OBJECT, self.to_pixels(corners).tolist())

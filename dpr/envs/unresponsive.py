@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from dpr.checks import check_int
 from dpr.envs.particle_env import ParticleSwarmEnv
 
 
@@ -41,9 +42,8 @@ class UnresponsiveEnv(ParticleSwarmEnv):
         super().__init__(**kwargs)
         if n_dead is None:
             n_dead = int(round(0.2 * self.n_robots))
-        if isinstance(n_dead, bool) or not isinstance(n_dead, (int, np.integer)) or not 0 <= n_dead < self.n_robots:
-            raise ValueError(f"n_dead must be an integer in [0, n_robots={self.n_robots}), got {n_dead!r}")
-        self.n_dead = int(n_dead)
+        n_dead = int(n_dead) if isinstance(n_dead, np.integer) else n_dead
+        self.n_dead = check_int("n_dead", n_dead, 0, self.n_robots - 1)  # at least one robot must respond
 
     def _dead_robots(self) -> np.ndarray:
         return np.sort(self.np_random.choice(self.n_robots, size=self.n_dead, replace=False))

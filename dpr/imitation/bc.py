@@ -1,9 +1,10 @@
 """Behaviour cloning of a recorded dataset into the same stable-baselines3 model that ``dpr train`` builds.
 
-The model is built exactly as ``dpr train`` would build it for ``algo`` on ``env_id`` (the yaml entry of
-:mod:`dpr.rl.hyperparams`, the env kwargs the dataset was recorded with), then ``model.policy`` is trained in
-plain torch to maximise the log-likelihood of the recorded actions under the policy's own action distribution
-(MultiBinary -> one Bernoulli per robot). What is trained, and what is not:
+The model is built exactly as ``dpr train`` would build it for ``algo`` on ``env_id``
+(:func:`dpr.policies.sb3.build_model` from the yaml entry of :mod:`dpr.policies.hyperparams`, the env kwargs the
+dataset was recorded with), then ``model.policy`` is trained in plain torch to maximise the log-likelihood of the
+recorded actions under the policy's own action distribution (MultiBinary -> one Bernoulli per robot; the loss is
+:mod:`dpr.imitation.loss`). What is trained, and what is not:
 
 - the actor only: the features extractor, ``mlp_extractor.policy_net`` and ``action_net``. The value head
   (``mlp_extractor.value_net``, ``value_net``) is left at its initialisation: the dataset holds no returns worth
@@ -43,26 +44,30 @@ import torch
 import yaml
 from torch.utils.data import DataLoader
 
+from dpr import runs
+from dpr.checks import ParameterError, check_int
+from dpr.datasets import features
 from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
-from dpr import runs
-from dpr.envs import ENV_IDS
-from dpr.envs.particle_env import joint_action_bits
-from dpr.policies.sb3 import ModelInfo, write_model_info
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.imitation.loss import batch_stats, check_features
+from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.sb3 import BC_ALGOS, DEFAULT_ALGO, DQN, ModelInfo, trained_parameters, write_model_info
 
-__all__ = ["BC_ALGOS", "BCResult", "behaviour_clone", "check_features", "dataset_env"]
+__all__ = ["BCResult", "behaviour_clone", "dataset_env"]
 
-BC_ALGOS = ("ppo", "a2c", "dqn")  # actor-critics (an action distribution) and DQN (Q-values as logits)
 RUNS_DIR = Path("runs/bc")
-OBSERVATION_KEY = "observation.state"
-ACTION_KEY = "action"
 # Recording-only env kwargs: they change how a dataset was rendered, not what the model sees or does.
 RECORDING_KWARGS = ("render_mode", "render_size")
 # What a run's config.yaml says was trained, and on what loss.
-_ACTOR_CRITIC_LOSS = {"loss": "mean per-frame NLL of the recorded action (Bernoulli per robot, summed over robots)",
-                      "trained": "actor only"}
-_DQN_LOSS = {"loss": "mean per-frame cross-entropy of the recorded action's index among the 2^N Q-values",
-             "trained": "Q-network, then copied into the target network"}
+_ACTOR_CRITIC_LOSS = {
+    "loss": "mean per-frame NLL of the recorded action (Bernoulli per robot, summed over robots)",
+    "trained": "actor only",
+}
+_DQN_LOSS = {
+    "loss": "mean per-frame cross-entropy of the recorded action's index among the 2^N Q-values",
+    "trained": "Q-network, then copied into the target network",
+}
 BLOCK_EPISODES = 8  # EpisodeBlockSampler block; the FrameDataset cache holds as many episodes
 
 
@@ -87,22 +92,17 @@ class BCResult:
 # ------------------------------------------------------------------------------------------------ arguments
 
 
-def _check_int(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def _check_arguments(env_id: str, algo: str, epochs: int, batch_size: int, lr: float, val_fraction: float,
-                     patience: int, seed: int) -> None:
+def _check_arguments(
+    env_id: str, algo: str, epochs: int, batch_size: int, lr: float, val_fraction: float, patience: int, seed: int
+) -> None:
     if env_id not in ENV_IDS.values():
         raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
     if algo not in BC_ALGOS:
         raise ValueError(f"algo must be one of {BC_ALGOS}, got {algo!r}")
-    _check_int("epochs", epochs, 1)
-    _check_int("batch_size", batch_size, 1)
-    _check_int("patience", patience, 1)
-    _check_int("seed", seed, 0)
+    check_int("epochs", epochs, 1)
+    check_int("batch_size", batch_size, 1)
+    check_int("patience", patience, 1)
+    check_int("seed", seed, 0)
     if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0 or not math.isfinite(lr):
         raise ValueError(f"lr must be a number > 0, got {lr!r}")
     if isinstance(val_fraction, bool) or not isinstance(val_fraction, (int, float)) or not 0 < val_fraction < 1:
@@ -112,107 +112,66 @@ def _check_arguments(env_id: str, algo: str, epochs: int, batch_size: int, lr: f
 # ------------------------------------------------------------------------------------------------ dataset -> env
 
 
-def dataset_env(reader: LeRobotReader, env_id: str, requested: dict[str, Any] | None = None) -> tuple[dict[str, Any], int | None]:
+def dataset_env(
+    reader: LeRobotReader, env_id: str, requested: dict[str, Any] | None = None
+) -> tuple[dict[str, Any], int | None]:
     """The env kwargs (without recording-only kwargs and ``max_episode_steps``) and the episode length that every
-    episode of the dataset was recorded with. ValueError naming both values when an episode was recorded on
-    another env id, when episodes disagree, or when a ``requested`` kwarg differs from the dataset's."""
+    episode of the dataset was recorded with. A :class:`ParameterError` about ``dataset_dirs`` naming both values
+    when an episode was recorded on another env id, when episodes disagree, or when a ``requested`` kwarg differs
+    from the dataset's."""
     root = reader.root
     if reader.num_episodes == 0:
-        raise ValueError(f"--dataset: {root} holds no episodes")
+        raise ParameterError("dataset_dirs", f"{root} holds no episodes")
     recorded: dict[str, Any] | None = None
     for index, meta in enumerate(reader.episodes):
-        if "env_id" not in meta or not isinstance(meta.get("env_kwargs"), dict):
-            raise ValueError(f"--dataset: episode {index} of {root} has no env_id/env_kwargs metadata; "
-                             "use a dataset recorded by `dpr collect`")
-        if meta["env_id"] != env_id:
-            raise ValueError(f"--dataset: {root} was recorded on {meta['env_id']} (episode {index}), not on --env "
-                             f"{env_id}; use --env {meta['env_id']} or a dataset of {env_id}")
+        if features.ENV_ID not in meta or not isinstance(meta.get(features.ENV_KWARGS), dict):
+            raise ParameterError(
+                "dataset_dirs",
+                f"episode {index} of {root} has no {features.ENV_ID}/"
+                f"{features.ENV_KWARGS} metadata; use a dataset recorded by `dpr collect`",
+            )
+        if meta[features.ENV_ID] != env_id:
+            raise ParameterError(
+                "dataset_dirs",
+                f"{root} was recorded on {meta[features.ENV_ID]} (episode {index}), "
+                f"not on {env_id}; use a dataset of {env_id}, or env {meta[features.ENV_ID]}",
+            )
         if recorded is None:
-            recorded = dict(meta["env_kwargs"])
-        elif meta["env_kwargs"] != recorded:
-            raise ValueError(f"--dataset: {root}: episode {index} was recorded with env kwargs {meta['env_kwargs']}, "
-                             f"episode 0 with {recorded}; a dataset must hold one env configuration")
+            recorded = dict(meta[features.ENV_KWARGS])
+        elif meta[features.ENV_KWARGS] != recorded:
+            raise ParameterError(
+                "dataset_dirs",
+                f"{root}: episode {index} was recorded with env kwargs "
+                f"{meta[features.ENV_KWARGS]}, episode 0 with {recorded}; a dataset must hold one "
+                "env configuration",
+            )
     assert recorded is not None
     steps = recorded.pop("max_episode_steps", None)
     for name in RECORDING_KWARGS:
         recorded.pop(name, None)
     for name, value in (requested or {}).items():
         if name in recorded and recorded[name] != value:
-            raise ValueError(f"--dataset: {root} was recorded with {name}={recorded[name]!r}; the requested "
-                             f"{name}={value!r} differs (leave it out to use the dataset's value)")
+            raise ParameterError(
+                "dataset_dirs",
+                f"{root} was recorded with {name}={recorded[name]!r}; the requested "
+                f"{name}={value!r} differs (leave it out to use the dataset's value)",
+            )
         recorded[name] = value
     return recorded, steps
-
-
-def _space_text(space: gym.Space) -> str:
-    return f"Box(shape={space.shape})" if isinstance(space, gym.spaces.Box) else str(space)
-
-
-def check_features(reader: LeRobotReader, observation_space: gym.Space, action_space: gym.Space, env_text: str,
-                   argument: str = "--dataset") -> None:
-    """ValueError naming ``argument``, the dataset and both sides when the dataset's observation or action feature
-    does not fit the spaces."""
-    problems = []
-    observation = reader.features.get(OBSERVATION_KEY)
-    if observation is None or not isinstance(observation_space, gym.spaces.Box) \
-            or tuple(observation.get("shape", ())) != observation_space.shape:
-        shape = None if observation is None else observation.get("shape")
-        problems.append(f"{OBSERVATION_KEY} has shape {shape}, the env's observation space is "
-                        f"{_space_text(observation_space)}")
-    action = reader.features.get(ACTION_KEY)
-    if isinstance(action_space, gym.spaces.MultiBinary):
-        n_robots = int(action_space.n)
-    elif isinstance(action_space, gym.spaces.Discrete):  # DQN: the recorded bits become one integer
-        n_robots = int(action_space.n).bit_length() - 1
-    else:
-        n_robots = None
-        problems.append(f"the env's action space {_space_text(action_space)} is neither MultiBinary nor Discrete(2^N)")
-    if n_robots is not None and (action is None or list(action.get("shape", ())) != [n_robots]):
-        shape = None if action is None else action.get("shape")
-        problems.append(f"{ACTION_KEY} has shape {shape}, expected [{n_robots}] (one 0/1 per robot) for the env's "
-                        f"action space {action_space}")
-    if problems:
-        raise ValueError(f"{argument}: {reader.root} does not fit {env_text}: " + "; ".join(problems))
 
 
 def split_episodes(num_episodes: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
     """Dataset episode indices for training and validation (at least one each, disjoint, chosen by ``seed``)."""
     if num_episodes < 2:
-        raise ValueError(f"--dataset: behaviour cloning needs at least 2 episodes (one held out), got {num_episodes}")
+        raise ParameterError(
+            "dataset_dirs", f"behaviour cloning needs at least 2 episodes (one held out), got {num_episodes}"
+        )
     n_val = min(max(1, round(val_fraction * num_episodes)), num_episodes - 1)
     order = np.random.default_rng(seed).permutation(num_episodes).tolist()
     return sorted(order[n_val:]), sorted(order[:n_val])
 
 
 # ------------------------------------------------------------------------------------------------ training
-
-
-def actor_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
-    """The parameters that decide the action distribution: everything but the value head."""
-    return [p for name, p in policy.named_parameters()
-            if not name.startswith(("mlp_extractor.value_net.", "value_net.", "vf_features_extractor."))]
-
-
-def trained_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
-    """What BC trains: an actor-critic's actor, or a DQN policy's Q-network (its target is copied after)."""
-    if hasattr(policy, "q_net"):
-        return list(policy.q_net.parameters())
-    return actor_parameters(policy)
-
-
-def batch_stats(policy, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-frame negative log-likelihood [B] and per-robot correctness of the deterministic action [B, N]."""
-    if hasattr(policy, "q_net"):  # DQN: Q-values as the logits of a softmax over the 2^N joint actions
-        bits = torch.from_numpy(joint_action_bits(action.shape[1]))
-        logits = policy.q_net(observation)
-        nll = torch.nn.functional.cross_entropy(logits, (action.long() * bits).sum(1), reduction="none")
-        chosen = logits.argmax(dim=1, keepdim=True)
-        correct = ((chosen & bits) > 0).to(action.dtype) == action
-        return nll, correct
-    distribution = policy.get_distribution(observation)
-    nll = -distribution.log_prob(action)  # Bernoulli log-probs summed over robots
-    correct = distribution.mode() == action
-    return nll, correct
 
 
 class _Meter:
@@ -241,10 +200,13 @@ class _Meter:
     def result(self, prefix: str) -> dict[str, Any]:
         frames = max(self.frames, 1)
         per_robot = self.correct / frames
-        return {f"{prefix}_nll": self.nll / frames, f"{prefix}_accuracy": float(per_robot.mean()),
-                f"{prefix}_exact_match": self.exact / frames,
-                f"{prefix}_expand_recall": self.expansions_hit / max(self.expansions, 1),
-                f"{prefix}_accuracy_per_robot": [round(float(a), 6) for a in per_robot]}
+        return {
+            f"{prefix}_nll": self.nll / frames,
+            f"{prefix}_accuracy": float(per_robot.mean()),
+            f"{prefix}_exact_match": self.exact / frames,
+            f"{prefix}_expand_recall": self.expansions_hit / max(self.expansions, 1),
+            f"{prefix}_accuracy_per_robot": [round(float(a), 6) for a in per_robot],
+        }
 
 
 def _loader(dataset: FrameDataset, batch_size: int, sampler: EpisodeBlockSampler) -> DataLoader:
@@ -261,8 +223,15 @@ def measure(policy, dataset: FrameDataset, batch_size: int, prefix: str) -> dict
     return meter.result(prefix)
 
 
-def _train_epoch(policy, optimizer, loader: DataLoader, n_actions: int, bar, previous_action: slice | None = None,
-                 change_weight: float = 1.0) -> dict[str, Any]:
+def _train_epoch(
+    policy,
+    optimizer,
+    loader: DataLoader,
+    n_actions: int,
+    bar,
+    previous_action: slice | None = None,
+    change_weight: float = 1.0,
+) -> dict[str, Any]:
     policy.set_training_mode(True)
     meter = _Meter(n_actions)
     for batch in loader:
@@ -291,10 +260,10 @@ def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
 
 
 def behaviour_clone(
-    dataset_dir: str | Path | list[str | Path],
+    dataset_dirs: str | Path | list[str | Path],
     env_id: str,
     *,
-    algo: str = "ppo",
+    algo: str = DEFAULT_ALGO,
     epochs: int = 20,
     batch_size: int = 256,
     lr: float = 1e-3,
@@ -308,38 +277,43 @@ def behaviour_clone(
     show_progress: bool = False,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> BCResult:
-    """Behaviour-clone the dataset at ``dataset_dir`` (recorded by ``dpr collect`` on ``env_id``; or a list of
+    """Behaviour-clone the dataset at ``dataset_dirs`` (recorded by ``dpr collect`` on ``env_id``; or a list of
     datasets of the same env, whose first one provides the validation episodes and the rest only train) into a new
     ``algo`` model built as ``dpr train`` builds it; save it with ``bc_log.json`` and ``config.yaml`` into ``out``
     (a new or empty folder; default ``runs/bc/<task>-<algo>-seed<S>-<timestamp>``).
 
     ``env_kwargs`` may restate kwargs (e.g. ``{"n_robots": 9}``); any that differ from the dataset's are an error.
     Bad input raises ValueError (DatasetError for an unreadable dataset) before anything is written."""
-    from dpr.rl.hyperparams import load_hyperparams
-    from dpr.rl.train import build_model, make_vec_env, package_versions
+    from dpr.policies.sb3 import build_model, make_vec_env
 
     _check_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
     runs.check_new_folder(out)
-    dataset_dirs = [dataset_dir] if isinstance(dataset_dir, (str, Path)) else list(dataset_dir)
+    dataset_dirs = [dataset_dirs] if isinstance(dataset_dirs, (str, Path)) else list(dataset_dirs)
     if not dataset_dirs:
-        raise ValueError("--dataset: give at least one dataset")
+        raise ParameterError("dataset_dirs", "give at least one dataset")
     readers = [LeRobotReader(path) for path in dataset_dirs]  # DatasetError naming a folder that is not a dataset
     reader = readers[0]
     kwargs, steps = dataset_env(reader, env_id, env_kwargs)
     for other in readers[1:]:
         recorded = dataset_env(other, env_id, env_kwargs)
         if recorded != (kwargs, steps):
-            raise ValueError(f"--dataset: {other.root} was recorded with {recorded}, "
-                             f"{reader.root} with {(kwargs, steps)}; datasets cloned together must match")
+            raise ParameterError(
+                "dataset_dirs",
+                f"{other.root} was recorded with {recorded}, "
+                f"{reader.root} with {(kwargs, steps)}; datasets cloned together must match",
+            )
     hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
     for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
         # DQN's Discrete(2^N) actions are the recorded MultiBinary ones, encoded as integers
-        converted = algo == "dqn" and name == "action_type" and kwargs.get(name) == "multibinary"
+        converted = algo == DQN and name == "action_type" and kwargs.get(name) == "multibinary"
         if name in kwargs and kwargs[name] != value and not converted:
-            raise ValueError(f"{algo} needs {name}={value!r} (its yaml env_kwargs); --dataset {reader.root} was "
-                             f"recorded with {name}={kwargs[name]!r}")
+            raise ParameterError(
+                "algo",
+                f"{algo} needs {name}={value!r} (its yaml env_kwargs); the dataset "
+                f"{reader.root} was recorded with {name}={kwargs[name]!r}",
+            )
     kwargs = {**kwargs, **hyper.env_kwargs}
-    steps = int(steps) if steps else 2500
+    steps = int(steps) if steps else MAX_EPISODE_STEPS
     env_text = f"{env_id} {kwargs}"
     if isinstance(change_weight, bool) or not isinstance(change_weight, (int, float)) or not change_weight >= 1.0:
         raise ValueError(f"change_weight must be a number >= 1, got {change_weight!r}")
@@ -348,32 +322,53 @@ def behaviour_clone(
         for each in readers:
             check_features(each, probe.observation_space, probe.action_space, env_text)
         base = probe.unwrapped
-        previous_action = slice(base.memory_offset, base.memory_offset + base.n_robots) if base.obs_last_action else None
+        previous_action = (
+            slice(base.memory_offset, base.memory_offset + base.n_robots) if base.obs_last_action else None
+        )
     finally:
         probe.close()
     if change_weight != 1.0 and previous_action is None:
-        raise ValueError("change_weight needs the previous action in the observation: a dataset recorded "
-                         "with obs_last_action=True")
+        raise ValueError(
+            "change_weight needs the previous action in the observation: a dataset recorded with obs_last_action=True"
+        )
     train_ids, val_ids = split_episodes(reader.num_episodes, val_fraction, seed)
 
     run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
     run_dir.mkdir(parents=True, exist_ok=True)
     record: dict[str, Any] = {
-        "algo": algo, "env_id": env_id, "env_kwargs": kwargs, "steps_per_episode": steps,
-        "dataset": str(reader.root.resolve()), "dataset_episodes": reader.num_episodes,
-        "dataset_frames": reader.num_frames, "train_episodes": train_ids, "val_episodes": val_ids,
-        "more_datasets": [{"dataset": str(r.root.resolve()), "episodes": r.num_episodes, "frames": r.num_frames}
-                          for r in readers[1:]],
-        "bc": {"epochs": epochs, "batch_size": batch_size, "lr": lr, "val_fraction": val_fraction,
-               "patience": patience, "seed": seed, "change_weight": change_weight, "optimizer": "Adam",
-               **(_DQN_LOSS if algo == "dqn" else _ACTOR_CRITIC_LOSS)},
-        "hyperparameters": hyper.as_dict(), "versions": package_versions(),
+        "algo": algo,
+        "env_id": env_id,
+        "env_kwargs": kwargs,
+        "steps_per_episode": steps,
+        "dataset": str(reader.root.resolve()),
+        "dataset_episodes": reader.num_episodes,
+        "dataset_frames": reader.num_frames,
+        "train_episodes": train_ids,
+        "val_episodes": val_ids,
+        "more_datasets": [
+            {"dataset": str(r.root.resolve()), "episodes": r.num_episodes, "frames": r.num_frames} for r in readers[1:]
+        ],
+        "bc": {
+            "epochs": epochs,
+            "batch_size": batch_size,
+            "lr": lr,
+            "val_fraction": val_fraction,
+            "patience": patience,
+            "seed": seed,
+            "change_weight": change_weight,
+            "optimizer": "Adam",
+            **(_DQN_LOSS if algo == DQN else _ACTOR_CRITIC_LOSS),
+        },
+        "hyperparameters": hyper.as_dict(),
+        "versions": runs.package_versions(),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     config_path = run_dir / "config.yaml"
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    log(f"dpr bc: {algo} on {env_id} {kwargs} from {reader.root} ({len(train_ids)} train / {len(val_ids)} "
-        f"validation episodes) -> {run_dir}")
+    log(
+        f"dpr bc: {algo} on {env_id} {kwargs} from {reader.root} ({len(train_ids)} train / {len(val_ids)} "
+        f"validation episodes) -> {run_dir}"
+    )
 
     torch.manual_seed(seed)
     env = make_vec_env(env_id, kwargs, steps, 1)
@@ -384,15 +379,23 @@ def behaviour_clone(
     policy = model.policy
     train_set = FrameDataset(reader.root, episodes=train_ids, cache_episodes=BLOCK_EPISODES)
     if len(readers) > 1:
-        train_set = ConcatFrames([train_set, *(FrameDataset(r.root, cache_episodes=BLOCK_EPISODES) for r in readers[1:])])
+        train_set = ConcatFrames(
+            [train_set, *(FrameDataset(r.root, cache_episodes=BLOCK_EPISODES) for r in readers[1:])]
+        )
     val_set = FrameDataset(reader.root, episodes=val_ids, cache_episodes=BLOCK_EPISODES)
     sampler = EpisodeBlockSampler(train_set, block_episodes=BLOCK_EPISODES, seed=seed)
     loader = _loader(train_set, batch_size, sampler)
     optimizer = torch.optim.Adam(trained_parameters(policy), lr=lr)
 
     # Epoch 0 is the untrained policy: the baseline every later epoch is compared with.
-    history = [{"epoch": 0, **measure(policy, train_set, batch_size, "train"),
-                **measure(policy, val_set, batch_size, "val"), "seconds": 0.0}]
+    history = [
+        {
+            "epoch": 0,
+            **measure(policy, train_set, batch_size, "train"),
+            **measure(policy, val_set, batch_size, "val"),
+            "seconds": 0.0,
+        }
+    ]
     best = history[0]
     best_state = copy.deepcopy(policy.state_dict())
     stale = 0
@@ -400,13 +403,17 @@ def behaviour_clone(
     from tqdm import tqdm
 
     started = time.perf_counter()
-    with tqdm(total=epochs * len(train_set), desc=f"bc {algo} {env_id}", unit="frame", disable=not show_progress) as bar:
+    with tqdm(
+        total=epochs * len(train_set), desc=f"bc {algo} {env_id}", unit="frame", disable=not show_progress
+    ) as bar:
         for epoch in range(1, epochs + 1):
             sampler.set_epoch(epoch)
             tick = time.perf_counter()
-            row = {"epoch": epoch, **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar, previous_action,
-                                                         change_weight),
-                   **measure(policy, val_set, batch_size, "val")}
+            row = {
+                "epoch": epoch,
+                **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar, previous_action, change_weight),
+                **measure(policy, val_set, batch_size, "val"),
+            }
             row["seconds"] = round(time.perf_counter() - tick, 3)
             history.append(row)
             bar.set_postfix(val_nll=f"{row['val_nll']:.3f}", val_acc=f"{row['val_accuracy']:.3f}", refresh=False)
@@ -428,18 +435,39 @@ def behaviour_clone(
     model_path = run_dir / "model.zip"
     model.save(model_path)
     write_model_info(model_path, info)
-    summary = {"best_epoch": best["epoch"], "best_val_nll": best["val_nll"], "best_val_accuracy": best["val_accuracy"],
-               "epochs_run": len(history) - 1, "stopped_early": stopped_early, "train_episodes": train_ids,
-               "val_episodes": val_ids, "seconds": round(seconds, 1)}
+    summary = {
+        "best_epoch": best["epoch"],
+        "best_val_nll": best["val_nll"],
+        "best_val_accuracy": best["val_accuracy"],
+        "epochs_run": len(history) - 1,
+        "stopped_early": stopped_early,
+        "train_episodes": train_ids,
+        "val_episodes": val_ids,
+        "seconds": round(seconds, 1),
+    }
     log_path = run_dir / "bc_log.json"
     log_path.write_text(json.dumps({**summary, "epochs": history}, indent=2))
     record.update(summary, finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    log(f"dpr bc: wrote {model_path} (best epoch {best['epoch']}: validation per-robot accuracy "
+    log(
+        f"dpr bc: wrote {model_path} (best epoch {best['epoch']}: validation per-robot accuracy "
         f"{best['val_accuracy']:.3f}, whole-action match {best['val_exact_match']:.3f}, expansion recall "
-        f"{best['val_expand_recall']:.3f}; {seconds:.0f} s)")
-    return BCResult(run_dir, model_path, log_path, config_path, best["epoch"], best["val_nll"], best["val_accuracy"],
-                    len(history) - 1, stopped_early, train_ids, val_ids, history)
+        f"{best['val_expand_recall']:.3f}; {seconds:.0f} s)"
+    )
+    return BCResult(
+        run_dir,
+        model_path,
+        log_path,
+        config_path,
+        best["epoch"],
+        best["val_nll"],
+        best["val_accuracy"],
+        len(history) - 1,
+        stopped_early,
+        train_ids,
+        val_ids,
+        history,
+    )
 
 
 def result_dict(result: BCResult) -> dict[str, Any]:

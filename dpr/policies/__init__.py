@@ -1,4 +1,6 @@
-"""Scripted policies: the paper's wave policy and a random baseline, and policies by name."""
+"""Policies: the scripted ones (the paper's wave policy and a random baseline), policies by name, and the SB3
+models that learning trains (:mod:`dpr.policies.sb3`: building, saving, loading; :mod:`dpr.policies.hyperparams`:
+what they are built from). The SB3 modules are not imported here: scripted policies must not pay for torch."""
 
 from dpr.policies.registry import SCRIPTED_POLICIES, RandomPolicy, make_policy
 from dpr.policies.wave import MarkovWavePolicy, WavePolicy

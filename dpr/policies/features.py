@@ -29,9 +29,14 @@ class SwarmFeatures(BaseFeaturesExtractor):
     both in units of 60 (the wave's bin width)."""
 
     def __init__(self, observation_space: gym.spaces.Box, n_robots: int):
-        if not isinstance(observation_space, gym.spaces.Box) or len(observation_space.shape) != 1 \
-                or observation_space.shape[0] < ROBOT_FEATURES * n_robots:
-            raise ValueError(f"SwarmFeatures needs the 1-D state observation of {n_robots} robots, got {observation_space}")
+        if (
+            not isinstance(observation_space, gym.spaces.Box)
+            or len(observation_space.shape) != 1
+            or observation_space.shape[0] < ROBOT_FEATURES * n_robots
+        ):
+            raise ValueError(
+                f"SwarmFeatures needs the 1-D state observation of {n_robots} robots, got {observation_space}"
+            )
         super().__init__(observation_space, features_dim=int(observation_space.shape[0]) + 2 * n_robots)
         self.n_robots = int(n_robots)
 

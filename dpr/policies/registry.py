@@ -9,7 +9,10 @@ per episode right after ``env.reset(seed=seed)``.
 
 from __future__ import annotations
 
-SCRIPTED_POLICIES = ("wave", "wave-markov", "random")
+WAVE = "wave"  # the paper's hand-crafted policy
+WAVE_MARKOV = "wave-markov"  # the same wave, its phase read from the observation: an expert imitation can copy
+RANDOM = "random"
+SCRIPTED_POLICIES = (WAVE, WAVE_MARKOV, RANDOM)
 
 
 class RandomPolicy:
@@ -60,11 +63,11 @@ def make_policy(name: str, env):
 
     if is_model_path(name):
         return load_model_policy(name, env)
-    if name == "wave":
+    if name == WAVE:
         from dpr.policies.wave import WavePolicy
 
         return _Unseeded(WavePolicy.from_env(env))
-    if name == "wave-markov":
+    if name == WAVE_MARKOV:
         from dpr.policies.wave import MarkovWavePolicy
 
         return _Unseeded(MarkovWavePolicy.from_env(env))

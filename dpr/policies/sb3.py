@@ -1,4 +1,9 @@
-"""Trained stable-baselines3 models as policies: the ``.zip`` files that ``dpr train`` writes.
+"""stable-baselines3 models: building them, saving and loading them, and running them as policies.
+
+This is the one place that makes SB3 models, below both :mod:`dpr.imitation` (behaviour cloning trains a model
+built here) and :mod:`dpr.rl` (training and fine-tuning): the algorithm names, the model a
+:class:`dpr.policies.hyperparams.Hyperparams` describes, which parameters are the actor's, copying an initial
+policy in, and the model files.
 
 A model file is SB3's own zip plus one small JSON member, :data:`METADATA_MEMBER`, that names the algorithm,
 the env id and the env kwargs the model was trained with, so that a model can be evaluated or rolled out
@@ -10,20 +15,33 @@ from __future__ import annotations
 
 import json
 import zipfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dpr.checks import ParameterError
+
 MODEL_SUFFIX = ".zip"
 METADATA_MEMBER = "dpr_env.json"
 METADATA_FORMAT = 1
-ALGOS = ("ppo", "a2c", "dqn")
+PPO, A2C, DQN = "ppo", "a2c", "dqn"
+ALGOS = (PPO, A2C, DQN)  # the SB3 algorithms a model file may hold (`dpr train`)
+FINETUNE_ALGOS = (PPO, A2C)  # actor-critics: a cloned action distribution goes on training under them
+BC_ALGOS = ALGOS  # actor-critics (an action distribution) and DQN (Q-values as logits)
+DEFAULT_ALGO = PPO
+# The parameter that names a model file in evaluate and collect: what a bad model file is reported as by default.
+POLICY_PARAMETER = "policy"
+# The TrainConfig field that names the model a fine-tuning run starts from (dpr.rl.train).
+INIT_PARAMETER = "init_from"
+# The value head of an actor-critic policy: what the actor's parameters are not.
+VALUE_HEAD_PREFIXES = ("mlp_extractor.value_net.", "value_net.", "vf_features_extractor.")
 # Env kwargs whose value decides the observation or action space: a different value can never run the model.
 SPACE_KWARGS = ("n_robots", "action_type", "obs_type", "obs_last_action", "image_size")
 
 
 def is_model_path(name: str) -> bool:
-    """Whether a ``--policy`` value names a model file rather than a scripted policy."""
+    """Whether a policy name (``--policy``) is a model file rather than a scripted policy."""
     return name.endswith(MODEL_SUFFIX)
 
 
@@ -58,54 +76,60 @@ def write_model_info(path: str | Path, info: ModelInfo) -> None:
         archive.writestr(METADATA_MEMBER, info.as_json())
 
 
-def read_model_info(path: str | Path) -> ModelInfo:
-    """The :class:`ModelInfo` of the model file at ``path``; ValueError naming the path when the file is
-    missing, not a zip, or not a model written by ``dpr train``."""
+def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> ModelInfo:
+    """The :class:`ModelInfo` of the model file at ``path``; a :class:`ParameterError` about ``parameter`` (the
+    caller's parameter that named the file) when the file is missing, not a zip, or not a model written by
+    ``dpr train``."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"--policy: no model file at {path}")
+        raise ParameterError(parameter, f"no model file at {path}")
     try:
         with zipfile.ZipFile(path) as archive:
             names = archive.namelist()
             if "data" not in names:
-                raise ValueError(f"--policy: {path} is a zip but not a stable-baselines3 model (no 'data' member)")
+                raise ParameterError(parameter, f"{path} is a zip but not a stable-baselines3 model (no 'data' member)")
             if METADATA_MEMBER not in names:
-                raise ValueError(
-                    f"--policy: {path} is an SB3 model without {METADATA_MEMBER}, so its env id and env kwargs are "
-                    "unknown; use a model saved by `dpr train` (dpr.rl.models.save_model)"
+                raise ParameterError(
+                    parameter,
+                    f"{path} is an SB3 model without {METADATA_MEMBER}, so its env id and env kwargs are "
+                    "unknown; use a model saved by `dpr train` (dpr.policies.sb3.save_model)",
                 )
             raw = archive.read(METADATA_MEMBER)
     except zipfile.BadZipFile as error:
-        raise ValueError(f"--policy: {path} is not a readable .zip model file ({error})") from None
+        raise ParameterError(parameter, f"{path} is not a readable .zip model file ({error})") from None
     try:
         data = json.loads(raw)
         info = ModelInfo(
-            algo=data["algo"], env_id=data["env_id"], env_kwargs=dict(data["env_kwargs"]),
+            algo=data["algo"],
+            env_id=data["env_id"],
+            env_kwargs=dict(data["env_kwargs"]),
             max_episode_steps=data.get("max_episode_steps"),
         )
     except (ValueError, KeyError, TypeError) as error:
-        raise ValueError(f"--policy: {path}: {METADATA_MEMBER} is malformed ({error!r})") from None
+        raise ParameterError(parameter, f"{path}: {METADATA_MEMBER} is malformed ({error!r})") from None
     if info.algo not in ALGOS:
-        raise ValueError(f"--policy: {path}: unknown algo {info.algo!r} in {METADATA_MEMBER}; expected one of {ALGOS}")
+        raise ParameterError(
+            parameter, f"{path}: unknown algo {info.algo!r} in {METADATA_MEMBER}; expected one of {ALGOS}"
+        )
     return info
 
 
 def model_env_kwargs(path: str | Path, env_id: str, requested: dict[str, Any] | None = None) -> dict[str, Any]:
     """The env kwargs to run the model at ``path`` on ``env_id``: the model's own, plus any ``requested``
-    kwargs it did not set. A requested value that differs from the model's, or another env id, is a
-    ValueError naming both values."""
+    kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values;
+    another env id a :class:`ParameterError` about ``env_id``."""
     info = read_model_info(path)
     if env_id != info.env_id:
-        raise ValueError(
-            f"model {path} was trained on {info.env_id}; it cannot be run on {env_id} (evaluate it with --env {info.env_id})"
-        )
+        raise ParameterError("env_id", f"model {path} was trained on {info.env_id}; it cannot be run on {env_id}")
     kwargs = dict(info.env_kwargs)
     for name, value in (requested or {}).items():
         if name in kwargs and kwargs[name] != value:
-            why = "makes a different observation or action space" if name in SPACE_KWARGS else "is not what it learned on"
+            why = (
+                "makes a different observation or action space" if name in SPACE_KWARGS else "is not what it learned on"
+            )
             raise ValueError(
                 f"model {path} was trained with {name}={kwargs[name]!r}; {name}={value!r} {why} "
-"(leave it out to use the model's value)"
+                "(leave it out to use the model's value)"
             )
         kwargs[name] = value
     return kwargs
@@ -123,11 +147,12 @@ def _space_mismatch(path: Path, info: ModelInfo, model, env) -> str | None:
     """A sentence on why ``model`` cannot act in ``env``, or None when the spaces agree."""
     problems = []
     if model.observation_space != env.observation_space:
-        problems.append(
-            f"observation space {describe_space(model.observation_space)} vs the env's {describe_space(env.observation_space)}"
-        )
+        model_space, env_space = describe_space(model.observation_space), describe_space(env.observation_space)
+        problems.append(f"observation space {model_space} vs the env's {env_space}")
     if model.action_space != env.action_space:
-        problems.append(f"action space {describe_space(model.action_space)} vs the env's {describe_space(env.action_space)}")
+        problems.append(
+            f"action space {describe_space(model.action_space)} vs the env's {describe_space(env.action_space)}"
+        )
     if not problems:
         return None
     base = getattr(env, "unwrapped", None)  # a VecEnv has none: then only the spaces are named
@@ -140,13 +165,14 @@ def _space_mismatch(path: Path, info: ModelInfo, model, env) -> str | None:
     return f"model {path} does not fit this env: {'; '.join(problems)}{trained}"
 
 
-def load_model(path: str | Path, env=None, *, for_training: bool = False):
+def load_model(path: str | Path, env=None, *, for_training: bool = False, parameter: str = POLICY_PARAMETER):
     """The SB3 model at ``path`` and its :class:`ModelInfo`, checked against ``env`` (a gymnasium env: its id
     and spaces; or a VecEnv: its spaces) when one is given. With ``for_training`` the model's schedules are
     restored and ``env`` is attached, ready for ``learn``; otherwise schedules are not unpickled (prediction
-    does not need them, and they may reference code that is not importable here)."""
+    does not need them, and they may reference code that is not importable here). A file that is no model is
+    a :class:`ParameterError` about ``parameter`` (see :func:`read_model_info`)."""
     path = Path(path)
-    info = read_model_info(path)
+    info = read_model_info(path, parameter)
     env_id = getattr(getattr(env, "spec", None), "id", None)
     if env_id is not None and env_id != info.env_id:
         raise ValueError(f"model {path} was trained on {info.env_id}; this env is {env_id}")
@@ -154,7 +180,7 @@ def load_model(path: str | Path, env=None, *, for_training: bool = False):
     try:
         model = algo_class(info.algo).load(path, device="cpu", custom_objects=custom)
     except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as error:
-        raise ValueError(f"--policy: cannot load {info.algo} model {path}: {error}") from None
+        raise ParameterError(parameter, f"cannot load {info.algo} model {path}: {error}") from None
     if env is not None:
         # Spaces are compared here rather than by SB3's load(env=...), so that the error names the env kwargs.
         mismatch = _space_mismatch(path, info, model, env)
@@ -197,3 +223,91 @@ def load_model_policy(path: str | Path, env) -> ModelPolicy:
     single_thread_torch()
     model, info = load_model(path, env)
     return ModelPolicy(model, info, Path(path))
+
+
+# ------------------------------------------------------------------------------------------------ building
+
+
+def make_env_fn(env_id: str, env_kwargs: dict[str, Any], steps: int) -> Callable[[], Any]:
+    """A factory of one Monitor-wrapped env (picklable; registers the ids in a fresh process)."""
+
+    def make():
+        import gymnasium as gym
+        from stable_baselines3.common.monitor import Monitor
+
+        import dpr  # noqa: F401
+
+        return Monitor(gym.make(env_id, max_episode_steps=steps, **env_kwargs))
+
+    return make
+
+
+def make_vec_env(env_id: str, env_kwargs: dict[str, Any], steps: int, n_envs: int):
+    """``n_envs`` envs in subprocesses (forked: cheap, and the ids are already registered), or in this
+    process when there is one."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    fns = [make_env_fn(env_id, env_kwargs, steps) for _ in range(n_envs)]
+    if n_envs > 1:
+        return SubprocVecEnv(fns, start_method="fork")
+    return DummyVecEnv(fns)
+
+
+def build_model(hyper, env, seed: int, tensorboard_log: str | None):
+    """The SB3 model that ``hyper`` (a :class:`dpr.policies.hyperparams.Hyperparams`) describes, on ``env`` (a
+    VecEnv), seeded with ``seed``: what ``dpr train`` trains and what ``dpr bc`` clones into. Its initial weights
+    follow from the torch RNG state, ``hyper`` and ``seed`` alone."""
+    single_thread_torch()
+    return algo_class(hyper.algo)(
+        hyper.policy,
+        env,
+        seed=seed,
+        verbose=0,
+        device="cpu",
+        tensorboard_log=tensorboard_log,
+        **hyper.model_kwargs(n_robots=env.get_attr("n_robots")[0]),
+    )
+
+
+def actor_parameters(policy) -> list:
+    """The parameters that decide the action distribution: everything but the value head."""
+    return [p for name, p in policy.named_parameters() if not name.startswith(VALUE_HEAD_PREFIXES)]
+
+
+def trained_parameters(policy) -> list:
+    """What BC trains: an actor-critic's actor, or a DQN policy's Q-network (its target is copied after)."""
+    if hasattr(policy, "q_net"):
+        return list(policy.q_net.parameters())
+    return actor_parameters(policy)
+
+
+def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER) -> None:
+    """Copy the policy weights of the model file at ``path`` into ``model`` (same spaces and network).
+    A :class:`ParameterError` about ``parameter`` (the caller's name for ``path``; ``init_from`` of
+    :class:`dpr.rl.train.TrainConfig` by default) naming the file when they do not fit."""
+    source, info = load_model(path, parameter=parameter)
+    for name in ("observation_space", "action_space"):
+        if getattr(source, name) != getattr(model, name):
+            raise ParameterError(
+                parameter,
+                f"{path}: its {name} {describe_space(getattr(source, name))} differs from "
+                f"this run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs})",
+            )
+    try:
+        model.policy.load_state_dict(source.policy.state_dict())
+    except RuntimeError as error:
+        raise ParameterError(
+            parameter,
+            f"{path} ({info.algo}) has another network than this run's "
+            f"{model.policy.net_arch}: {str(error).splitlines()[0]}",
+        ) from None
+
+
+def save_model(model, path: str | Path, info: ModelInfo) -> Path:
+    """Save ``model`` to ``path`` (a ``.zip`` file, replaced if present) with ``info`` inside it."""
+    path = Path(path)
+    if path.suffix != MODEL_SUFFIX:
+        raise ValueError(f"model path must end in {MODEL_SUFFIX}, got {path}")
+    model.save(path)  # a fresh zip: any metadata of an older file at this path is gone with it
+    write_model_info(path, info)
+    return path

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dpr.checks import check_int
 from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES, ParticleSwarmEnv, joint_action_bits
 
 BIN_WIDTH = 60.0  # the 2021 code's "robot diameter"
@@ -35,7 +36,7 @@ class WavePolicy:
 
     Markov in what it is given: the action depends on the current observation's robot positions (goal
     frame) and on the policy's own state, a step counter inside the cycle and the bins planned at the cycle's
-    start. Call :meth:`reset` at every episode start (:func:`run_episode` style loops do). Observations are
+    start. Call :meth:`reset` at every episode start (:func:`dpr.rollout.roll_out` does). Observations are
     the env's ``state`` vectors (or ``pixels_state`` dicts); the returned action matches ``action_type``.
     """
 
@@ -47,12 +48,10 @@ class WavePolicy:
         bin_width: float = BIN_WIDTH,
         start_side: str = "near",
     ):
-        if n_robots < 1:
-            raise ValueError(f"n_robots must be >= 1, got {n_robots}")
+        n_robots = check_int("n_robots", int(n_robots) if isinstance(n_robots, np.integer) else n_robots, 1)
         if action_type not in ("multibinary", "discrete", "continuous"):
             raise ValueError(f"action_type must be 'multibinary', 'discrete' or 'continuous', got {action_type!r}")
-        if hold_steps < 1:
-            raise ValueError(f"hold_steps must be >= 1, got {hold_steps}")
+        hold_steps = check_int("hold_steps", int(hold_steps) if isinstance(hold_steps, np.integer) else hold_steps, 1)
         if not bin_width > 0:
             raise ValueError(f"bin_width must be > 0, got {bin_width}")
         if start_side not in START_SIDES:
@@ -65,7 +64,7 @@ class WavePolicy:
         self.reset()
 
     @classmethod
-    def from_env(cls, env, **overrides) -> "WavePolicy":
+    def from_env(cls, env, **overrides) -> WavePolicy:
         """A wave policy for ``env`` (wrapped or not), with its robot model's defaults (:data:`MODEL_DEFAULTS`:
         paddle hold 10 from the near side; disk hold 4 from the far side, from the near side for
         ``DISK_NEAR_SIDE_FROM`` robots or more). ``overrides`` (``hold_steps=``, ``start_side=``, ...) win."""
@@ -78,7 +77,9 @@ class WavePolicy:
         kwargs.update(overrides)
         return cls(base.n_robots, base.action_type, **kwargs)
 
-    def reset(self) -> None:
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new episode (``seed`` is accepted for the policy interface and unused: the wave is
+        deterministic)."""
         self._bins = np.zeros(self.n_robots, dtype=np.int64)
         self._n_phases = 0
         self._step_in_cycle = 0
@@ -131,20 +132,23 @@ class MarkovWavePolicy(WavePolicy):
 
     def __init__(self, n_robots: int, action_type: str = "multibinary", hold_steps: int = 10, **kwargs):
         if hold_steps > HELD_STEPS_CAP:
-            raise ValueError(f"hold_steps must be <= {HELD_STEPS_CAP} (the observation counts held steps up to it), "
-                             f"got {hold_steps}")
+            raise ValueError(
+                f"hold_steps must be <= {HELD_STEPS_CAP} (the observation counts held steps up to it), got {hold_steps}"
+            )
         super().__init__(n_robots, action_type, hold_steps, **kwargs)
 
     @classmethod
-    def from_env(cls, env, **overrides) -> "MarkovWavePolicy":
+    def from_env(cls, env, **overrides) -> MarkovWavePolicy:
         """A Markov wave for ``env`` (wrapped or not) with its robot model's defaults; the env must have
         ``obs_last_action=True``."""
         if not env.unwrapped.obs_last_action:
-            raise ValueError("wave-markov reads the previous action and its held steps from the observation: "
-                             "make the env with obs_last_action=True (e.g. --env-kwarg obs_last_action=true)")
+            raise ValueError(
+                "wave-markov reads the previous action and its held steps from the observation: "
+                "make the env with obs_last_action=True"
+            )
         return super().from_env(env, **overrides)
 
-    def reset(self) -> None:
+    def reset(self, seed: int | None = None) -> None:
         """Nothing to reset: the policy keeps no state."""
 
     def __call__(self, observation) -> np.ndarray | int:

@@ -17,12 +17,16 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from dpr.checks import ParameterError
+from dpr.datasets.features import ACTION, OBSERVATION
 from dpr.datasets.lerobot import LeRobotReader
-from dpr.imitation.bc import ACTION_KEY, OBSERVATION_KEY, actor_parameters, batch_stats, check_features
+from dpr.imitation.loss import batch_stats, check_features
+from dpr.policies.sb3 import actor_parameters
 
 ANCHOR_BATCHES = 8  # gradient steps per update: a few, so the anchor pulls rather than re-clones
 ANCHOR_BATCH_SIZE = 256
 MAX_GRAD_NORM = 0.5  # as PPO's and A2C's own updates
+ANCHOR_PARAMETER = "anchor_datasets"  # the TrainConfig field the demonstrations come from
 
 
 @dataclass(frozen=True)
@@ -38,27 +42,40 @@ class Demonstrations:
 
     def record(self, weight: float, decay: float) -> dict:
         """What a run's config.yaml says about its anchor."""
-        return {"datasets": list(self.sources), "frames": len(self), "weight": weight, "decay": decay,
-                "batches_per_update": ANCHOR_BATCHES, "batch_size": ANCHOR_BATCH_SIZE}
+        return {
+            "datasets": list(self.sources),
+            "frames": len(self),
+            "weight": weight,
+            "decay": decay,
+            "batches_per_update": ANCHOR_BATCHES,
+            "batch_size": ANCHOR_BATCH_SIZE,
+        }
 
 
-def load_demonstrations(dataset_dirs: list[str | Path], observation_space: gym.Space, action_space: gym.Space,
-                        env_text: str) -> Demonstrations:
-    """Read every frame of the datasets at ``dataset_dirs`` (ValueError naming a dataset whose features do not
-    fit the spaces; DatasetError for one that is not a dataset)."""
+def load_demonstrations(
+    dataset_dirs: list[str | Path], observation_space: gym.Space, action_space: gym.Space, env_text: str
+) -> Demonstrations:
+    """Read every frame of the datasets at ``dataset_dirs`` (a :class:`ParameterError` about ``anchor_datasets``,
+    the field of :class:`dpr.rl.train.TrainConfig` they come from, naming a dataset whose features do not fit the
+    spaces; DatasetError for one that is not a dataset)."""
     if not isinstance(action_space, gym.spaces.MultiBinary):
-        raise ValueError(f"--anchor: the demonstration loss needs a MultiBinary action space, not {action_space}")
+        raise ParameterError(
+            ANCHOR_PARAMETER, f"the demonstration loss needs a MultiBinary action space, not {action_space}"
+        )
     if not dataset_dirs:
-        raise ValueError("--anchor: give at least one dataset")
+        raise ParameterError(ANCHOR_PARAMETER, "give at least one dataset")
     observations, actions = [], []
     for path in dataset_dirs:
         reader = LeRobotReader(path)
-        check_features(reader, observation_space, action_space, env_text, argument="--anchor")
-        frames = reader.frame_range(0, reader.num_frames, [OBSERVATION_KEY, ACTION_KEY])
-        observations.append(np.asarray(frames[OBSERVATION_KEY], dtype=np.float32))
-        actions.append(np.asarray(frames[ACTION_KEY], dtype=np.float32))
-    return Demonstrations(torch.from_numpy(np.concatenate(observations)), torch.from_numpy(np.concatenate(actions)),
-                          tuple(str(Path(p).resolve()) for p in dataset_dirs))
+        check_features(reader, observation_space, action_space, env_text, parameter=ANCHOR_PARAMETER)
+        frames = reader.frame_range(0, reader.num_frames, [OBSERVATION, ACTION])
+        observations.append(np.asarray(frames[OBSERVATION], dtype=np.float32))
+        actions.append(np.asarray(frames[ACTION], dtype=np.float32))
+    return Demonstrations(
+        torch.from_numpy(np.concatenate(observations)),
+        torch.from_numpy(np.concatenate(actions)),
+        tuple(str(Path(p).resolve()) for p in dataset_dirs),
+    )
 
 
 def demonstration_anchor(demonstrations: Demonstrations, weight: float, decay: float, seed: int):
@@ -83,7 +100,7 @@ def demonstration_anchor(demonstrations: Demonstrations, weight: float, decay: f
             self.anchor()  # the last update has no rollout after it
 
         def anchor(self) -> None:
-            scale = weight * decay ** self.updates
+            scale = weight * decay**self.updates
             self.updates += 1
             policy = self.model.policy
             policy.set_training_mode(True)

@@ -11,22 +11,24 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from dpr.envs import ENV_IDS
-from dpr.metrics import EpisodeMetrics, episode_metrics, summarize
+from dpr.atomic import atomic_write_text
+from dpr.checks import check_choice
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.metrics import EpisodeMetrics, summarize
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import is_model_path, model_env_kwargs
+from dpr.rollout import roll_out
 
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")
 # The trajectory stored in `dpr evaluate --json`: every 10th position to 0.1 units is plenty for a figure
-# (2500 steps -> 251 points) and keeps the file small.
+# (MAX_EPISODE_STEPS = 2500 steps -> 251 points) and keeps the file small.
 TRAJECTORY_EVERY = 10
 TRAJECTORY_DECIMALS = 1
 
 
-def check_env_id(env_id: str) -> str:
-    if env_id not in ENV_IDS.values():
-        raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
-    return env_id
+def check_env_id(env_id: str, parameter: str = "env_id") -> str:
+    """``env_id`` if it is a registered dpr env id (ParameterError naming ``parameter`` otherwise)."""
+    return check_choice(parameter, env_id, ENV_IDS.values())
 
 
 @dataclass
@@ -64,27 +66,30 @@ def subsample_trajectory(
 _SPREAD_PAIR = re.compile(r"\[\n\s*([^\s,\[\]{}]+),\n\s*([^\s,\[\]{}]+)\n\s*\]")
 
 
-def evaluation_payload(policy: str, env_ids: list[str], env_kwargs: dict, steps: int, seeds: list[int],
-                       results: list[EpisodeResult]) -> dict:
+def evaluation_payload(
+    policy: str, env_ids: list[str], env_kwargs: dict, steps: int, seeds: list[int], results: list[EpisodeResult]
+) -> dict:
     """What ``dpr evaluate --json`` writes: the run's arguments, every episode with its path (for ``dpr report``)
     and the summary per env id (unnested for one env id)."""
     per_env = summary(results)
     return {
-        "policy": policy, "env_ids": list(env_ids), "env_kwargs": env_kwargs, "steps": steps, "seeds": list(seeds),
+        "policy": policy,
+        "env_ids": list(env_ids),
+        "env_kwargs": env_kwargs,
+        "steps": steps,
+        "seeds": list(seeds),
         "episodes": [r.as_dict(trajectory=True) for r in results],
         "summary": per_env if len(env_ids) > 1 else per_env[env_ids[0]],
     }
 
 
-def save_evaluation(path, policy: str, env_ids: list[str], env_kwargs: dict, steps: int, seeds: list[int],
-                    results: list[EpisodeResult]) -> Path:
+def save_evaluation(
+    path, policy: str, env_ids: list[str], env_kwargs: dict, steps: int, seeds: list[int], results: list[EpisodeResult]
+) -> Path:
     """Write :func:`evaluation_payload` as :func:`evaluation_json` to ``path`` through a temporary file, so that
     ``path`` exists only once it is complete."""
-    path = Path(path)
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(evaluation_json(evaluation_payload(policy, env_ids, env_kwargs, steps, seeds, results)))
-    partial.replace(path)
-    return path
+    payload = evaluation_payload(policy, env_ids, env_kwargs, steps, seeds, results)
+    return atomic_write_text(path, evaluation_json(payload))
 
 
 def evaluation_json(payload: dict) -> str:
@@ -101,32 +106,25 @@ def policy_env_kwargs(policy: str, env_id: str, env_kwargs: dict | None) -> dict
     return dict(env_kwargs or {})
 
 
-def run_episode(env_id: str, policy_name: str, seed: int, steps: int = 2500, env_kwargs: dict | None = None) -> EpisodeResult:
+def run_episode(
+    env_id: str, policy_name: str, seed: int, steps: int = MAX_EPISODE_STEPS, env_kwargs: dict | None = None
+) -> EpisodeResult:
     """One episode of at most ``steps`` steps from ``reset(seed=seed)`` (a model file's env kwargs apply)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
 
     env = gym.make(env_id, max_episode_steps=steps, **policy_env_kwargs(policy_name, env_id, env_kwargs))
-    policy = make_policy(policy_name, env)
-    observation, _ = env.reset(seed=seed)
-    policy.reset(seed)
-    base = env.unwrapped
-    trajectory = [base._agent_position()]
-    done = False
-    while not done:
-        observation, _, terminated, truncated, info = env.step(policy(observation))
-        if "physics_error" not in info:  # a blown-up step's state is not part of the trajectory
-            trajectory.append(base._agent_position())
-        done = terminated or truncated
-    env.close()
-    trajectory = np.array(trajectory)
-    return EpisodeResult(env_id, policy_name, seed, episode_metrics(trajectory, base.goal), trajectory, base.goal.copy())
+    try:
+        result = roll_out(env, make_policy(policy_name, env), seed)
+    finally:
+        env.close()
+    return EpisodeResult(env_id, policy_name, seed, result.metrics, result.trajectory, result.goal)
 
 
 def evaluate(
     env_ids: list[str],
     policy: str,
     seeds: list[int],
-    steps: int = 2500,
+    steps: int = MAX_EPISODE_STEPS,
     env_kwargs: dict | None = None,
     workers: int = 1,
     progress=None,
@@ -134,7 +132,7 @@ def evaluate(
     """Run ``policy`` (a scripted policy's name or a ``.zip`` model file) on every env id and seed (in
     ``workers`` processes); results in input order. A model runs with the env kwargs it was trained with."""
     for env_id in env_ids:
-        check_env_id(env_id)
+        check_env_id(env_id, "env_ids")
     check_policy_name(policy)
     # Resolved here, once per env id, so that a conflict is reported before any episode runs.
     kwargs_by_env = {env_id: policy_env_kwargs(policy, env_id, env_kwargs) for env_id in env_ids}

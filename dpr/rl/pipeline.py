@@ -34,15 +34,18 @@ from typing import Any
 
 import yaml
 
-from dpr.envs import ENV_IDS
+from dpr.checks import ParameterError, check_int
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.policies.hyperparams import FINETUNE_PRESET
+from dpr.policies.registry import WAVE, WAVE_MARKOV
+from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
 from dpr.runs import fresh_path
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
-EXPERT = "wave-markov"
-BASELINE = "wave"
-STEPS_PER_EPISODE = 2500
-FINETUNE_ALGOS = ("ppo", "a2c")
-SCRATCH_ALGOS = ("ppo", "a2c", "dqn")
+EXPERT = WAVE_MARKOV
+BASELINE = WAVE
+SCRATCH_ALGOS = ALGOS
+BC_ALGO = DEFAULT_ALGO  # what the demonstrations are cloned into: an actor-critic every FINETUNE_ALGOS can load
 
 
 @dataclass
@@ -58,12 +61,12 @@ class PipelineConfig:
     finetune_steps: int = 30_000
     anchor: bool = False  # anchor fine-tuning to the task's demonstrations (dpr finetune --anchor)
     approach_reward: float = 1.0  # Manipulation's shaping weight for RL, fine-tuning and from scratch (0: none)
-    finetune_algos: list[str] = field(default_factory=lambda: ["ppo"])
-    scratch_algos: list[str] = field(default_factory=lambda: ["ppo"])
+    finetune_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
+    scratch_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
     eval_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
     seed: int = 0
     workers: int = 2
-    steps: int = STEPS_PER_EPISODE  # per episode, in demonstrations, training and evaluation
+    steps: int = MAX_EPISODE_STEPS  # per episode, in demonstrations, training and evaluation
 
     def __post_init__(self):
         unknown = [task for task in self.tasks if task not in ENV_IDS]
@@ -74,18 +77,19 @@ class PipelineConfig:
             if bad:
                 raise ValueError(f"{name} must be among {allowed}, got {bad}")
         for name in ("n_robots", "episodes", "bc_epochs", "finetune_steps", "workers", "steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            check_int(name, getattr(self, name), 1)
         for name in ("critic_warmup", "demo_seed", "seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
-        if isinstance(self.approach_reward, bool) or not isinstance(self.approach_reward, (int, float)) \
-                or not self.approach_reward >= 0:
+            check_int(name, getattr(self, name), 0)
+        if (
+            isinstance(self.approach_reward, bool)
+            or not isinstance(self.approach_reward, (int, float))
+            or not self.approach_reward >= 0
+        ):
             raise ValueError(f"approach_reward must be a number >= 0, got {self.approach_reward!r}")
         if self.episodes < 2:
-            raise ValueError(f"episodes must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}")
+            raise ParameterError(
+                "episodes", f"must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}"
+            )
         if not self.eval_seeds:
             raise ValueError("eval_seeds must name at least one seed")
         demo_seeds = set(range(self.demo_seed, self.demo_seed + self.episodes))
@@ -137,8 +141,13 @@ def _copy_new(source: Path, target: Path) -> None:
     partial.replace(target)
 
 
-def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool = True,
-                 log: Callable[[str], None] = lambda line: print(line, file=sys.stderr)) -> Path:
+def run_pipeline(
+    config: PipelineConfig,
+    out: str | Path,
+    *,
+    show_progress: bool = True,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+) -> Path:
     """Run (or resume) the pipeline into ``out``; returns the report folder."""
     from tqdm import tqdm
 
@@ -150,7 +159,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
 
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out: {out} exists and is not a folder")
+        raise ParameterError("out", f"{out} exists and is not a folder")
     for folder in ("datasets", "runs", "models", "eval"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     config_path = out / "pipeline.yaml"
@@ -159,11 +168,22 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
         if isinstance(previous, dict):  # a setting added since that run started had its default value there
             previous = {**asdict(PipelineConfig()), **previous}
         if previous != asdict(config):
-            raise ValueError(f"--out: {out} holds a pipeline run with other settings ({config_path}); "
-                             "use a new folder, or the same settings to resume it")
+            raise ParameterError(
+                "out",
+                f"{out} holds a pipeline run with other settings ({config_path}); "
+                "use a new folder, or the same settings to resume it",
+            )
     else:
-        config_path.write_text(yaml.safe_dump({"config": asdict(config), "rl_steps": config.rl_steps,
-                                               "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}, sort_keys=False))
+        config_path.write_text(
+            yaml.safe_dump(
+                {
+                    "config": asdict(config),
+                    "rl_steps": config.rl_steps,
+                    "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                },
+                sort_keys=False,
+            )
+        )
     started = time.perf_counter()
     evaluations: list[tuple[Path, str]] = []  # (file, method)
     for task in config.tasks:
@@ -171,34 +191,68 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
         env_kwargs = dict(PIPELINE_ENV_KWARGS)
         dataset = out / "datasets" / task
         if _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
-            spec = CollectSpec(env_id, policy=EXPERT, n_robots=config.n_robots, steps=config.steps,
-                               env_kwargs=env_kwargs)
+            spec = CollectSpec(
+                env_id, policy=EXPERT, n_robots=config.n_robots, steps=config.steps, env_kwargs=env_kwargs
+            )
             with tqdm(total=config.episodes, desc=f"collect {task}", unit="episode", disable=not show_progress) as bar:
-                summary = collect(dataset, spec, config.episodes, seed=config.demo_seed, workers=config.workers,
-                                  progress=lambda record, index: bar.update(1))
+                summary = collect(
+                    dataset,
+                    spec,
+                    config.episodes,
+                    seed=config.demo_seed,
+                    workers=config.workers,
+                    progress=lambda record, index: bar.update(1),
+                )
             if summary.interrupted:
                 raise KeyboardInterrupt
         bc_model = out / "models" / f"{task}-bc.zip"
         if _stage(bc_model, f"{task}: behaviour cloning", log):
-            result = behaviour_clone(dataset, env_id, algo="ppo", epochs=config.bc_epochs, seed=config.seed,
-                                     out=fresh_path(out / "runs" / f"{task}-bc"), show_progress=show_progress, log=log)
+            result = behaviour_clone(
+                dataset,
+                env_id,
+                algo=BC_ALGO,
+                epochs=config.bc_epochs,
+                seed=config.seed,
+                out=fresh_path(out / "runs" / f"{task}-bc"),
+                show_progress=show_progress,
+                log=log,
+            )
             _copy_new(result.model_path, bc_model)
 
         runs: list[tuple[str, dict[str, Any]]] = [
-            (f"bc-{algo}", {"algo": algo, "preset": "finetune", "timesteps": config.finetune_steps,
-                            "init_from": str(bc_model), "critic_warmup": config.critic_warmup,
-                            "anchor_datasets": [str(dataset)] if config.anchor else []})
+            (
+                f"bc-{algo}",
+                {
+                    "algo": algo,
+                    "preset": FINETUNE_PRESET,
+                    "timesteps": config.finetune_steps,
+                    "init_from": str(bc_model),
+                    "critic_warmup": config.critic_warmup,
+                    "anchor_datasets": [str(dataset)] if config.anchor else [],
+                },
+            )
             for algo in config.finetune_algos
         ] + [(algo, {"algo": algo, "timesteps": config.rl_steps}) for algo in config.scratch_algos]
         for method, settings in runs:
             model = out / "models" / f"{task}-{method}.zip"
-            if _stage(model, f"{task}: {method} ({settings['timesteps']} steps"
-                      + (f" after {config.critic_warmup} warm-up steps)" if "init_from" in settings else ")"), log):
-                train_config = TrainConfig(env_id=env_id, n_robots=config.n_robots, seed=config.seed,
-                                           n_envs=config.workers, steps_per_episode=config.steps,
-                                           env_kwargs=config.rl_env_kwargs(task), **settings)
-                result = train(train_config, fresh_path(out / "runs" / f"{task}-{method}"), show_progress=show_progress,
-                               log=log)
+            if _stage(
+                model,
+                f"{task}: {method} ({settings['timesteps']} steps"
+                + (f" after {config.critic_warmup} warm-up steps)" if "init_from" in settings else ")"),
+                log,
+            ):
+                train_config = TrainConfig(
+                    env_id=env_id,
+                    n_robots=config.n_robots,
+                    seed=config.seed,
+                    n_envs=config.workers,
+                    steps_per_episode=config.steps,
+                    env_kwargs=config.rl_env_kwargs(task),
+                    **settings,
+                )
+                result = train(
+                    train_config, fresh_path(out / "runs" / f"{task}-{method}"), show_progress=show_progress, log=log
+                )
                 if result.interrupted:
                     raise KeyboardInterrupt
                 _copy_new(result.model_path, model)
@@ -210,12 +264,24 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
             if not _stage(path, f"{task}: evaluate {method} on seeds {format_seeds(config.eval_seeds)}", log):
                 continue
             # the wave runs on the pipeline's env; a model on the env kwargs stored in it
-            kwargs = policy_env_kwargs(policy, env_id, {"n_robots": config.n_robots, **env_kwargs}
-                                       if method == BASELINE else None)
-            with tqdm(total=len(config.eval_seeds), desc=f"evaluate {task}-{method}", unit="episode",
-                      disable=not show_progress) as bar:
-                results = evaluate([env_id], policy, config.eval_seeds, steps=config.steps, env_kwargs=kwargs,
-                                   workers=config.workers, progress=lambda r: bar.update(1))
+            kwargs = policy_env_kwargs(
+                policy, env_id, {"n_robots": config.n_robots, **env_kwargs} if method == BASELINE else None
+            )
+            with tqdm(
+                total=len(config.eval_seeds),
+                desc=f"evaluate {task}-{method}",
+                unit="episode",
+                disable=not show_progress,
+            ) as bar:
+                results = evaluate(
+                    [env_id],
+                    policy,
+                    config.eval_seeds,
+                    steps=config.steps,
+                    env_kwargs=kwargs,
+                    workers=config.workers,
+                    progress=lambda r: bar.update(1),
+                )
             save_evaluation(path, policy, [env_id], kwargs, config.steps, config.eval_seeds, results)
 
     report = out / "report"
@@ -225,4 +291,3 @@ def run_pipeline(config: PipelineConfig, out: str | Path, *, show_progress: bool
         write_report([path for path, _ in evaluations], report, labels=[method for _, method in evaluations])
     log(f"dpr pipeline: done in {time.perf_counter() - started:.0f} s; report in {report}")
     return report
-

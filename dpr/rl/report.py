@@ -21,11 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from dpr.checks import ParameterError
 from dpr.metrics import summarize
+from dpr.policies.registry import WAVE
+from dpr.policies.sb3 import is_model_path
 
 TASK_ORDER = ("Navigation", "Gate", "Unresponsive", "Manipulation")
-WAVE_POLICY = "wave"
-MODEL_SUFFIX = ".zip"
+WAVE_POLICY = WAVE  # the baseline every row is a percentage of
 REPORT_FILES = ("results.md", "bars.png", "trajectories.png")
 REQUIRED_KEYS = {"policy": str, "env_ids": list, "steps": int, "seeds": list, "episodes": list}
 EPISODE_KEYS = {"env_id": str, "seed": int, "projected_displacement": (int, float), "success": (bool, int)}
@@ -41,7 +43,7 @@ def policy_label(policy: str, tasks=()) -> str:
     """Display name of a policy: a model file's stem without the prefix of one of ``tasks`` (task names), so
     that the same method has the same name on every task (models/navigation-bc-ppo.zip on Navigation ->
     bc-ppo), else the policy's name."""
-    if not policy.endswith(MODEL_SUFFIX):
+    if not is_model_path(policy):
         return policy
     stem = Path(policy).stem
     for task in tasks:
@@ -92,23 +94,32 @@ def load_evaluation(path, label: str | None = None) -> dict:
     if not isinstance(payload, dict):
         kind = type(payload).__name__
         raise ValueError(f"{path}: expected a JSON object written by `dpr evaluate --json`, got a {kind}")
-    _check_keys(payload, REQUIRED_KEYS, f"{path}: missing key(s) {{missing}}; is it a `dpr evaluate --json` file?",
-                f"{path}: '{{key}}' must be a {{kind}}, got {{value!r:.60}}")
+    _check_keys(
+        payload,
+        REQUIRED_KEYS,
+        f"{path}: missing key(s) {{missing}}; is it a `dpr evaluate --json` file?",
+        f"{path}: '{{key}}' must be a {{kind}}, got {{value!r:.60}}",
+    )
     if not payload["episodes"]:
         raise ValueError(f"{path}: no episodes")
     for i, episode in enumerate(payload["episodes"]):
         where = f"{path}: episode {i}"
         if not isinstance(episode, dict):
             raise ValueError(f"{where} must be an object, got {episode!r:.60}")
-        _check_keys(episode, EPISODE_KEYS, f"{where} lacks {{missing}}", f"{where}: '{{key}}' has a wrong type: {{value!r:.60}}")
+        _check_keys(
+            episode, EPISODE_KEYS, f"{where} lacks {{missing}}", f"{where}: '{{key}}' has a wrong type: {{value!r:.60}}"
+        )
         if "trajectory" in episode:  # absent from files written before trajectories were recorded
             if "goal" not in episode:
                 raise ValueError(f"{where} has a trajectory but no goal")
             _check_points(episode["goal"], (2,), f"{where}: 'goal'")
             _check_points(episode["trajectory"], (None, 2), f"{where}: 'trajectory'")
     tasks = {task_name(env_id) for env_id in payload["env_ids"]}  # a one-task file names its model by method
-    return {**payload, "source": str(path),
-            "label": label or policy_label(payload["policy"], tasks if len(tasks) == 1 else ())}
+    return {
+        **payload,
+        "source": str(path),
+        "label": label or policy_label(payload["policy"], tasks if len(tasks) == 1 else ()),
+    }
 
 
 @dataclass
@@ -278,21 +289,27 @@ def _trajectory_plan(evaluations: list[dict], seed: int | None) -> dict[str, tup
     for task, groups in _groups(evaluations).items():
         with_paths = {label: g for label, g in groups.items() if all("trajectory" in e for e in g.episodes)}
         for label in [label for label in groups if label not in with_paths]:
-            warnings.warn(f"{groups[label].source}: {label} on {task} has no trajectories (written by an older "
-                          "`dpr evaluate`); left out of the trajectory figure", stacklevel=3)
+            warnings.warn(
+                f"{groups[label].source}: {label} on {task} has no trajectories (written by an older "
+                "`dpr evaluate`); left out of the trajectory figure",
+                stacklevel=3,
+            )
         if not with_paths:
             continue
         if seed is None:
             common = set.intersection(*(set(g.seeds) for g in with_paths.values()))
             if not common:
-                raise ValueError(f"{task}: no seed was evaluated for all of {list(with_paths)}; pick one with --seed")
+                raise ParameterError("seed", f"{task}: no seed was evaluated for all of {list(with_paths)}; pick one")
             chosen = min(common)
         else:
             chosen = seed
             lacking = [label for label, g in with_paths.items() if chosen not in g.seeds]
             for label in lacking:
-                warnings.warn(f"{with_paths[label].source}: {label} on {task} has no episode of seed {chosen}; "
-                              "left out of the trajectory figure", stacklevel=3)
+                warnings.warn(
+                    f"{with_paths[label].source}: {label} on {task} has no episode of seed {chosen}; "
+                    "left out of the trajectory figure",
+                    stacklevel=3,
+                )
                 del with_paths[label]
             if not with_paths:
                 continue
@@ -316,8 +333,9 @@ def _draw_trajectories(plan: dict[str, tuple[int, list[_Path]]], labels: list[st
         markers = axes.plot(*start, "s", color="black", markerfacecolor="none", markersize=9, label="start", zorder=1)
         lines = []
         for p in paths:
-            lines += axes.plot(p.trajectory[:, 0], p.trajectory[:, 1], color=colours[p.label], linewidth=1.5,
-                               label=p.label, zorder=2)
+            lines += axes.plot(
+                p.trajectory[:, 0], p.trajectory[:, 1], color=colours[p.label], linewidth=1.5, label=p.label, zorder=2
+            )
             axes.plot(*p.trajectory[-1], "o", color=colours[p.label], markersize=4, zorder=2)  # where it ended
         # The paths are short beside the distance to the goal: frame them, and point at the goal instead.
         points = np.vstack([p.trajectory for p in paths])
@@ -329,12 +347,14 @@ def _draw_trajectories(plan: dict[str, tuple[int, list[_Path]]], labels: list[st
         distance = float(np.linalg.norm(to_goal))
         if distance > 0:
             tip = start + to_goal / distance * min(distance, 0.8 * float((high - low).max() + pad))
-            axes.annotate("", xy=tip, xytext=start, zorder=0,
-                          arrowprops={"arrowstyle": "->", "color": "0.6", "linestyle": "--"})
+            axes.annotate(
+                "", xy=tip, xytext=start, zorder=0, arrowprops={"arrowstyle": "->", "color": "0.6", "linestyle": "--"}
+            )
             axes.text(*tip, f" to the goal ({distance:.0f} units)", color="0.4", fontsize="small", zorder=0)
         if (low - pad <= goal).all() and (goal <= high + pad).all():  # the goal is in the frame: mark it
-            markers += axes.plot(*goal, "*", color="gold", markeredgecolor="black", markersize=14, label="goal",
-                                 zorder=1)
+            markers += axes.plot(
+                *goal, "*", color="gold", markeredgecolor="black", markersize=14, label="goal", zorder=1
+            )
         axes.set_aspect("equal", adjustable="box")
         axes.set_title(f"{task} (seed {seed})")
         axes.set_xlabel("x (units)")

@@ -14,9 +14,7 @@ A run writes into a new folder: ``model.zip`` (the final model, with its env id 
 
 from __future__ import annotations
 
-import importlib.metadata
 import importlib.util
-import platform
 import sys
 import time
 import warnings
@@ -28,21 +26,31 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import yaml
 
-from dpr.envs import ENV_IDS
 from dpr import runs
-from dpr.policies.sb3 import ALGOS, ModelInfo, algo_class, single_thread_torch, write_model_info
-from dpr.rl.hyperparams import PRESETS, Hyperparams, load_hyperparams
-from dpr.rl.models import save_model
+from dpr.checks import check_int
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
+from dpr.policies.sb3 import (
+    ALGOS,
+    FINETUNE_ALGOS,
+    INIT_PARAMETER,
+    ModelInfo,
+    actor_parameters,
+    build_model,
+    load_initial_policy,
+    make_vec_env,
+    read_model_info,
+    save_model,
+    write_model_info,
+)
 
-if TYPE_CHECKING:  # the anchor imports torch and the BC code: only runs that anchor load it
+if TYPE_CHECKING:  # the anchor imports torch and the BC loss: only runs that anchor load it
     from dpr.rl.anchor import Demonstrations
 
 RUNS_DIR = Path("runs/train")
-FINETUNE_ALGOS = ("ppo", "a2c")  # actor-critic models, which `dpr bc` clones into
 EVALUATIONS = 5  # EvalCallback runs about this many times over a run
 CHECKPOINTS = 4
 EVAL_SEED_OFFSET = 10_000  # EvalCallback's env is seeded with seed + this: its starts differ from training's
-VERSIONED = ("deep-particle-robot", "stable-baselines3", "torch", "gymnasium", "numpy", "pymunk")
 # Kwargs the trainer owns: they come from TrainConfig fields, not from env_kwargs.
 RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "max_episode_steps")
 
@@ -58,8 +66,8 @@ class TrainConfig:
     timesteps: int | None = None  # None: the preset's n_timesteps
     seed: int = 0
     n_envs: int = 1
-    preset: str = "default"
-    steps_per_episode: int = 2500
+    preset: str = DEFAULT_PRESET
+    steps_per_episode: int = MAX_EPISODE_STEPS
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml entry
     eval_episodes: int = 2
@@ -77,13 +85,11 @@ class TrainConfig:
         if self.env_id not in ENV_IDS.values():
             raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
         for name in ("n_robots", "n_envs", "steps_per_episode", "eval_episodes"):
-            _check_positive(name, getattr(self, name))
+            check_int(name, getattr(self, name), 1)
         if self.timesteps is not None:
-            _check_positive("timesteps", self.timesteps)
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
-        if isinstance(self.critic_warmup, bool) or not isinstance(self.critic_warmup, int) or self.critic_warmup < 0:
-            raise ValueError(f"critic_warmup must be an integer >= 0, got {self.critic_warmup!r}")
+            check_int("timesteps", self.timesteps, 1)
+        check_int("seed", self.seed, 0)
+        check_int("critic_warmup", self.critic_warmup, 0)
         if self.critic_warmup and self.init_from is None:
             raise ValueError("critic_warmup needs init_from: a critic warm-up keeps a trained actor unchanged")
         if self.init_from is not None and self.algo not in FINETUNE_ALGOS:
@@ -105,7 +111,9 @@ class TrainConfig:
         env_kwargs = {**hyper.env_kwargs, "n_robots": self.n_robots, "robot_model": self.robot_model}
         for name, value in self.env_kwargs.items():
             if name in hyper.env_kwargs and hyper.env_kwargs[name] != value:
-                raise ValueError(f"{self.algo} needs {name}={hyper.env_kwargs[name]!r} (its yaml env_kwargs); got {value!r}")
+                raise ValueError(
+                    f"{self.algo} needs {name}={hyper.env_kwargs[name]!r} (its yaml env_kwargs); got {value!r}"
+                )
             env_kwargs[name] = value
         return hyper, env_kwargs, self.timesteps or hyper.n_timesteps
 
@@ -127,11 +135,6 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _check_positive(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-
-
 def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
     """A new, empty run folder: ``out`` (refused when it exists and is not an empty folder) or
     ``runs/train/<task>-<algo>-seed<S>-<timestamp>``."""
@@ -139,39 +142,6 @@ def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
     path = Path(out) if out is not None else runs.default_run_dir(RUNS_DIR, config.env_id, config.algo, config.seed)
     path.mkdir(parents=True, exist_ok=True)
     return path
-
-
-def make_env_fn(env_id: str, env_kwargs: dict[str, Any], steps: int) -> Callable[[], gym.Env]:
-    """A factory of one Monitor-wrapped env (picklable; registers the ids in a fresh process)."""
-
-    def make() -> gym.Env:
-        import dpr  # noqa: F401
-        from stable_baselines3.common.monitor import Monitor
-
-        return Monitor(gym.make(env_id, max_episode_steps=steps, **env_kwargs))
-
-    return make
-
-
-def make_vec_env(env_id: str, env_kwargs: dict[str, Any], steps: int, n_envs: int):
-    """``n_envs`` envs in subprocesses (forked: cheap, and the ids are already registered), or in this
-    process when there is one."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-
-    fns = [make_env_fn(env_id, env_kwargs, steps) for _ in range(n_envs)]
-    if n_envs > 1:
-        return SubprocVecEnv(fns, start_method="fork")
-    return DummyVecEnv(fns)
-
-
-def package_versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for name in VERSIONED:
-        try:
-            versions[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
 
 
 def tensorboard_available() -> bool:
@@ -204,7 +174,9 @@ def progress_bar(desc: str, total: int, show_progress: bool):
     return ProgressBar()
 
 
-def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: dict, timesteps: int, show_progress: bool):
+def _callbacks(
+    config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: dict, timesteps: int, show_progress: bool
+):
     """Progress bar, evaluation (best_model.zip) and checkpoints, each stamping its zips with ``info``."""
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 
@@ -234,12 +206,18 @@ def _callbacks(config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: 
     eval_env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, 1)
     eval_env.seed(config.seed + EVAL_SEED_OFFSET)
     evaluation = EvalCallback(
-        eval_env, n_eval_episodes=config.eval_episodes, eval_freq=max(per_env // EVALUATIONS, 1),
-        best_model_save_path=str(run_dir), log_path=str(run_dir / "eval"), deterministic=True, verbose=0,
+        eval_env,
+        n_eval_episodes=config.eval_episodes,
+        eval_freq=max(per_env // EVALUATIONS, 1),
+        best_model_save_path=str(run_dir),
+        log_path=str(run_dir / "eval"),
+        deterministic=True,
+        verbose=0,
         callback_on_new_best=StampBest(),
     )
-    checkpoints = StampingCheckpoints(save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"),
-                                      name_prefix="model", verbose=0)
+    checkpoints = StampingCheckpoints(
+        save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"), name_prefix="model", verbose=0
+    )
     desc = f"{'finetune' if config.init_from else 'train'} {config.algo} {config.env_id}"
     return CallbackList([progress_bar(desc, timesteps, show_progress), evaluation, checkpoints]), eval_env
 
@@ -254,32 +232,6 @@ def _close_quietly(vec_env) -> None:
         pass
 
 
-def build_model(hyper: Hyperparams, env, seed: int, tensorboard_log: str | None):
-    """The SB3 model of ``hyper`` on ``env``."""
-    single_thread_torch()
-    return algo_class(hyper.algo)(
-        hyper.policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log,
-        **hyper.model_kwargs(n_robots=env.get_attr("n_robots")[0])
-    )
-
-
-def load_initial_policy(model, path: str | Path) -> None:
-    """Copy the policy weights of the model file at ``path`` into ``model`` (same spaces and network).
-    ValueError naming the file when they do not fit."""
-    from dpr.policies.sb3 import describe_space, load_model
-
-    source, info = load_model(path)
-    for name in ("observation_space", "action_space"):
-        if getattr(source, name) != getattr(model, name):
-            raise ValueError(f"--from: {path}: its {name} {describe_space(getattr(source, name))} differs from this "
-                             f"run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs})")
-    try:
-        model.policy.load_state_dict(source.policy.state_dict())
-    except RuntimeError as error:
-        raise ValueError(f"--from: {path} ({info.algo}) has another network than this run's "
-                         f"{model.policy.net_arch}: {str(error).splitlines()[0]}") from None
-
-
 def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any]) -> Demonstrations | None:
     """The anchor's demonstration frames, checked against the spaces of ``env`` (made with ``env_kwargs``);
     None without ``anchor_datasets``."""
@@ -287,20 +239,22 @@ def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any
         return None
     from dpr.rl.anchor import load_demonstrations
 
-    return load_demonstrations(config.anchor_datasets, env.observation_space, env.action_space,
-                               f"{config.env_id} {env_kwargs}")
+    return load_demonstrations(
+        config.anchor_datasets, env.observation_space, env.action_space, f"{config.env_id} {env_kwargs}"
+    )
 
 
 def warm_up_critic(model, steps: int, show_progress: bool) -> None:
     """``steps`` steps of ``model.learn`` with every actor parameter frozen: only the value head moves."""
-    from dpr.imitation.bc import actor_parameters
-
     actor = actor_parameters(model.policy)
     for parameter in actor:
         parameter.requires_grad_(False)
     try:
-        model.learn(total_timesteps=steps, callback=progress_bar("critic warm-up", steps, show_progress),
-                    tb_log_name="critic_warmup")
+        model.learn(
+            total_timesteps=steps,
+            callback=progress_bar("critic warm-up", steps, show_progress),
+            tb_log_name="critic_warmup",
+        )
     finally:
         for parameter in actor:
             parameter.requires_grad_(True)
@@ -319,9 +273,7 @@ def train(
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
     try:
         if config.init_from is not None:
-            from dpr.policies.sb3 import read_model_info
-
-            read_model_info(config.init_from)  # so does a missing or foreign model file
+            read_model_info(config.init_from, INIT_PARAMETER)  # so does a missing or foreign model file
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
     finally:
         probe.close()
@@ -345,15 +297,17 @@ def train(
         "critic_warmup": config.critic_warmup,
         "anchor": None if demonstrations is None else demonstrations.record(config.anchor_weight, config.anchor_decay),
         "tensorboard_log": tensorboard_log,
-        "versions": package_versions(),
+        "versions": runs.package_versions(),
         "config": asdict(config),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     config_path = run_dir / "config.yaml"
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
     start = f" from {config.init_from} ({config.critic_warmup} critic warm-up steps first)" if config.init_from else ""
-    log(f"dpr train: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, seed {config.seed} "
-        f"-> {run_dir}")
+    log(
+        f"dpr train: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, seed {config.seed} "
+        f"-> {run_dir}"
+    )
 
     env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, config.n_envs)
     eval_env = None
@@ -366,8 +320,9 @@ def train(
         if demonstrations is not None:
             from dpr.rl.anchor import demonstration_anchor
 
-            callbacks.callbacks.append(demonstration_anchor(demonstrations, config.anchor_weight, config.anchor_decay,
-                                                            config.seed))
+            callbacks.callbacks.append(
+                demonstration_anchor(demonstrations, config.anchor_weight, config.anchor_decay, config.seed)
+            )
         with warnings.catch_warnings():
             # EvalCallback warns when the eval env is a DummyVecEnv and training runs in a SubprocVecEnv: harmless
             # (both are Monitor-wrapped), and one env does not need a process of its own.
@@ -385,9 +340,15 @@ def train(
         for vec_env in (env, eval_env):
             _close_quietly(vec_env)
     seconds = time.perf_counter() - started
-    record.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=round(seconds, 1),
-                  timesteps_done=int(model.num_timesteps), interrupted=interrupted)
+    record.update(
+        finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        seconds=round(seconds, 1),
+        timesteps_done=int(model.num_timesteps),
+        interrupted=interrupted,
+    )
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
     best = run_dir / "best_model.zip"
     log(f"dpr train: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
-    return TrainResult(run_dir, model_path, config_path, best if best.is_file() else None, timesteps, seconds, interrupted)
+    return TrainResult(
+        run_dir, model_path, config_path, best if best.is_file() else None, timesteps, seconds, interrupted
+    )

@@ -10,6 +10,7 @@ import math
 DT = 1.0 / 60.0
 SUBSTEPS = 6
 CONTROL_PERIOD = DT * SUBSTEPS
+FPS = round(1 / CONTROL_PERIOD)  # 10 control steps per second: the envs' render_fps and the datasets' fps
 
 # Paddle robot (robot_model="paddle").
 BODY_MASS = 10.0

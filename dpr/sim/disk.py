@@ -11,7 +11,6 @@ from dpr.sim.neighbours import pairs_within
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
 
-
 _SET_DIFF_LIMIT = 256  # pairs (old + new) above which numpy diffs magnet sets faster than Python sets
 
 

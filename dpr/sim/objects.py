@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pymunk
 
+from dpr.checks import ParameterError
 from dpr.sim import constants as C
 
 
@@ -37,7 +38,7 @@ def add_object(
         body = pymunk.Body(mass, pymunk.moment_for_box(mass, (2 * size, 2 * size)))
         shape = pymunk.Poly.create_box(body, (2 * size, 2 * size))
     else:
-        raise ValueError(f"object_type must be one of {OBJECT_TYPES}, got {kind!r}")
+        raise ParameterError("kind", f"expected one of {list(OBJECT_TYPES)}, got {kind!r}")
     body.position = tuple(position)
     body.angle = angle
     shape.elasticity = C.OBJECT_ELASTICITY
@@ -59,9 +60,7 @@ def add_walls(space: pymunk.Space, polygons: list[np.ndarray]) -> list[pymunk.Po
     return shapes
 
 
-def gate_polygons(
-    start, goal, opening: float, thickness: float = 100.0, length: float = 500.0
-) -> list[np.ndarray]:
+def gate_polygons(start, goal, opening: float, thickness: float = 100.0, length: float = 500.0) -> list[np.ndarray]:
     """Two walls halfway between ``start`` and ``goal``, across the line joining them, leaving an
     ``opening`` centred on that line. Returns two (4, 2) vertex arrays."""
     start, goal = np.asarray(start, float), np.asarray(goal, float)

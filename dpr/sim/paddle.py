@@ -56,9 +56,7 @@ class PaddleSwarm(Swarm):
                 tangent = np.array([math.sin(theta), -math.cos(theta)])  # direction of angle theta - pi/2
                 rim = C.BODY_RADIUS * radial
 
-                p1 = pymunk.Body(
-                    C.PADDLE_MASS, pymunk.moment_for_box(C.PADDLE_MASS, (C.PADDLE_LENGTH, C.PADDLE_WIDTH))
-                )
+                p1 = pymunk.Body(C.PADDLE_MASS, pymunk.moment_for_box(C.PADDLE_MASS, (C.PADDLE_LENGTH, C.PADDLE_WIDTH)))
                 p1.position = tuple(centre + rim)
                 p1.angle = theta - math.pi / 2
                 s1 = pymunk.Poly.create_box(p1, (C.PADDLE_LENGTH, C.PADDLE_WIDTH))

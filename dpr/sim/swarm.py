@@ -1,4 +1,4 @@
-"""The command rule shared by both robot models, and the robot-model registry.
+"""The command rule shared by both robot models (the registry of models is :mod:`dpr.sim.models`).
 
 A swarm owns its pymunk bodies, shapes and joints inside a :class:`pymunk.Space`. The world reads every
 body's state in one batch call and hands each swarm its slice; the swarm turns commanded expansion targets
@@ -81,19 +81,3 @@ class Swarm:
     def magnet_segments(self) -> np.ndarray:
         """(M, 2, 2) end points of the magnets active in this step, for drawing."""
         raise NotImplementedError
-
-
-ROBOT_MODELS = ("paddle", "disk")
-
-
-def swarm_class(model: str) -> type[Swarm]:
-    """The Swarm subclass of a robot model name; ValueError names the allowed ones."""
-    if model not in ROBOT_MODELS:
-        raise ValueError(f"robot_model must be one of {ROBOT_MODELS}, got {model!r}")
-    if model == "paddle":
-        from dpr.sim.paddle import PaddleSwarm
-
-        return PaddleSwarm
-    from dpr.sim.disk import DiskSwarm
-
-    return DiskSwarm

@@ -8,9 +8,11 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
+from dpr.checks import check_int
 from dpr.sim import constants as C
+from dpr.sim.models import swarm_class
 from dpr.sim.objects import add_object, add_walls
-from dpr.sim.swarm import Swarm, swarm_class
+from dpr.sim.swarm import Swarm
 
 _FIELDS = (
     pymunk.batch.BodyFields.POSITION
@@ -59,8 +61,7 @@ class World:
         walls: list[np.ndarray] | None = None,
         obj: ObjectSpec | None = None,
     ):
-        if n_robots < 1:
-            raise ValueError(f"n_robots must be >= 1, got {n_robots}")
+        check_int("n_robots", n_robots, minimum=1)
         self.space = pymunk.Space()
         dead_mask = np.zeros(n_robots, dtype=bool)
         if dead is not None:

@@ -9,6 +9,7 @@ entity and builds a blueprint with one scene view per episode above shared metri
 from dpr.viz.episodes import (
     EpisodeLog,
     ViewError,
+    ViewParameterError,
     check_view_policy,
     episode_from_dataset,
     episode_from_mcap,
@@ -21,6 +22,7 @@ __all__ = [
     "METRICS",
     "EpisodeLog",
     "ViewError",
+    "ViewParameterError",
     "check_view_policy",
     "episode_from_dataset",
     "episode_from_mcap",

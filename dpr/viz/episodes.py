@@ -28,10 +28,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from dpr.envs.particle_env import LENGTH_SCALE, OBJECT_FEATURES, ROBOT_FEATURES
+from dpr.checks import ParameterError
+from dpr.datasets import features as F
+from dpr.envs.particle_env import LENGTH_SCALE, MAX_EPISODE_STEPS, OBJECT_FEATURES, ROBOT_FEATURES
+from dpr.rollout import roll_out
 from dpr.sim import swarm_class
+from dpr.sim.constants import FPS
 
-FPS = 10  # control steps per second of simulated time (the envs' render_fps)
 STEP_NS = 1_000_000_000 // FPS
 SB3_SUFFIX = ".zip"
 _NAME_RE = re.compile(r"[^A-Za-z0-9_]+")
@@ -39,7 +42,13 @@ _RENDER_KWARGS = ("render_mode", "render_size")  # frames are not needed to rebu
 
 
 class ViewError(ValueError):
-    """A source, episode or policy that cannot be shown; the message names the argument or file."""
+    """A source, episode or policy that cannot be shown; the message names the file, or the argument (then it
+    is a :class:`ViewParameterError`)."""
+
+
+class ViewParameterError(ParameterError, ViewError):
+    """A bad argument of the viewer's loaders: a :class:`~dpr.checks.ParameterError` (``.parameter`` names the
+    library parameter, which the CLI says as its flag) that is also a :class:`ViewError`."""
 
 
 @dataclass
@@ -161,10 +170,12 @@ def episode_from_mcap(path: str | os.PathLike, name: str | None = None) -> Episo
     except ValueError:  # a log of another robot model: the scene still says how big its robots are
         radii = episode.scene.get("robot_radii")
         if radii is None:
-            raise ViewError(f"{path}: neither a known robot_model in the metadata nor robot_radii in the scene") from None
+            raise ViewError(
+                f"{path}: neither a known robot_model in the metadata nor robot_radii in the scene"
+            ) from None
     has_object = episode.object_poses is not None
     spec = episode.scene.get("object") or {}
-    title = _title(meta.get("policy"), meta.get("env_id"), meta.get("seed"), path.name)
+    title = _title(meta.get(F.POLICY), meta.get(F.ENV_ID), meta.get(F.SEED), path.name)
     return EpisodeLog(
         name=name or entity_name(path.stem),
         title=title,
@@ -195,33 +206,38 @@ def _title(policy: Any, env_id: Any, seed: Any, source: str | None = None) -> st
 
 
 # -- datasets ---------------------------------------------------------------------------------------------------
-def _make_env(env_id: str, kwargs: Mapping[str, Any], where: str) -> gym.Env:
+def _make_env(env_id: str, kwargs: Mapping[str, Any], where: str | None = None) -> gym.Env:
+    """``gym.make(env_id, **kwargs)``; a failure is a ViewError that starts with ``where`` (a recorded
+    episode), or without ``where`` a :class:`ViewParameterError` naming ``env_id`` or ``env_kwargs``."""
     import dpr  # noqa: F401  (registers the ids)
 
     try:
         return gym.make(env_id, **kwargs)
     except (gym.error.Error, TypeError, ValueError) as error:
-        raise ViewError(f"{where}: cannot make {env_id} with {dict(kwargs)}: {error}") from error
+        problem = f"cannot make {env_id} with {dict(kwargs)}: {error}"
+        if where is not None:
+            raise ViewError(f"{where}: {problem}") from error
+        raise ViewParameterError("env_id" if isinstance(error, gym.error.Error) else "env_kwargs", problem) from error
 
 
-def episode_from_dataset(reader, index: int, name: str | None = None) -> EpisodeLog:
-    """Episode ``index`` of a dataset written by ``dpr collect`` (``reader``: a
-    :class:`dpr.datasets.lerobot.LeRobotReader`). Raises :class:`ViewError` for an index out of range or an
-    episode without the ``seed``/``env_id``/``env_kwargs`` that rebuild its scene."""
-    if not isinstance(index, (int, np.integer)) or not 0 <= index < reader.num_episodes:
-        raise ViewError(
-            f"--episode {index}: the dataset {reader.root} holds episodes 0..{reader.num_episodes - 1}"
-            if reader.num_episodes else f"--episode {index}: the dataset {reader.root} holds no episodes"
-        )
+def episode_from_dataset(reader, episode: int, name: str | None = None) -> EpisodeLog:
+    """Episode ``episode`` (its index) of a dataset written by ``dpr collect`` (``reader``: a
+    :class:`dpr.datasets.lerobot.LeRobotReader`). Raises :class:`ViewError` for an index out of range (a
+    :class:`ViewParameterError` naming ``episode``) or an episode without the ``seed``/``env_id``/``env_kwargs``
+    that rebuild its scene."""
+    if not isinstance(episode, (int, np.integer)) or not 0 <= episode < reader.num_episodes:
+        held = f"episodes 0..{reader.num_episodes - 1}" if reader.num_episodes else "no episodes"
+        raise ViewParameterError("episode", f"{episode} is not in the dataset {reader.root}, which holds {held}")
+    index = int(episode)
     meta = reader.episodes[index]
-    missing = [key for key in ("seed", "env_id", "env_kwargs") if key not in meta]
+    missing = [key for key in (F.SEED, F.ENV_ID, F.ENV_KWARGS) if key not in meta]
     if missing:
         raise ViewError(f"{reader.root}: episode {index} lacks {missing}; it was not recorded by dpr collect")
     where = f"{reader.root} episode {index}"
-    kwargs = {key: value for key, value in dict(meta["env_kwargs"]).items() if key not in _RENDER_KWARGS}
-    env = _make_env(meta["env_id"], kwargs, where)
+    kwargs = {key: value for key, value in dict(meta[F.ENV_KWARGS]).items() if key not in _RENDER_KWARGS}
+    env = _make_env(meta[F.ENV_ID], kwargs, where)
     try:
-        env.reset(seed=int(meta["seed"]))
+        env.reset(seed=int(meta[F.SEED]))
         base = env.unwrapped
         world = base.world
         scene = {
@@ -235,8 +251,8 @@ def episode_from_dataset(reader, index: int, name: str | None = None) -> Episode
         }
     finally:
         env.close()
-    data = reader.episode(index, columns=["observation.state", "next.reward"])
-    state = np.asarray(data["observation.state"], dtype=np.float64)
+    data = reader.episode(index, columns=[F.OBSERVATION, F.REWARD])
+    state = np.asarray(data[F.OBSERVATION], dtype=np.float64)
     n = scene["n"]
     width = ROBOT_FEATURES * n + (OBJECT_FEATURES if scene["has_object"] else 0)
     if state.ndim != 2 or state.shape[1] not in (width, width + n + 1):  # + the last action, with obs_last_action
@@ -253,10 +269,10 @@ def episode_from_dataset(reader, index: int, name: str | None = None) -> Episode
         at = ROBOT_FEATURES * n
         xy = state[:, at : at + 2] / LENGTH_SCALE + goal
         object_poses = np.column_stack([xy, np.zeros(len(state))])  # the observation holds no object angle
-    rewards = np.asarray(data["next.reward"], dtype=np.float64).reshape(-1)[: len(state) - 1]
+    rewards = np.asarray(data[F.REWARD], dtype=np.float64).reshape(-1)[: len(state) - 1]
     return EpisodeLog(
         name=name or f"episode_{index}",
-        title=_title(meta.get("policy"), meta["env_id"], meta["seed"], f"episode {index}"),
+        title=_title(meta.get(F.POLICY), meta[F.ENV_ID], meta[F.SEED], f"episode {index}"),
         robot_radii=model_radii(scene["model"]),
         positions=positions,
         expansions=robots[..., 5],
@@ -275,19 +291,20 @@ def episode_from_dataset(reader, index: int, name: str | None = None) -> Episode
 
 
 # -- live rollouts ----------------------------------------------------------------------------------------------
-def check_view_policy(name: str) -> str:
-    """``name`` if ``dpr view`` can roll it out (a scripted policy, or a model file written by ``dpr train``);
-    :class:`ViewError` otherwise: unknown names list the choices, unreadable model files are named."""
+def check_view_policy(policy: str) -> str:
+    """``policy`` if ``dpr view`` can roll it out (a scripted policy, or a model file written by ``dpr train``);
+    a :class:`ViewParameterError` naming ``policy`` otherwise: unknown names list the choices, unreadable model
+    files are named."""
     from dpr.policies.registry import check_policy_name
     from dpr.policies.sb3 import read_model_info
 
     try:
-        if name.endswith(SB3_SUFFIX):
-            read_model_info(name)
-            return name
-        return check_policy_name(name)
+        if policy.endswith(SB3_SUFFIX):
+            read_model_info(policy)
+            return policy
+        return check_policy_name(policy)
     except ValueError as error:
-        raise ViewError(f"--policies: {error}") from error
+        raise ViewParameterError("policy", str(error)) from error
 
 
 def rollout_episode(
@@ -297,20 +314,23 @@ def rollout_episode(
     *,
     n_robots: int = 9,
     robot_model: str = "paddle",
-    steps: int = 2500,
+    steps: int = MAX_EPISODE_STEPS,
     env_kwargs: Mapping[str, Any] | None = None,
     name: str | None = None,
     on_step: Callable[[int], None] | None = None,
 ) -> EpisodeLog:
-    """Roll ``policy`` out for at most ``steps`` steps from ``reset(seed=seed)`` (``policy.reset(seed)``) and
-    record every state. Stops early when the episode ends; a physics blow-up ends the record at the last sane
-    state. ``on_step(t)`` is called after each step (for a progress bar)."""
+    """Roll ``policy`` out for at most ``steps`` steps from ``reset(seed=seed)`` (:func:`dpr.rollout.roll_out`)
+    and record every state. Stops early when the episode ends; a physics blow-up ends the record at the last
+    sane state. ``on_step(t)`` is called after each step (for a progress bar). Bad arguments are a
+    :class:`ViewParameterError` naming the parameter."""
     from dpr.policies.registry import make_policy
 
     check_view_policy(policy)
     reserved = sorted({"n_robots", "robot_model", "max_episode_steps", *_RENDER_KWARGS} & set(env_kwargs or {}))
     if reserved:
-        raise ViewError(f"--env-kwarg must not set {reserved}: use --n-robots, --robot-model and --steps")
+        raise ViewParameterError(
+            "env_kwargs", f"must not set {reserved}: the swarm size, robot model and episode length are set apart"
+        )
     kwargs = {"n_robots": n_robots, "robot_model": robot_model, **dict(env_kwargs or {})}
     if policy.endswith(SB3_SUFFIX):  # a model runs with the env kwargs it was trained with
         from dpr.policies.sb3 import model_env_kwargs
@@ -318,33 +338,31 @@ def rollout_episode(
         try:
             kwargs = model_env_kwargs(policy, env_id, kwargs)
         except ValueError as error:
-            raise ViewError(f"--policies: {error}") from error
-    env = _make_env(env_id, {**kwargs, "max_episode_steps": steps}, "--env")
+            raise ViewParameterError("policy", str(error)) from error
+    env = _make_env(env_id, {**kwargs, "max_episode_steps": steps})
+    base = env.unwrapped
+    recorder: list[_Recorder] = []
+
+    def record_step(step) -> None:
+        recorder[0].add(base.world)
+        if on_step is not None:
+            on_step(step.index)
+
     try:
-        observation, _ = env.reset(seed=seed)
-        agent = make_policy(policy, env)
-        agent.reset(seed)
-        base = env.unwrapped
+        result = roll_out(
+            env,
+            make_policy(policy, env),
+            seed,
+            on_reset=lambda observation, info: recorder.append(_Recorder(base.world)),
+            on_step=record_step,
+        )
         world = base.world
         spec = world.object_spec
-        record = _Recorder(world)
-        rewards: list[float] = []
-        done = False
-        while not done:
-            observation, reward, terminated, truncated, info = env.step(agent(observation))
-            if "physics_error" in info:
-                break  # the world now holds the blown-up state: keep the episode up to the last sane one
-            record.add(world)
-            rewards.append(float(reward))
-            done = terminated or truncated
-            if on_step is not None:
-                on_step(len(rewards))
-        goal = np.array(base.goal, dtype=np.float64)
         walls = [_closed(wall) for wall in world.walls]
         alive = ~world.dead
     finally:
         env.close()
-    arrays = record.arrays()
+    arrays = recorder[0].arrays()
     return EpisodeLog(
         name=name or entity_name(policy),
         title=_title(policy, env_id, seed),
@@ -354,8 +372,8 @@ def rollout_episode(
         alive=alive,
         centres_of_mass=arrays["centres_of_mass"],
         agent=arrays["object_poses"][:, 0:2] if spec is not None else arrays["centres_of_mass"],
-        rewards=np.array(rewards, dtype=np.float64),
-        goal=goal,
+        rewards=result.rewards,
+        goal=np.array(result.goal, dtype=np.float64),
         walls=walls,
         object_kind=spec.kind if spec is not None else None,
         object_size=spec.size if spec is not None else None,

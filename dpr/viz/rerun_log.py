@@ -33,6 +33,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from dpr.atomic import AtomicFile
+from dpr.checks import ParameterError
 from dpr.envs.rendering import BODY, DEAD_BODY, GOAL, MAGNET, OBJECT, WALL
 from dpr.metrics import SUCCESS_RADIUS
 from dpr.viz.episodes import EpisodeLog, ViewError
@@ -80,8 +82,9 @@ def log_episode(recording: rr.RecordingStream, episode: EpisodeLog, color: Seque
     s, n = episode.n_states, episode.n_robots
 
     recording.log(scene, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
-    recording.log(f"{scene}/goal", rr.Points2D([episode.goal], radii=SUCCESS_RADIUS, colors=[GOAL], labels=["goal"]),
-                  static=True)
+    recording.log(
+        f"{scene}/goal", rr.Points2D([episode.goal], radii=SUCCESS_RADIUS, colors=[GOAL], labels=["goal"]), static=True
+    )
     if episode.walls:
         recording.log(f"{scene}/walls", rr.LineStrips2D(episode.walls, radii=WALL_WIDTH, colors=[WALL]), static=True)
     recording.log(f"{scene}/path", rr.LineStrips2D([episode.agent], radii=PATH_WIDTH, colors=[PATH_COLOR]), static=True)
@@ -100,7 +103,8 @@ def log_episode(recording: rr.RecordingStream, episode: EpisodeLog, color: Seque
         f"{scene}/centre_of_mass",
         indexes=times,
         columns=rr.Points2D.columns(
-            positions=episode.centres_of_mass, radii=np.full(s, COM_RADIUS, np.float32),
+            positions=episode.centres_of_mass,
+            radii=np.full(s, COM_RADIUS, np.float32),
             colors=np.tile(np.array(COM_COLOR, np.uint8), (s, 1)),
         ),
     )
@@ -112,8 +116,9 @@ def log_episode(recording: rr.RecordingStream, episode: EpisodeLog, color: Seque
     rewards_times = _time_columns(steps[1:], episode.fps)
     name = rr.SeriesLines(names=[episode.title or episode.name], colors=[color])
     recording.log(f"{base}/metrics/reward", name, static=True)
-    recording.send_columns(f"{base}/metrics/reward", indexes=rewards_times,
-                           columns=rr.Scalars.columns(scalars=episode.rewards))
+    recording.send_columns(
+        f"{base}/metrics/reward", indexes=rewards_times, columns=rr.Scalars.columns(scalars=episode.rewards)
+    )
     for key, values in episode.running_metrics().items():
         recording.log(f"{base}/metrics/{key}", name, static=True)
         recording.send_columns(f"{base}/metrics/{key}", indexes=times, columns=rr.Scalars.columns(scalars=values))
@@ -127,7 +132,8 @@ def _send_magnets(recording: rr.RecordingStream, path: str, times: list, magnets
         path,
         indexes=times,
         columns=rr.LineStrips2D.columns(
-            strips=segments, radii=np.full(len(segments), MAGNET_WIDTH, np.float32),
+            strips=segments,
+            radii=np.full(len(segments), MAGNET_WIDTH, np.float32),
             colors=np.tile(np.array(MAGNET, np.uint8), (len(segments), 1)),
         ).partition(counts),
     )
@@ -139,8 +145,9 @@ def _send_object(recording: rr.RecordingStream, path: str, times: list, episode:
     s = len(poses)
     color = np.tile(np.array(OBJECT, np.uint8), (s, 1))
     if episode.object_kind == "box":
-        columns = rr.LineStrips2D.columns(strips=_box_outlines(poses, size), radii=np.full(s, 2.0, np.float32),
-                                          colors=color)
+        columns = rr.LineStrips2D.columns(
+            strips=_box_outlines(poses, size), radii=np.full(s, 2.0, np.float32), colors=color
+        )
     else:
         columns = rr.Points2D.columns(positions=poses[:, 0:2], radii=np.full(s, size, np.float32), colors=color)
     recording.send_columns(path, indexes=times, columns=columns)
@@ -163,10 +170,14 @@ def make_blueprint(episodes: Sequence[EpisodeLog]) -> rrb.Blueprint:
     overlays the episodes."""
     (x0, x1), (y0, y1) = scene_bounds(episodes)
     bounds = rrb.VisualBounds2D(x_range=[x0, x1], y_range=[-y1, -y0])  # view space has y flipped
-    trail = rrb.VisibleTimeRanges([
-        rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative())
-        for timeline in (STEP, SIM_TIME)
-    ])
+    trail = rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                timeline, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()
+            )
+            for timeline in (STEP, SIM_TIME)
+        ]
+    )
     scenes = [
         rrb.Spatial2DView(
             origin=f"/{e.name}",
@@ -211,27 +222,32 @@ def log_all(recording: rr.RecordingStream, episodes: Sequence[EpisodeLog]) -> No
         log_episode(recording, episode, SERIES_COLORS[index % len(SERIES_COLORS)])
 
 
+class SavePathError(ViewError, ParameterError):
+    """A ``path`` that :func:`save_rrd` cannot write: a :class:`ViewError` (what the viewer's callers catch) and a
+    :class:`~dpr.checks.ParameterError` naming the parameter (``path``), which the CLI says as its own flag."""
+
+
 def save_rrd(episodes: Sequence[EpisodeLog], path: str | os.PathLike, title: str = "dpr view") -> Path:
-    """Write ``episodes`` and their blueprint to a new ``.rrd`` file. The data goes to a ``.part`` file beside
-    ``path`` that is renamed onto it once complete; an existing ``path`` is refused, never overwritten."""
+    """Write ``episodes`` and their blueprint to a new ``.rrd`` file. The data goes to a temporary file beside
+    ``path`` (:class:`dpr.atomic.AtomicFile`) that is fsynced and renamed onto it once complete. An existing
+    ``path``, or one that appears while logging, is refused (:class:`SavePathError`), never overwritten."""
     path = Path(path)
     check_unique_names(episodes)
     if path.exists():
-        raise ViewError(f"--save: {path} already exists; choose another path (files are never overwritten)")
+        raise SavePathError("path", f"{path} already exists; choose another path (files are never overwritten)")
     if not path.parent.is_dir():
-        raise ViewError(f"--save: folder {path.parent} does not exist")
-    partial = path.with_name(f"{path.name}.{os.getpid()}.part")
-    recording = new_recording(title)
-    try:
-        recording.save(partial, default_blueprint=make_blueprint(episodes))
+        raise SavePathError("path", f"folder {path.parent} does not exist")
+    with AtomicFile(path, exclusive=True) as target:
+        recording = new_recording(title)
+        # rerun's file sink writes the temporary file by its name; AtomicFile's own handle then fsyncs it
+        recording.save(target.temp_path, default_blueprint=make_blueprint(episodes))
         log_all(recording, episodes)
         recording.flush()
-        recording.disconnect()  # closes the file sink: everything is on disk after this
-        if path.exists():
-            raise ViewError(f"--save: {path} appeared while logging; left it alone")
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+        recording.disconnect()  # closes the file sink: everything is in the file after this
+        try:
+            target.commit()
+        except FileExistsError:
+            raise SavePathError("path", f"{path} appeared while logging; left it alone") from None
     return path
 
 
@@ -262,8 +278,10 @@ def serve(episodes: Sequence[EpisodeLog], title: str = "dpr view", port: int | N
     uri = recording.serve_grpc(grpc_port=port, default_blueprint=make_blueprint(episodes))
     log_all(recording, episodes)
     recording.flush()
-    print(f"serving {len(episodes)} episode(s) at {uri}\nopen it with: rerun {uri}   (Ctrl-C stops the server)",
-          flush=True)
+    print(
+        f"serving {len(episodes)} episode(s) at {uri}\nopen it with: rerun {uri}   (Ctrl-C stops the server)",
+        flush=True,
+    )
     try:
         while True:
             time.sleep(3600)

@@ -7,6 +7,10 @@ al.'s values, any env id). An entry holds ``n_timesteps``, ``policy``, ``learnin
 ``env_kwargs`` (gym.make kwargs the algorithm needs, e.g. DQN's discrete actions) and any other keyword
 argument of the SB3 class. Everything stays plain yaml data until :meth:`Hyperparams.model_kwargs` turns it
 into the objects SB3 wants, so the resolved values can be saved as they were read.
+
+The loader lives beside :func:`dpr.policies.sb3.build_model`, below both behaviour cloning and RL, which build
+their models from it; the yaml files stay with the rest of the training setup in ``dpr/rl/hyperparams/``
+(package data, and where the docs point).
 """
 
 from __future__ import annotations
@@ -18,13 +22,15 @@ from typing import Any
 
 import yaml
 
+from dpr.checks import ParameterError, check_int
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import ALGOS, algo_class
 
-HYPERPARAMS_DIR = Path(__file__).with_name("hyperparams")
-PRESETS = ("default", "paper", "finetune")
+HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
+DEFAULT_PRESET = "default"
 PAPER_PRESET = "paper"
 FINETUNE_PRESET = "finetune"  # the env id's entry with the yaml's `finetune` entry on top (dpr finetune)
+PRESETS = (DEFAULT_PRESET, PAPER_PRESET, FINETUNE_PRESET)
 LINEAR_PREFIX = "lin_"
 ACTIVATIONS = ("tanh", "relu")
 POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor")
@@ -70,8 +76,11 @@ class Hyperparams:
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            "preset": self.preset, "n_timesteps": self.n_timesteps, "policy": self.policy,
-            "env_kwargs": dict(self.env_kwargs), **self.algo_kwargs,
+            "preset": self.preset,
+            "n_timesteps": self.n_timesteps,
+            "policy": self.policy,
+            "env_kwargs": dict(self.env_kwargs),
+            **self.algo_kwargs,
         }
 
 
@@ -109,7 +118,9 @@ def read_entries(algo: str) -> dict[str, dict]:
     return entries
 
 
-def load_hyperparams(algo: str, env_id: str, preset: str = "default", overrides: dict[str, Any] | None = None) -> Hyperparams:
+def load_hyperparams(
+    algo: str, env_id: str, preset: str = DEFAULT_PRESET, overrides: dict[str, Any] | None = None
+) -> Hyperparams:
     """The hyperparameters of ``algo`` on ``env_id`` for ``preset`` ("default": the env id's entry; "paper";
     "finetune": the env id's entry updated with the ``finetune`` entry),
     with ``overrides`` (yaml-style values, e.g. ``{"n_steps": 64, "learning_rate": "lin_1e-3"}``) applied.
@@ -131,11 +142,18 @@ def load_hyperparams(algo: str, env_id: str, preset: str = "default", overrides:
     return _validate(algo, env_id, preset, entry, f"{path} [{key}]" + (" with overrides" if overrides else ""))
 
 
+def _check_int(where: str, name: str, value: Any, minimum: int) -> None:
+    """:func:`dpr.checks.check_int`, its message prefixed by the yaml entry ``where`` the value was read from."""
+    try:
+        check_int(name, value, minimum)
+    except ParameterError as error:
+        raise ValueError(f"{where}: {error}") from None
+
+
 def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where: str) -> Hyperparams:
     entry = dict(entry)
     n_timesteps = entry.pop("n_timesteps", None)
-    if isinstance(n_timesteps, bool) or not isinstance(n_timesteps, int) or n_timesteps < 1:
-        raise ValueError(f"{where}: n_timesteps must be an integer >= 1, got {n_timesteps!r}")
+    _check_int(where, "n_timesteps", n_timesteps, 1)
     policy = entry.pop("policy", "MlpPolicy")
     env_kwargs = entry.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
@@ -154,11 +172,15 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
     if not isinstance(policy_kwargs, dict) or set(policy_kwargs) - set(POLICY_KWARGS):
         raise ValueError(f"{where}: policy_kwargs may only set {POLICY_KWARGS}, got {policy_kwargs!r}")
     net_arch = policy_kwargs.get("net_arch", [64])
-    if not isinstance(net_arch, list) or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in net_arch):
+    if not isinstance(net_arch, list):
         raise ValueError(f"{where}: policy_kwargs.net_arch must be a list of layer sizes, got {net_arch!r}")
+    for size in net_arch:
+        _check_int(where, "policy_kwargs.net_arch (layer sizes)", size, 1)
     if policy_kwargs.get("features_extractor", "flatten") not in FEATURES_EXTRACTORS:
-        raise ValueError(f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "
-                         f"got {policy_kwargs['features_extractor']!r}")
+        raise ValueError(
+            f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "
+            f"got {policy_kwargs['features_extractor']!r}"
+        )
     if policy_kwargs.get("activation_fn", "tanh") not in ACTIVATIONS:
         raise ValueError(
             f"{where}: policy_kwargs.activation_fn must be one of {ACTIVATIONS}, got {policy_kwargs['activation_fn']!r}"
