@@ -37,7 +37,10 @@ class NavigationEnv(ParticleSwarmEnv):
     ## Starting State
     The goal is at (0, 0). The swarm's centre is drawn at a polar radius in ``start_radius`` (450-550) and
     any angle around it; robots stand contracted on a square grid of pitch 77.5 (one expanded diameter).
-    All randomness comes from ``reset(seed=...)``.
+    Swarms too large to keep the goal 100 units beyond their front at every angle start that much farther
+    out (``start_shift``: 0 up to 16 robots, 182 at 100, 1388 at 1000 for the paddle model); Gate and
+    Manipulation add room for the walls and the object the same way. All randomness comes from
+    ``reset(seed=...)``; the shift draws nothing.
 
     ## Episode End
     Terminated when the agent comes within 10 units of the goal (``info["is_success"]``). Truncated at 2500
@@ -62,7 +65,9 @@ class NavigationEnv(ParticleSwarmEnv):
     * v0: rebuild of the 2021 gym/pymunk-5 environment on Gymnasium 1.x and pymunk 7. Observation and
       reward now describe the state after the step (they lagged one step); the goal is a drawn marker that
       collides with nothing; every random choice goes through the env's seeded generator; ``Discrete``
-      covers all 2^N actions; walls collide with every robot.
+      covers all 2^N actions; walls collide with every robot. Large swarms start shifted outward so that
+      no robot starts inside a wall or the object and the goal stays ahead of the swarm (every start of
+      16 robots or fewer is unchanged).
     """
 
     task = "navigation"
