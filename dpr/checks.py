@@ -22,6 +22,9 @@ class ParameterError(ValueError):
         self.problem = problem
         super().__init__(f"{parameter}: {problem}")
 
+    def __reduce__(self):  # rebuilt from both fields when it crosses a process boundary (worker pools)
+        return type(self), (self.parameter, self.problem)
+
 
 def check_int(name: str, value: Any, minimum: int | None = None, maximum: int | None = None) -> int:
     """``value`` as a Python int (a numpy integer is accepted, a bool is not) within [minimum, maximum]."""

@@ -35,6 +35,8 @@ from dpr.policies.wave import WavePolicy
         ({"reward_threshold_d": -5.0}, "reward_threshold_d"),
         ({"start_radius": (500.0, 400.0)}, "start_radius"),
         ({"image_size": 4}, "image_size"),
+        ({"image_size": 100_000}, "image_size"),
+        ({"n_robots": 100_000}, "n_robots"),
         ({"render_size": 0}, "render_size"),
     ],
 )
@@ -297,3 +299,34 @@ def test_physics_blow_up_obs_is_a_fresh_array():
     assert truncated
     assert np.array_equal(obs2, kept)  # the last good state
     assert not np.shares_memory(obs2, obs1)
+
+
+def test_evaluate_refuses_repeated_seeds():
+    """A repeated seed would count its episode twice in every statistic."""
+    from dpr.rl.evaluation import evaluate
+
+    with pytest.raises(ValueError, match=r"seeds: each seed must appear once; repeated: \[3\]"):
+        evaluate(["dpr/Navigation-v0"], "wave", seeds=[1, 3, 3], steps=5)
+
+
+def test_a_corrupt_model_file_is_one_clear_error(tmp_path):
+    """A truncated policy.pth inside a model zip: refused before any worker starts, naming the policy."""
+    import zipfile
+
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from dpr.policies.hyperparams import load_hyperparams
+    from dpr.policies.sb3 import ModelInfo, build_model, save_model
+    from dpr.rl.evaluation import evaluate
+
+    kwargs = {"n_robots": 4, "robot_model": "disk"}
+    env = gym.make("dpr/Navigation-v0", **kwargs)
+    model = build_model(load_hyperparams("ppo", "dpr/Navigation-v0"), DummyVecEnv([lambda: env]), 0, None)
+    good = save_model(model, tmp_path / "good.zip", ModelInfo("ppo", "dpr/Navigation-v0", kwargs, 20))
+    corrupt = tmp_path / "corrupt.zip"
+    with zipfile.ZipFile(good) as source, zipfile.ZipFile(corrupt, "w") as target:
+        for item in source.infolist():
+            data = source.read(item.filename)
+            target.writestr(item, data[: len(data) // 2] if item.filename == "policy.pth" else data)
+    with pytest.raises(ValueError, match="policy: cannot load ppo model"):
+        evaluate(["dpr/Navigation-v0"], str(corrupt), seeds=[0, 1], steps=5, workers=2)

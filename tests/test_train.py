@@ -309,3 +309,21 @@ def test_view_rolls_out_a_model_beside_the_wave_policy(runs, tmp_path, capsys):
     assert run(bad) == 2  # the CLI's default N=9 is not the model's
     assert "n_robots=4" in capsys.readouterr().err
     assert not (tmp_path / "x.rrd").exists()
+
+
+def test_hyperparameters_sb3_refuses_leave_no_run_folder(tmp_path):
+    """SB3's own checks run before the run folder exists, so the same --out works once the value is fixed."""
+    from dpr.checks import ParameterError
+    from dpr.rl.train import TrainConfig, train
+
+    config = TrainConfig(
+        algo="ppo",
+        env_id="dpr/Navigation-v0",
+        n_robots=4,
+        robot_model="disk",
+        timesteps=64,
+        hyperparams={"n_steps": -3},
+    )
+    with pytest.raises(ParameterError, match="hyperparams: ppo refuses them"):
+        train(config, tmp_path / "run", show_progress=False)
+    assert not (tmp_path / "run").exists()

@@ -20,6 +20,8 @@ MAX_DISTANCE = 1e5  # bound of length kwargs (start radius, reward threshold): f
 GOAL_CLEARANCE = 100.0  # the least gap between the goal and the front of the swarm (or its object) at the start
 START_ANGLES = 720  # start angles checked for the clearances (their worst case gets a unit of rounding margin)
 MAX_EPISODE_STEPS = 2500  # every registered task's TimeLimit, and the default episode length everywhere
+MAX_ROBOTS = 10_000  # a paddle swarm of 1000 takes seconds to build; far more would look like a hang
+IMAGE_SIZE_RANGE = (16, 2048)  # pixels per side of observations and renders (2048^2 RGB is 12 MiB a frame)
 
 ACTION_TYPES = ("multibinary", "discrete", "continuous")
 OBS_TYPES = ("state", "pixels", "pixels_state")
@@ -85,7 +87,7 @@ class ParticleSwarmEnv(gym.Env):
         render_size: int = 512,
         render_mode: str | None = None,
     ):
-        check_int("n_robots", int(n_robots) if isinstance(n_robots, np.integer) else n_robots, 1)
+        check_int("n_robots", n_robots, 1, MAX_ROBOTS)
         _choice("robot_model", robot_model, ROBOT_MODELS)
         _choice("action_type", action_type, ACTION_TYPES)
         _choice("obs_type", obs_type, OBS_TYPES)
@@ -106,9 +108,8 @@ class ParticleSwarmEnv(gym.Env):
             raise ValueError(f"obs_last_action must be True or False, got {obs_last_action!r}")
         if obs_last_action and obs_type == "pixels":
             raise ValueError("obs_last_action=True extends the state vector: use obs_type 'state' or 'pixels_state'")
-        for name, size in (("image_size", image_size), ("render_size", render_size)):
-            if not isinstance(size, (int, np.integer)) or size < 16:
-                raise ValueError(f"{name} must be an integer >= 16, got {size!r}")
+        check_int("image_size", image_size, *IMAGE_SIZE_RANGE)
+        check_int("render_size", render_size, *IMAGE_SIZE_RANGE)
 
         self.n_robots = int(n_robots)
         self.robot_model = robot_model

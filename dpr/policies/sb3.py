@@ -269,6 +269,17 @@ def build_model(hyper, env, seed: int, tensorboard_log: str | None):
     )
 
 
+def check_hyperparameters(hyper, env, seed: int) -> None:
+    """Build ``hyper``'s model once on ``env`` (one env, not vectorised) so that SB3's own checks of the values
+    (``n_steps * n_envs > 1``, a batch size that fits...) fail as a ParameterError before any work starts."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    try:
+        build_model(hyper, DummyVecEnv([lambda: env]), seed, None)
+    except (AssertionError, ValueError, TypeError) as error:
+        raise ParameterError("hyperparams", f"{hyper.algo} refuses them: {error}") from None
+
+
 def actor_parameters(policy) -> list:
     """The parameters that decide the action distribution: everything but the value head."""
     return [p for name, p in policy.named_parameters() if not name.startswith(VALUE_HEAD_PREFIXES)]

@@ -37,6 +37,7 @@ from dpr.policies.sb3 import (
     ModelInfo,
     actor_parameters,
     build_model,
+    check_hyperparameters,
     load_initial_policy,
     make_vec_env,
     read_model_info,
@@ -275,6 +276,7 @@ def train(
         if config.init_from is not None:
             read_model_info(config.init_from, INIT_PARAMETER)  # so does a missing or foreign model file
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
+        check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
     finally:
         probe.close()
     run_dir = prepare_run_dir(out, config)
