@@ -25,13 +25,29 @@ from dpr.checks import ParameterError
 from dpr.metrics import summarize
 from dpr.policies.registry import WAVE
 from dpr.policies.sb3 import is_model_path
+from dpr.rl.figures import new_figure, policy_colours
+from dpr.rl.statistics import (
+    BOOTSTRAP_REPS,
+    CONFIDENCE,
+    MethodScores,
+    interval_figure,
+    interval_rows,
+    interval_table,
+    profile_figure,
+)
+from dpr.rl.statistics import method_scores as scores_of
 
 TASK_ORDER = ("Navigation", "Gate", "Unresponsive", "Manipulation")
 WAVE_POLICY = WAVE  # the baseline every row is a percentage of
-REPORT_FILES = ("results.md", "bars.png", "trajectories.png")
+REPORT_FILES = ("results.md", "bars.png", "trajectories.png", "intervals.png", "profile.png")
 REQUIRED_KEYS = {"policy": str, "env_ids": list, "steps": int, "seeds": list, "episodes": list}
 EPISODE_KEYS = {"env_id": str, "seed": int, "projected_displacement": (int, float), "success": (bool, int)}
 NO_VALUE = "—"
+INTERVALS_NOTE = (
+    f"Over test seeds x training runs (one run per file of a method), with {100 * CONFIDENCE:.0f}% stratified "
+    "bootstrap confidence intervals (test seeds resampled within each run; Agarwal et al., 2021). IQM: "
+    "interquartile mean. P(> wave): the probability that the method beats the wave on a random seed."
+)
 
 
 def task_name(env_id: str) -> str:
@@ -124,19 +140,22 @@ def load_evaluation(path, label: str | None = None) -> dict:
 
 @dataclass
 class _Group:
-    """The episodes of one policy (a display label) on one task, from one file."""
+    """The episodes of one method (a display label) on one task: one file per training run."""
 
     task: str
     label: str
     policy: str
     source: str
     steps: int
-    file_index: int  # which of the evaluations given it comes from
-    episodes: list[dict] = field(default_factory=list)
+    runs: dict[int, tuple[str, str, list[dict]]] = field(default_factory=dict)  # file index -> source, policy, ...
+
+    @property
+    def episodes(self) -> list[dict]:
+        return [episode for _, _, episodes in self.runs.values() for episode in episodes]
 
     @property
     def seeds(self) -> list[int]:
-        return sorted(episode["seed"] for episode in self.episodes)
+        return sorted({episode["seed"] for episode in self.episodes})
 
 
 def _label(evaluation: dict) -> str:
@@ -155,8 +174,9 @@ def _task_key(task: str) -> tuple[int, str]:
 
 
 def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
-    """task -> label -> its episodes, tasks in the paper's order and policies in the order given. The same
-    label on the same task in two files is a ValueError (which one would the row be?)."""
+    """task -> label -> its episodes, tasks in the paper's order and policies in the order given. One label in
+    several files is several training runs of one method (models trained from different seeds); the same
+    policy under one label in two files is a ValueError (one run counted twice)."""
     if not evaluations:
         raise ValueError("no evaluations to report")
     by_task: dict[str, dict[str, _Group]] = {}
@@ -167,13 +187,16 @@ def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
             groups = by_task.setdefault(task, {})
             group = groups.get(label)
             if group is None:
-                group = groups[label] = _Group(task, label, evaluation["policy"], source, evaluation["steps"], index)
-            elif group.file_index != index:
-                raise ValueError(
-                    f"policy {label!r} on {task} is in both {group.source} and {source}; "
-                    "give them different labels (--label) or report them separately"
-                )
-            group.episodes.append(episode)
+                group = groups[label] = _Group(task, label, evaluation["policy"], source, evaluation["steps"])
+            if index not in group.runs:
+                earlier = next((s for s, policy, _ in group.runs.values() if policy == evaluation["policy"]), None)
+                if earlier is not None:
+                    raise ValueError(
+                        f"policy {label!r} on {task} is in both {earlier} and {source}; "
+                        "give them different labels (--label) or report them separately"
+                    )
+                group.runs[index] = (source, evaluation["policy"], [])
+            group.runs[index][2].append(episode)
     order = _labels_in_order(evaluations)
     return {
         task: {label: by_task[task][label] for label in order if label in by_task[task]}
@@ -232,28 +255,13 @@ def results_table(evaluations: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _new_figure(width: float, height: float, columns: int = 1):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    figure = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(figure)  # attaches itself: the figure renders with Agg whatever the pyplot backend
-    axes = figure.subplots(1, columns, squeeze=False)[0]
-    return figure, axes
-
-
-def _colours(labels: list[str]) -> dict[str, str]:
-    """One colour per policy, the same in both figures."""
-    return {label: f"C{i % 10}" for i, label in enumerate(labels)}
-
-
 def bar_figure(evaluations: list[dict], path) -> Path:
     """The paper's bar chart: per task a group of bars, one per policy, of the median projected displacement
     with min-max error bars. Saved to ``path`` (PNG)."""
     by_task = _groups(evaluations)
     labels = _labels_in_order(evaluations)
-    colours = _colours(labels)
-    figure, (axes,) = _new_figure(max(6.0, 1.5 + len(by_task) * (0.5 + 0.35 * len(labels))), 4.5)
+    colours = policy_colours(labels)
+    figure, (axes,) = new_figure(max(6.0, 1.5 + len(by_task) * (0.5 + 0.35 * len(labels))), 4.5)
     width = 0.8 / len(labels)
     for i, label in enumerate(labels):
         positions, medians, below, above = [], [], [], []
@@ -325,8 +333,8 @@ def _trajectory_plan(evaluations: list[dict], seed: int | None) -> dict[str, tup
 
 
 def _draw_trajectories(plan: dict[str, tuple[int, list[_Path]]], labels: list[str], path) -> Path:
-    colours = _colours(labels)
-    figure, all_axes = _new_figure(4.5 * len(plan), 4.8, columns=len(plan))
+    colours = policy_colours(labels)
+    figure, all_axes = new_figure(4.5 * len(plan), 4.8, columns=len(plan))
     for axes, (task, (seed, paths)) in zip(all_axes, plan.items()):
         start, goal = paths[0].trajectory[0], paths[0].goal
         # Hollow start marker under the paths: a short path must stay visible on top of it.
@@ -380,10 +388,26 @@ def _sources_line(evaluations: list[dict]) -> str:
     return "Sources: " + "; ".join(parts) + "."
 
 
-def write_report(json_paths, out_dir, labels: list[str] | None = None, seed: int | None = None) -> list[Path]:
-    """Write ``out_dir``/results.md (the table and its sources), bars.png and trajectories.png from
-    `dpr evaluate --json` files; ``labels``: one display name per file. Checks everything first and writes
-    nothing when a file is bad or an output already exists (FileExistsError). Returns the paths written."""
+def method_scores(evaluations: list[dict]) -> dict[str, dict[str, MethodScores]]:
+    """task -> label -> the method's score matrix (test seeds x training runs), for the interval estimates."""
+    return {
+        task: {label: scores_of(task, label, list(group.runs.values())) for label, group in groups.items()}
+        for task, groups in _groups(evaluations).items()
+    }
+
+
+def write_report(
+    json_paths,
+    out_dir,
+    labels: list[str] | None = None,
+    seed: int | None = None,
+    bootstrap_reps: int = BOOTSTRAP_REPS,
+) -> list[Path]:
+    """Write ``out_dir``/results.md (the table, the interval estimates of :mod:`dpr.rl.statistics` and the
+    sources), bars.png, trajectories.png, intervals.png and profile.png from `dpr evaluate --json` files;
+    ``labels``: one display name per file (files that share a label are training runs of one method).
+    Checks everything first and writes nothing when a file is bad or an output already exists
+    (FileExistsError). Returns the paths written."""
     json_paths = list(json_paths)
     if labels is not None and len(labels) != len(json_paths):
         raise ValueError(f"give one label per file: {len(json_paths)} file(s), {len(labels)} label(s)")
@@ -396,12 +420,17 @@ def write_report(json_paths, out_dir, labels: list[str] | None = None, seed: int
             raise FileExistsError(f"{output} already exists; choose another folder (reports are never overwritten)")
     evaluations = [load_evaluation(p, label) for p, label in zip(json_paths, labels or [None] * len(json_paths))]
     table = results_table(evaluations)
-    plan = _trajectory_plan(evaluations, seed)  # before writing anything: it may find nothing to draw
+    methods = method_scores(evaluations)  # before writing anything: runs of one method must share their seeds
+    plan = _trajectory_plan(evaluations, seed)  # and there may be nothing to draw
+    rows = interval_rows(methods, bootstrap_reps)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results_md, bars_png, trajectories_png = outputs
+    results_md, bars_png, trajectories_png, intervals_png, profile_png = outputs
     results_md.write_text(
-        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n{_sources_line(evaluations)}\n"
+        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n"
+        f"## Interval estimates\n\n{INTERVALS_NOTE}\n\n{interval_table(rows)}\n\n{_sources_line(evaluations)}\n"
     )
     bar_figure(evaluations, bars_png)
     _draw_trajectories(plan, _labels_in_order(evaluations), trajectories_png)
+    interval_figure(rows, intervals_png)
+    profile_figure(methods, profile_png)
     return outputs
