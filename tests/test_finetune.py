@@ -376,9 +376,14 @@ def test_task_names_are_the_env_ids_keys():
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"eval_seeds": [1000]}, r"eval_seeds \[1000\] are demonstration seeds"),
-        ({"demo_seed": 100, "episodes": 3, "eval_seeds": [90, 102]}, r"eval_seeds \[102\]"),
-        ({"eval_seeds": []}, "eval_seeds must name at least one seed"),
+        ({"test_seeds": [1000]}, r"test_seeds: \[1000\] are demonstration seeds"),
+        ({"demo_seed": 100, "episodes": 3, "test_seeds": [90, 102]}, r"test_seeds: \[102\]"),
+        ({"validation_seeds": [1001]}, r"validation_seeds: \[1001\] are demonstration seeds"),
+        ({"test_seeds": []}, "test_seeds: must name at least one seed"),
+        ({"test_seeds": [5, 5]}, "test_seeds: each seed must appear once"),
+        ({"validation_seeds": [7, 100]}, r"validation_seeds: \[100\] are test seeds too"),
+        ({"train_seeds": [0, 1]}, "validation_seeds: several train_seeds need validation seeds"),
+        ({"train_seeds": [-1]}, "train_seeds: must be >= 0"),
         ({"tasks": ["swimming"]}, "tasks must be among"),
         ({"tasks": []}, "tasks must be among"),
         ({"finetune_algos": ["dqn"]}, "finetune_algos must be among"),
@@ -414,7 +419,7 @@ PIPELINE = dict(
     critic_warmup=32,
     finetune_steps=64,
     scratch_algos=["ppo"],
-    eval_seeds=[100],
+    test_seeds=[100],
     workers=1,
     anchor=True,
 )
@@ -459,19 +464,22 @@ def test_pipeline_writes_every_stage(pipeline):
     out, report = pipeline
     assert report == out / "report"
     assert (out / "datasets" / "navigation" / "meta" / "info.json").is_file()
-    assert sorted(p.name for p in (out / "models").iterdir()) == sorted(f"navigation-{m}.zip" for m in METHODS[1:])
-    assert sorted(p.name for p in (out / "eval").iterdir()) == sorted(f"navigation-{m}.json" for m in METHODS)
-    assert {"results.md", "bars.png", "trajectories.png"} <= {p.name for p in report.iterdir()}
+    models = [f"navigation-{m}{run}.zip" for m in METHODS[1:] for run in ("", "-seed0")]  # one run: its own median
+    assert sorted(p.name for p in (out / "models").iterdir()) == sorted(models)
+    evaluations = ["navigation-wave.json", *(f"navigation-{m}-seed0.json" for m in METHODS[1:])]
+    assert sorted(p.name for p in (out / "eval" / "test").iterdir()) == sorted(evaluations)
+    assert not any((out / "eval" / "validation").iterdir())  # one training seed: nothing to choose
+    assert {"results.md", "bars.png", "trajectories.png", "intervals.png"} <= {p.name for p in report.iterdir()}
     for model in (out / "models").iterdir():
         info = read_model_info(model)
         assert info.env_kwargs == {"n_robots": 4, "robot_model": "paddle", "obs_last_action": True}
         assert info.max_episode_steps == 30
-    finetune = yaml.safe_load((out / "runs" / "navigation-bc-ppo" / "config.yaml").read_text())
-    assert finetune["init_from"] == str((out / "models" / "navigation-bc.zip").resolve())
+    finetune = yaml.safe_load((out / "runs" / "navigation-bc-ppo-seed0" / "config.yaml").read_text())
+    assert finetune["init_from"] == str((out / "models" / "navigation-bc-seed0.zip").resolve())
     assert finetune["critic_warmup"] == 32 and finetune["timesteps"] == 64
     dataset = str((out / "datasets" / "navigation").resolve())
     assert finetune["anchor"]["datasets"] == [dataset] and finetune["anchor"]["frames"] == 2 * 30
-    scratch = yaml.safe_load((out / "runs" / "navigation-ppo" / "config.yaml").read_text())
+    scratch = yaml.safe_load((out / "runs" / "navigation-ppo-seed0" / "config.yaml").read_text())
     assert scratch["timesteps"] == PipelineConfig(**PIPELINE).rl_steps == 2 * 30 + 32 + 64
     assert scratch["init_from"] is None and scratch["hyperparameters"]["preset"] == "default"
 
@@ -480,7 +488,8 @@ def test_pipeline_evaluates_every_method_on_the_same_swarm(pipeline):
     out, _ = pipeline
     starts = []
     for method in METHODS:
-        payload = json.loads((out / "eval" / f"navigation-{method}.json").read_text())
+        name = "navigation-wave" if method == "wave" else f"navigation-{method}-seed0"
+        payload = json.loads((out / "eval" / "test" / f"{name}.json").read_text())
         assert payload["seeds"] == [100] and payload["steps"] == 30
         assert payload["env_kwargs"].get("n_robots", 9) == 4, method  # the wave too, not the default N=9
         assert payload["env_kwargs"]["obs_last_action"] is True
@@ -493,7 +502,7 @@ def test_pipeline_report_has_a_row_per_method(pipeline):
     _, report = pipeline
     rows = [
         line.split("|")
-        for line in (report / "results.md").read_text().splitlines()
+        for line in (report / "results.md").read_text().split("## Interval estimates")[0].splitlines()
         if line.startswith("| Navigation |")
     ]
     assert [row[2].strip() for row in rows] == METHODS
@@ -510,7 +519,7 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     with pytest.raises(ValueError, match="^out: .* holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "finetune_steps": 128}), out, **QUIET)
     with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
-        run_pipeline(PipelineConfig(**{**PIPELINE, "eval_seeds": [100, 101]}), out, **QUIET)
+        run_pipeline(PipelineConfig(**{**PIPELINE, "test_seeds": [100, 101]}), out, **QUIET)
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
 
 
@@ -528,3 +537,32 @@ def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path
     lines = []
     run_pipeline(PipelineConfig(**{**PIPELINE, "anchor": False}), old, show_progress=False, log=lines.append)
     assert sum(line.endswith("skipped") for line in lines) == 1 + 1 + 2 + 4 + 1
+
+
+def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(tmp_path):
+    """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
+    run there (not the best), and the report's interval rows hold every run on the test seeds."""
+    original = train_module.load_hyperparams
+
+    def small_rollouts(algo, env_id, preset="default", overrides=None):
+        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
+
+    settings = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
+    out = tmp_path / "run"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_module, "load_hyperparams", small_rollouts)
+        report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    choices = yaml.safe_load((out / "choices.yaml").read_text())
+    for method in METHODS[1:]:
+        medians = choices[f"navigation-{method}"]["validation_medians"]
+        for seed, median in medians.items():
+            payload = json.loads((out / "eval" / "validation" / f"navigation-{method}-seed{seed}.json").read_text())
+            assert payload["seeds"] == [200, 201]
+            assert median == pytest.approx(float(np.median([e["projected_displacement"] for e in payload["episodes"]])))
+        chosen = choices[f"navigation-{method}"]["chosen_seed"]
+        assert sorted(medians, key=lambda s: (medians[s], s))[1] == chosen
+        canonical = (out / "models" / f"navigation-{method}.zip").read_bytes()
+        assert canonical == (out / "models" / f"navigation-{method}-seed{chosen}.zip").read_bytes()
+    assert not list((out / "eval" / "test").glob("*200*"))
+    text = (report / "results.md").read_text()
+    assert "| Navigation | bc-ppo | 3 × 1 |" in text and "| Navigation | wave | 1 × 1 |" in text

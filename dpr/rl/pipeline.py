@@ -1,18 +1,24 @@
 """The whole learning pipeline, task by task: demonstrations -> behaviour cloning -> fine-tuning, beside RL
 from scratch, all evaluated against the wave policy, then a results table and figures (``dpr pipeline``).
 
-For each task:
+For each task, and each training seed ``s`` of ``train_seeds``:
 
 1. ``datasets/<task>``: ``episodes`` demonstrations of the Markov wave (:class:`dpr.policies.wave.MarkovWavePolicy`,
-   the expert whose action is a function of the observation), recorded as a LeRobot dataset;
-2. ``models/<task>-bc.zip``: behaviour cloning of those demonstrations into a PPO actor-critic;
-3. ``models/<task>-bc-<algo>.zip``: fine-tuning of the clone with each of ``finetune_algos``
+   the expert whose action is a function of the observation), recorded as a LeRobot dataset (one per task);
+2. ``models/<task>-bc-seed<s>.zip``: behaviour cloning of those demonstrations into a PPO actor-critic;
+3. ``models/<task>-bc-<algo>-seed<s>.zip``: fine-tuning of that clone with each of ``finetune_algos``
    (a critic warm-up, then ``finetune_steps`` steps of the ``finetune`` hyperparameters);
-4. ``models/<task>-<algo>.zip``: each of ``scratch_algos`` trained from scratch for as many env steps as the
-   fine-tuned models used in all (demonstration frames + warm-up + fine-tuning), so the comparison is fair;
-5. ``eval/<task>-<method>.json``: the wave policy and every model on the evaluation seeds (never seen in
-   training: demonstrations use seeds from ``demo_seed``, RL its own seeded resets);
-6. ``report/``: ``results.md``, ``bars.png`` and ``trajectories.png`` (:mod:`dpr.rl.report`).
+4. ``models/<task>-<algo>-seed<s>.zip``: each of ``scratch_algos`` trained from scratch for as many env steps as
+   the fine-tuned models used in all (demonstration frames + warm-up + fine-tuning), so the comparison is fair;
+5. ``eval/validation/<task>-<method>-seed<s>.json`` on the validation seeds, which make every choice: a method's
+   canonical model ``models/<task>-<method>.zip`` is its *median* training run there (not the best), written
+   to ``choices.yaml`` with every run's validation median;
+6. ``eval/test/<task>-<method>-seed<s>.json``: the wave policy and every run on the test seeds, which no choice
+   ever saw (demonstrations use seeds from ``demo_seed``, RL its own seeded resets; all three sets are disjoint);
+7. ``report/``: the table, interval estimates over test seeds x training runs, and figures (:mod:`dpr.rl.report`).
+
+:data:`PRESETS` names whole configurations: ``small`` (``make run``: one task, one training seed, minutes) and
+``full`` (the headline: four tasks, three training seeds, 20 validation and 50 test seeds).
 
 Every env runs with ``obs_last_action=True`` (the previous action and how long it has been held are part of
 the observation), which the Markov wave needs and which every learner gets too. On Manipulation, RL
@@ -34,6 +40,7 @@ from typing import Any
 
 import yaml
 
+from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError, check_int
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.policies.hyperparams import FINETUNE_PRESET
@@ -63,8 +70,9 @@ class PipelineConfig:
     approach_reward: float = 1.0  # Manipulation's shaping weight for RL, fine-tuning and from scratch (0: none)
     finetune_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
     scratch_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
-    eval_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
-    seed: int = 0
+    test_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
+    validation_seeds: list[int] = field(default_factory=list)  # needed to choose among several training seeds
+    train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
     workers: int = 2
     steps: int = MAX_EPISODE_STEPS  # per episode, in demonstrations, training and evaluation
 
@@ -78,7 +86,7 @@ class PipelineConfig:
                 raise ValueError(f"{name} must be among {allowed}, got {bad}")
         for name in ("n_robots", "episodes", "bc_epochs", "finetune_steps", "workers", "steps"):
             check_int(name, getattr(self, name), 1)
-        for name in ("critic_warmup", "demo_seed", "seed"):
+        for name in ("critic_warmup", "demo_seed"):
             check_int(name, getattr(self, name), 0)
         if (
             isinstance(self.approach_reward, bool)
@@ -90,12 +98,30 @@ class PipelineConfig:
             raise ParameterError(
                 "episodes", f"must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}"
             )
-        if not self.eval_seeds:
-            raise ValueError("eval_seeds must name at least one seed")
+        for name in ("test_seeds", "validation_seeds", "train_seeds"):
+            seeds = getattr(self, name)
+            for seed in seeds:
+                check_int(name, seed, 0)
+            if len(set(seeds)) != len(seeds):
+                raise ParameterError(name, f"each seed must appear once, got {seeds}")
+        for name in ("test_seeds", "train_seeds"):
+            if not getattr(self, name):
+                raise ParameterError(name, "must name at least one seed")
+        if len(self.train_seeds) > 1 and not self.validation_seeds:
+            raise ParameterError(
+                "validation_seeds", "several train_seeds need validation seeds to choose each method's median run"
+            )
         demo_seeds = set(range(self.demo_seed, self.demo_seed + self.episodes))
-        seen = sorted(demo_seeds & set(self.eval_seeds))
-        if seen:
-            raise ValueError(f"eval_seeds {seen} are demonstration seeds too; evaluate on seeds the models never saw")
+        for name in ("test_seeds", "validation_seeds"):
+            seen = sorted(demo_seeds & set(getattr(self, name)))
+            if seen:
+                raise ParameterError(name, f"{seen} are demonstration seeds too; use seeds the models never saw")
+        shared = sorted(set(self.validation_seeds) & set(self.test_seeds))
+        if shared:
+            raise ParameterError(
+                "validation_seeds",
+                f"{shared} are test seeds too; the seeds that choose must not be the ones that score",
+            )
 
     @property
     def rl_steps(self) -> int:
@@ -111,7 +137,31 @@ class PipelineConfig:
 
     def methods(self) -> list[str]:
         """Names of the policies evaluated on each task, the wave first."""
-        return [BASELINE, "bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
+        return [BASELINE, *self.learned_methods()]
+
+    def learned_methods(self) -> list[str]:
+        """Names of the methods trained once per training seed."""
+        return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
+
+
+PRESETS: dict[str, PipelineConfig] = {
+    "small": PipelineConfig(),
+    "full": PipelineConfig(
+        tasks=list(ENV_IDS),
+        episodes=80,
+        finetune_steps=300_000,
+        train_seeds=[0, 1, 2],
+        validation_seeds=list(range(200, 220)),
+        test_seeds=list(range(300, 350)),
+    ),
+}
+
+
+def preset_config(name: str, **overrides: Any) -> PipelineConfig:
+    """The preset ``name`` with ``overrides`` (PipelineConfig fields) applied and checked."""
+    if name not in PRESETS:
+        raise ParameterError("preset", f"expected one of {list(PRESETS)}, got {name!r}")
+    return PipelineConfig(**{**asdict(PRESETS[name]), **overrides})
 
 
 def _stage(done: Path, what: str, log: Callable[[str], None]) -> bool:
@@ -149,18 +199,12 @@ def run_pipeline(
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> Path:
     """Run (or resume) the pipeline into ``out``; returns the report folder."""
-    from tqdm import tqdm
-
-    from dpr.datasets.collect import CollectSpec, collect
-    from dpr.imitation.bc import behaviour_clone
-    from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
-    from dpr.rl.report import REPORT_FILES, format_seeds, write_report
-    from dpr.rl.train import TrainConfig, train
+    from dpr.rl.report import REPORT_FILES, write_report
 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ParameterError("out", f"{out} exists and is not a folder")
-    for folder in ("datasets", "runs", "models", "eval"):
+    for folder in ("datasets", "runs", "models", "eval/test", "eval/validation"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     config_path = out / "pipeline.yaml"
     if config_path.exists():
@@ -185,109 +229,187 @@ def run_pipeline(
             )
         )
     started = time.perf_counter()
-    evaluations: list[tuple[Path, str]] = []  # (file, method)
+    test_evaluations: list[tuple[Path, str]] = []  # (file, method): runs of one method share its label
     for task in config.tasks:
-        env_id = ENV_IDS[task]
-        env_kwargs = dict(PIPELINE_ENV_KWARGS)
         dataset = out / "datasets" / task
-        if _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
-            spec = CollectSpec(
-                env_id, policy=EXPERT, n_robots=config.n_robots, steps=config.steps, env_kwargs=env_kwargs
-            )
-            with tqdm(total=config.episodes, desc=f"collect {task}", unit="episode", disable=not show_progress) as bar:
-                summary = collect(
-                    dataset,
-                    spec,
-                    config.episodes,
-                    seed=config.demo_seed,
-                    workers=config.workers,
-                    progress=lambda record, index: bar.update(1),
-                )
-            if summary.interrupted:
-                raise KeyboardInterrupt
-        bc_model = out / "models" / f"{task}-bc.zip"
-        if _stage(bc_model, f"{task}: behaviour cloning", log):
-            result = behaviour_clone(
-                dataset,
-                env_id,
-                algo=BC_ALGO,
-                epochs=config.bc_epochs,
-                seed=config.seed,
-                out=fresh_path(out / "runs" / f"{task}-bc"),
-                show_progress=show_progress,
-                log=log,
-            )
-            _copy_new(result.model_path, bc_model)
-
-        runs: list[tuple[str, dict[str, Any]]] = [
-            (
-                f"bc-{algo}",
-                {
-                    "algo": algo,
-                    "preset": FINETUNE_PRESET,
-                    "timesteps": config.finetune_steps,
-                    "init_from": str(bc_model),
-                    "critic_warmup": config.critic_warmup,
-                    "anchor_datasets": [str(dataset)] if config.anchor else [],
-                },
-            )
-            for algo in config.finetune_algos
-        ] + [(algo, {"algo": algo, "timesteps": config.rl_steps}) for algo in config.scratch_algos]
-        for method, settings in runs:
-            model = out / "models" / f"{task}-{method}.zip"
-            if _stage(
-                model,
-                f"{task}: {method} ({settings['timesteps']} steps"
-                + (f" after {config.critic_warmup} warm-up steps)" if "init_from" in settings else ")"),
-                log,
-            ):
-                train_config = TrainConfig(
-                    env_id=env_id,
-                    n_robots=config.n_robots,
-                    seed=config.seed,
-                    n_envs=config.workers,
-                    steps_per_episode=config.steps,
-                    env_kwargs=config.rl_env_kwargs(task),
-                    **settings,
-                )
-                result = train(
-                    train_config, fresh_path(out / "runs" / f"{task}-{method}"), show_progress=show_progress, log=log
-                )
-                if result.interrupted:
-                    raise KeyboardInterrupt
-                _copy_new(result.model_path, model)
-
+        _demonstrations(config, task, dataset, show_progress, log)
+        for seed in config.train_seeds:
+            _train_runs(config, task, dataset, seed, out, show_progress, log)
+        _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method in config.methods():
-            policy = BASELINE if method == BASELINE else str(out / "models" / f"{task}-{method}.zip")
-            path = out / "eval" / f"{task}-{method}.json"
-            evaluations.append((path, method))
-            if not _stage(path, f"{task}: evaluate {method} on seeds {format_seeds(config.eval_seeds)}", log):
-                continue
-            # the wave runs on the pipeline's env; a model on the env kwargs stored in it
-            kwargs = policy_env_kwargs(
-                policy, env_id, {"n_robots": config.n_robots, **env_kwargs} if method == BASELINE else None
-            )
-            with tqdm(
-                total=len(config.eval_seeds),
-                desc=f"evaluate {task}-{method}",
-                unit="episode",
-                disable=not show_progress,
-            ) as bar:
-                results = evaluate(
-                    [env_id],
-                    policy,
-                    config.eval_seeds,
-                    steps=config.steps,
-                    env_kwargs=kwargs,
-                    workers=config.workers,
-                    progress=lambda r: bar.update(1),
-                )
-            save_evaluation(path, policy, [env_id], kwargs, config.steps, config.eval_seeds, results)
+            for seed in [None] if method == BASELINE else config.train_seeds:
+                path = _evaluate(config, task, method, seed, "test", out, show_progress, log)
+                test_evaluations.append((path, method))
 
     report = out / "report"
     if (report / REPORT_FILES[0]).exists():
         log(f"dpr pipeline: report: {report} exists, skipped")
     else:
-        write_report([path for path, _ in evaluations], report, labels=[method for _, method in evaluations])
+        write_report([path for path, _ in test_evaluations], report, labels=[method for _, method in test_evaluations])
     log(f"dpr pipeline: done in {time.perf_counter() - started:.0f} s; report in {report}")
     return report
+
+
+def _model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
+    """A training run's model (``seed``), or the method's canonical model (None)."""
+    return out / "models" / (f"{task}-{method}.zip" if seed is None else f"{task}-{method}-seed{seed}.zip")
+
+
+def _demonstrations(
+    config: PipelineConfig, task: str, dataset: Path, show_progress: bool, log: Callable[[str], None]
+) -> None:
+    from tqdm import tqdm
+
+    from dpr.datasets.collect import CollectSpec, collect
+
+    if not _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
+        return
+    spec = CollectSpec(
+        ENV_IDS[task], policy=EXPERT, n_robots=config.n_robots, steps=config.steps, env_kwargs=PIPELINE_ENV_KWARGS
+    )
+    with tqdm(total=config.episodes, desc=f"collect {task}", unit="episode", disable=not show_progress) as bar:
+        summary = collect(
+            dataset,
+            spec,
+            config.episodes,
+            seed=config.demo_seed,
+            workers=config.workers,
+            progress=lambda record, index: bar.update(1),
+        )
+    if summary.interrupted:
+        raise KeyboardInterrupt
+
+
+def _train_runs(
+    config: PipelineConfig,
+    task: str,
+    dataset: Path,
+    seed: int,
+    out: Path,
+    show_progress: bool,
+    log: Callable[[str], None],
+) -> None:
+    """Training seed ``seed``'s clone, its fine-tuned models and the models trained from scratch."""
+    from dpr.imitation.bc import behaviour_clone
+    from dpr.rl.train import TrainConfig, train
+
+    env_id = ENV_IDS[task]
+    bc_model = _model_path(out, task, "bc", seed)
+    if _stage(bc_model, f"{task}: behaviour cloning, seed {seed}", log):
+        result = behaviour_clone(
+            dataset,
+            env_id,
+            algo=BC_ALGO,
+            epochs=config.bc_epochs,
+            seed=seed,
+            out=fresh_path(out / "runs" / f"{task}-bc-seed{seed}"),
+            show_progress=show_progress,
+            log=log,
+        )
+        _copy_new(result.model_path, bc_model)
+    runs: list[tuple[str, dict[str, Any]]] = [
+        (
+            f"bc-{algo}",
+            {
+                "algo": algo,
+                "preset": FINETUNE_PRESET,
+                "timesteps": config.finetune_steps,
+                "init_from": str(bc_model),
+                "critic_warmup": config.critic_warmup,
+                "anchor_datasets": [str(dataset)] if config.anchor else [],
+            },
+        )
+        for algo in config.finetune_algos
+    ] + [(algo, {"algo": algo, "timesteps": config.rl_steps}) for algo in config.scratch_algos]
+    for method, settings in runs:
+        model = _model_path(out, task, method, seed)
+        warmup = f" after {config.critic_warmup} warm-up steps" if "init_from" in settings else ""
+        if not _stage(model, f"{task}: {method}, seed {seed} ({settings['timesteps']} steps{warmup})", log):
+            continue
+        train_config = TrainConfig(
+            env_id=env_id,
+            n_robots=config.n_robots,
+            seed=seed,
+            n_envs=config.workers,
+            steps_per_episode=config.steps,
+            env_kwargs=config.rl_env_kwargs(task),
+            **settings,
+        )
+        result = train(
+            train_config, fresh_path(out / "runs" / f"{task}-{method}-seed{seed}"), show_progress=show_progress, log=log
+        )
+        if result.interrupted:
+            raise KeyboardInterrupt
+        _copy_new(result.model_path, model)
+
+
+def _evaluate(
+    config: PipelineConfig,
+    task: str,
+    method: str,
+    seed: int | None,
+    split: str,
+    out: Path,
+    show_progress: bool,
+    log: Callable[[str], None],
+) -> Path:
+    """Evaluate the wave (``seed`` None) or a training run on the ``split`` seeds ("test" or "validation")."""
+    from tqdm import tqdm
+
+    from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
+    from dpr.rl.report import format_seeds
+
+    env_id = ENV_IDS[task]
+    seeds = config.test_seeds if split == "test" else config.validation_seeds
+    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
+    path = out / "eval" / split / f"{name}.json"
+    if not _stage(path, f"{name}: evaluate on the {split} seeds {format_seeds(seeds)}", log):
+        return path
+    policy = BASELINE if method == BASELINE else str(_model_path(out, task, method, seed))
+    # the wave runs on the pipeline's env; a model on the env kwargs stored in it
+    own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS} if method == BASELINE else None
+    kwargs = policy_env_kwargs(policy, env_id, own_kwargs)
+    with tqdm(total=len(seeds), desc=f"evaluate {name} ({split})", unit="episode", disable=not show_progress) as bar:
+        results = evaluate(
+            [env_id],
+            policy,
+            seeds,
+            steps=config.steps,
+            env_kwargs=kwargs,
+            workers=config.workers,
+            progress=lambda r: bar.update(1),
+        )
+    save_evaluation(path, policy, [env_id], kwargs, config.steps, seeds, results)
+    return path
+
+
+def _choose_canonical_models(
+    config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
+) -> None:
+    """Copy each method's median training run (by its median on the validation seeds) to its canonical name,
+    and record the choice in ``choices.yaml``. One training seed is its own median; nothing is evaluated."""
+    import json
+
+    import numpy as np
+
+    choices_path = out / "choices.yaml"
+    choices = yaml.safe_load(choices_path.read_text()) if choices_path.exists() else {}
+    for method in config.learned_methods():
+        canonical = _model_path(out, task, method, None)
+        key = f"{task}-{method}"
+        if canonical.exists():
+            continue
+        scores = {}
+        for seed in config.train_seeds:
+            if len(config.train_seeds) == 1:
+                scores[seed] = None
+                continue
+            path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
+            episodes = json.loads(path.read_text())["episodes"]
+            scores[seed] = float(np.median([episode["projected_displacement"] for episode in episodes]))
+        ranked = sorted(config.train_seeds, key=lambda s: (scores[s] or 0.0, s))
+        chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
+        choices[key] = {"chosen_seed": chosen, "validation_medians": scores}
+        atomic_write_text(choices_path, yaml.safe_dump(choices, sort_keys=True))
+        log(f"dpr pipeline: {key}: the median run is seed {chosen} -> {canonical}")
+        _copy_new(_model_path(out, task, method, chosen), canonical)
