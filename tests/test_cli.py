@@ -1,9 +1,20 @@
-"""`dpr evaluate` and `dpr bench` through dpr.cli.main: output files, and bad input refused before work."""
+"""`dpr evaluate` through dpr.cli.main: output files, and bad input refused before work; the commands' shape:
+their flags, their defaults, and a light `dpr --help`."""
 
+import argparse
+import dataclasses
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from helpers import run_cli as run
+
+import dpr
+from dpr.cli import COMMANDS, PARAMETER_FLAGS, build_parser, flag_message
+from dpr.cli.common import flag_for
+from dpr.rl.pipeline import PipelineConfig
 
 SMALL = ["--robot-model", "disk", "--n-robots", "4", "--steps", "20", "--workers", "1"]
 
@@ -60,3 +71,95 @@ def test_evaluate_never_overwrites_a_result(tmp_path, capsys):
     assert run(["evaluate", "--seeds", "0", *SMALL, "--json", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
     assert out.read_text() == "earlier results"
+
+
+# -- the commands' shape -------------------------------------------------------------------------------------------
+# The library parameters each command's handler can report (through dpr.checks.ParameterError, said as a flag by
+# dpr.cli.common.flag_message): the parameters its library calls check, from the ParameterError(...) and
+# check_*(...) calls of dpr.rl, dpr.imitation, dpr.datasets, dpr.viz and dpr.policies.sb3 they reach.
+LIBRARY_PARAMETERS = {
+    "evaluate": {"policy", "env_id", "env_ids"},
+    "report": {"seed"},
+    "train": {
+        *("n_robots", "robot_model", "n_envs", "steps_per_episode", "eval_episodes", "timesteps", "seed"),
+        *("out", "env_id", "env_kwargs"),
+    },
+    "finetune": {
+        *("init_from", "policy", "anchor_datasets", "anchor_weight", "anchor_decay", "critic_warmup"),
+        *("timesteps", "seed", "n_envs", "eval_episodes", "out", "env_id", "env_kwargs"),
+    },
+    "pipeline": {"out", *(field.name for field in dataclasses.fields(PipelineConfig))},  # each field is checked
+    "bc": {
+        *("dataset_dirs", "env_id", "algo", "epochs", "batch_size", "lr", "val_fraction", "patience", "seed", "out"),
+        *("rounds", "episodes_per_round", "first_seed"),
+    },
+    "collect": {
+        *("env_id", "policy", "n_robots", "robot_model", "steps", "image_size", "env_kwargs"),
+        *("episodes", "seed", "backend", "address"),
+    },
+    "replay": {"episodes"},
+    "view": {"env_id", "env_kwargs", "episode", "policy", "path"},
+    "bench": set(),
+}
+HEAVY_MODULES = ("torch", "stable_baselines3", "rerun", "pyarrow", "pandas", "matplotlib")
+
+
+def _command_flags(command) -> set[str]:
+    parser = argparse.ArgumentParser()
+    command.arguments(parser)
+    return set(parser._option_string_actions)
+
+
+def test_every_command_lists_its_library_parameters():
+    assert {command.name for command in COMMANDS} == set(LIBRARY_PARAMETERS)
+
+
+@pytest.mark.parametrize("command", COMMANDS, ids=lambda command: command.name)
+def test_every_library_parameter_maps_to_a_flag_of_its_command(command):
+    flags = _command_flags(command)
+    unmapped = {name: flag_for(name, command.flags) for name in LIBRARY_PARAMETERS[command.name]}
+    assert {name: flag for name, flag in unmapped.items() if flag not in flags} == {}
+
+
+def test_every_mapped_parameter_is_a_library_parameter():
+    """No stale entries: each name a flag map knows is a string the library (outside dpr.cli) spells."""
+    package = Path(dpr.__file__).parent
+    library = "\n".join(p.read_text() for p in package.rglob("*.py") if p.relative_to(package).parts[0] != "cli")
+    mapped = set(PARAMETER_FLAGS).union(*(command.flags for command in COMMANDS))
+    assert {name for name in mapped if f'"{name}"' not in library} == set()
+
+
+def test_a_library_parameter_is_said_as_its_commands_flag():
+    from dpr.checks import ParameterError
+
+    view = next(command for command in COMMANDS if command.name == "view")
+    assert flag_message(ParameterError("policy", "unknown")) == "--policy: unknown"
+    assert flag_message(ParameterError("policy", "unknown"), view.flags) == "--policies: unknown"
+    assert flag_message(ParameterError("env_kwargs", "bad")) == "--env-kwarg: bad"
+    assert flag_message(ValueError("plain")) == "plain"
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["evaluate", "--help"], ["train", "--help"]])
+def test_help_imports_nothing_heavy(argv):
+    code = (
+        "import sys\nfrom dpr.cli import main\n"
+        f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
+        "print(' '.join(sys.modules), file=sys.stderr)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "usage: dpr" in done.stdout
+    loaded = {name.split(".")[0] for name in done.stderr.split()}
+    assert loaded.isdisjoint(HEAVY_MODULES), sorted(loaded & set(HEAVY_MODULES))
+
+
+def test_defaults_come_from_the_library():
+    from dpr.envs import MAX_EPISODE_STEPS
+    from dpr.rl.train import TrainConfig
+
+    args = build_parser().parse_args(["train", "--algo", "ppo", "--env", "dpr/Navigation-v0"])
+    assert args.steps_per_episode == MAX_EPISODE_STEPS == TrainConfig.steps_per_episode
+    assert (args.n_robots, args.robot_model, args.n_envs) == (
+        TrainConfig.n_robots,
+        TrainConfig.robot_model,
+        TrainConfig.n_envs,
+    )

@@ -1,0 +1,252 @@
+"""What the `dpr` commands share: the command record, argument types, argument groups, output checks, and the
+mapping from library parameter names to flags.
+
+Only names that ``import dpr`` has loaded already come in at module level (the env ids, the robot models, the
+env's defaults): `dpr --help` must not pay for torch, stable-baselines3, rerun or pyarrow. Each command's
+arguments are added when that command runs (:attr:`Command.arguments`), so their defaults can come from the
+library's own configs and signatures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+import json
+import os
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from dpr.envs import ENV_IDS
+from dpr.envs.particle_env import SWARM_KWARGS, ParticleSwarmEnv
+from dpr.sim.models import ROBOT_MODELS
+
+ALL_ENVS = "all"  # --env all / --tasks all: every task
+TASK_NAMES = tuple(ENV_IDS)  # navigation, gate, unresponsive, manipulation
+ENV_ID_LIST = ", ".join(ENV_IDS.values())  # for help texts
+EXAMPLE_ENV_ID = ENV_IDS["navigation"]
+# Worker processes by default: two, the cores the laptop-sized budgets were measured on (fewer on a smaller machine).
+DEFAULT_WORKERS = min(2, os.cpu_count() or 1)
+DEFAULT_WORKERS_TEXT = "min(2, CPUs)"
+
+
+@dataclass(frozen=True)
+class Command:
+    """One `dpr` command: what `dpr --help` says of it, the function that adds its arguments to its parser
+    (called only when the command is used), its handler, and the flags its library parameters are said as."""
+
+    name: str
+    help: str
+    description: str
+    arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace, argparse.ArgumentParser], int]
+    flags: Mapping[str, str] = field(default_factory=dict)  # library parameter -> flag, beside PARAMETER_FLAGS
+
+
+# Library parameters whose flag is not "--" + the name with dashes in any command (see dpr.checks.ParameterError);
+# a command's own Command.flags come first.
+PARAMETER_FLAGS = {
+    "env_id": "--env",
+    "env_ids": "--env",
+    "env_kwargs": "--env-kwarg",
+}
+
+
+def flag_for(parameter: str, flags: Mapping[str, str] | None = None) -> str:
+    """The flag that sets the library parameter ``parameter`` (``flags``: the command's own names)."""
+    return (flags or {}).get(parameter) or PARAMETER_FLAGS.get(parameter) or "--" + parameter.replace("_", "-")
+
+
+def flag_message(error: Exception, flags: Mapping[str, str] | None = None) -> str:
+    """``error``'s message, with a library parameter name (dpr.checks.ParameterError) said as its CLI flag."""
+    from dpr.checks import ParameterError
+
+    if isinstance(error, ParameterError):
+        return f"{flag_for(error.parameter, flags)}: {error.problem}"
+    return str(error)
+
+
+def defaults(target: Callable) -> dict[str, Any]:
+    """The default of every parameter of a function or class (a dataclass: of its fields, factories called):
+    what the library does when a flag is not given, and so the flag's default."""
+    if dataclasses.is_dataclass(target):
+        return {
+            f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            for f in dataclasses.fields(target)
+            if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        }
+    parameters = inspect.signature(target).parameters.values()
+    return {p.name: p.default for p in parameters if p.default is not inspect.Parameter.empty}
+
+
+# The env's own swarm defaults (N 9, the paddle model): what runs when neither a flag nor a model file says.
+SWARM_DEFAULTS = {name: value for name, value in defaults(ParticleSwarmEnv).items() if name in SWARM_KWARGS}
+
+
+def shown(value: Any) -> str:
+    """A default as help texts write it: 0.001 and 1 rather than 1e-03 and 1.0, lists space-separated."""
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(shown, value))
+    return str(value)
+
+
+# -- argument types ----------------------------------------------------------------------------------------------
+def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
+    """'0-4' -> [0..4], '1,3,7' -> [1, 3, 7], '5' -> [5]."""
+    seeds: list[int] = []
+    try:
+        for part in text.split(","):
+            if "-" in part.strip()[1:]:
+                lo, hi = part.split("-", 1)
+                lo_i, hi_i = int(lo), int(hi)
+                if hi_i < lo_i:
+                    raise ValueError
+                seeds.extend(range(lo_i, hi_i + 1))
+            else:
+                seeds.append(int(part))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{flag} must look like '0-4' or '1,3,7', got {text!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"{flag} must be non-negative integers, got {text!r}")
+    return seeds
+
+
+def seeds_text(seeds: Iterable[int]) -> str:
+    """[100..104] -> '100-104', [1, 3, 7] -> '1,3,7': what :func:`parse_seeds` reads back."""
+    seeds = list(seeds)
+    if len(seeds) > 1 and seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ",".join(map(str, seeds))
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def name_and_value(text: str, flag: str) -> tuple[str, str]:
+    """'NAME=VALUE' -> (NAME, VALUE text), NAME a Python identifier (a keyword argument)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"{flag} must look like NAME=VALUE, got {text!r}")
+    return key, value
+
+
+def env_kwarg(text: str) -> tuple[str, object]:
+    """'object_type=box' -> ('object_type', 'box'); values parse as JSON when they can (numbers, true, [..])."""
+    key, value = name_and_value(text, "--env-kwarg")
+    try:
+        return key, json.loads(value)
+    except ValueError:
+        return key, value
+
+
+# -- arguments ---------------------------------------------------------------------------------------------------
+def default_argument(
+    parser: argparse.ArgumentParser, flag: str, default: Any, what: str, type: Callable = positive_int, **kwargs
+) -> None:
+    """``flag`` with its default said at the end of its help: "``what`` (default ``default``)"."""
+    parser.add_argument(flag, type=type, default=default, help=f"{what} (default {shown(default)})", **kwargs)
+
+
+def swarm_arguments(parser: argparse.ArgumentParser, config: Mapping[str, Any] | None = None) -> None:
+    """--n-robots and --robot-model, defaulting to ``config``'s (the defaults of the library call they go to).
+    Without ``config`` they default to None: a saved model's own values apply, else the env's."""
+    given = config or {}
+    shown_defaults = config or SWARM_DEFAULTS
+    or_model = "" if config else ", or a model's"
+    parser.add_argument(
+        "--n-robots",
+        type=positive_int,
+        default=given.get("n_robots"),
+        help=f"swarm size N (default {shown_defaults['n_robots']}{or_model and or_model + ' N'})",
+    )
+    parser.add_argument(
+        "--robot-model",
+        choices=ROBOT_MODELS,
+        default=given.get("robot_model"),
+        help="paddle: the paper's robot; disk: the fast single-body model "
+        f"(default {shown_defaults['robot_model']}{or_model})",
+    )
+
+
+def env_kwarg_argument(parser: argparse.ArgumentParser, example: str) -> None:
+    parser.add_argument(
+        "--env-kwarg",
+        action="append",
+        type=env_kwarg,
+        metavar="NAME=VALUE",
+        help=f"extra gym.make kwarg, e.g. {example} (repeatable)",
+    )
+
+
+def workers_argument(parser: argparse.ArgumentParser, what: str, flag: str = "--workers") -> None:
+    """A count of processes (``what`` they do), :data:`DEFAULT_WORKERS` by default."""
+    parser.add_argument(
+        flag, type=positive_int, default=DEFAULT_WORKERS, help=f"{what} (default: {DEFAULT_WORKERS_TEXT})"
+    )
+
+
+def json_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--json", help=f"also write {what} to this new JSON file")
+
+
+def rerun_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """--rerun OUT.rrd: checked by :func:`check_rerun_output`."""
+    parser.add_argument("--rerun", metavar="OUT.rrd", help=what)
+
+
+# -- checks ------------------------------------------------------------------------------------------------------
+def check_output(path: str | None, parser: argparse.ArgumentParser, flag: str) -> None:
+    """A new file in an existing folder: results are never overwritten."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.exists():
+        parser.error(f"{flag}: {p} already exists; choose another path (results are never overwritten)")
+    if not p.parent.exists():
+        parser.error(f"{flag}: folder {p.parent} does not exist")
+
+
+def check_rrd_output(path: str | None, parser: argparse.ArgumentParser, flag: str) -> None:
+    """A new file ending in .rrd (`dpr view --save`, ``--rerun`` of `dpr evaluate`, `dpr train`, `dpr finetune`)."""
+    check_output(path, parser, flag)
+    if path is not None and Path(path).suffix != ".rrd":
+        parser.error(f"{flag}: {path} must end in .rrd")
+
+
+def check_rerun_output(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    check_rrd_output(args.rerun, parser, "--rerun")
+
+
+def check_seed(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+
+
+def check_env_kwargs(env_ids: list[str], env_kwargs: dict, parser: argparse.ArgumentParser) -> None:
+    """Build each env once, so that a bad kwarg is reported before any episode runs."""
+    import gymnasium as gym
+
+    for env_id in env_ids:
+        try:
+            gym.make(env_id, **env_kwargs).close()
+        except (TypeError, ValueError) as error:
+            parser.error(f"{env_id} with {env_kwargs}: {error}")
+
+
+def write_json(path: str, payload: Any) -> None:
+    """``--json``: what a command printed, for scripts, in a new file (checked by :func:`check_output` first)."""
+    from dpr.atomic import atomic_write_json
+
+    atomic_write_json(path, payload, indent=2, exclusive=True)
+    print(f"wrote {path}")

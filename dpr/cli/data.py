@@ -1,0 +1,204 @@
+"""`dpr collect` (policy rollouts recorded as a LeRobot v3.0 dataset and MCAP logs) and `dpr replay` (recorded
+episodes re-run and compared bit for bit)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from dpr.cli.common import (
+    ENV_ID_LIST,
+    Command,
+    check_output,
+    check_seed,
+    default_argument,
+    defaults,
+    env_kwarg_argument,
+    flag_message,
+    json_argument,
+    parse_seeds,
+    swarm_arguments,
+    workers_argument,
+    write_json,
+)
+
+DEFAULT_EPISODES = 10
+
+
+def collect_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.datasets.collect import BACKENDS, CollectSpec, collect
+
+    spec = defaults(CollectSpec)
+    run = defaults(collect)
+    parser.add_argument("--env", required=True, help=f"env id: {ENV_ID_LIST}")
+    parser.add_argument(
+        "--policy",
+        default=spec["policy"],
+        help=f"'wave', 'wave-markov', 'random' or a model .zip: any policy `dpr evaluate` accepts "
+        f"(default {spec['policy']})",
+    )
+    parser.add_argument(
+        "--label-policy",
+        help="record this policy's action on every observation instead of the "
+        "action --policy took (DAgger data: a clone drives, an expert labels), e.g. wave-markov",
+    )
+    default_argument(parser, "--episodes", DEFAULT_EPISODES, "number of episodes (seeds) to hold")
+    parser.add_argument(
+        "--out", required=True, help="dataset folder (created, or resumed if it holds the same dataset)"
+    )
+    default_argument(parser, "--seed", run["seed"], "first seed", type=int)
+    swarm_arguments(parser, spec)
+    default_argument(parser, "--steps", spec["steps"], "max steps per episode")
+    parser.add_argument("--pixels", action="store_true", help="also record render() frames as observation.image (PNG)")
+    default_argument(parser, "--image-size", spec["image_size"], "frame size for --pixels")
+    parser.add_argument("--mcap", action="store_true", help="also write one MCAP log per episode into OUT/mcap/")
+    workers_argument(parser, "rollout processes")
+    env_kwarg_argument(parser, "object_type=box")
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default=run["backend"],
+        help="run rollouts in local worker processes or as Ray tasks (pip install -e '.[distributed]'; "
+        f"default {run['backend']})",
+    )
+    parser.add_argument(
+        "--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)"
+    )
+    json_argument(parser, "the summary")
+
+
+def _check_backend(args, parser) -> None:
+    if args.address and args.backend != "ray":
+        parser.error("--address is the Ray cluster for --backend ray")
+    if args.backend == "ray":
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            parser.error("--backend ray needs Ray: pip install -e '.[distributed]'")
+
+
+def cmd_collect(args, parser) -> int:
+    from tqdm import tqdm
+
+    check_output(args.json, parser, "--json")
+    check_seed(args, parser)
+
+    from dpr.datasets.collect import CollectSpec, collect, format_summary
+
+    try:
+        spec = CollectSpec(
+            args.env,
+            policy=args.policy,
+            n_robots=args.n_robots,
+            robot_model=args.robot_model,
+            steps=args.steps,
+            pixels=args.pixels,
+            image_size=args.image_size,
+            env_kwargs=dict(args.env_kwarg or []),
+            label_policy=args.label_policy,
+        )
+    except ValueError as error:
+        parser.error(flag_message(error))
+    try:
+        spec.make_env().close()  # a bad --env-kwarg name or value fails here, before anything is written
+    except (TypeError, ValueError) as error:
+        parser.error(
+            f"cannot make {spec.env_id} from --n-robots/--robot-model/--env-kwarg {spec.make_kwargs()}: {error}"
+        )
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out: {out} exists and is not a folder")
+    _check_backend(args, parser)
+    bar = tqdm(total=args.episodes, desc=f"collect {spec.policy} {spec.env_id}", unit="episode")
+    frames = [0]
+    started = [None]
+
+    def progress(record, index):
+        import time
+
+        if started[0] is None:
+            started[0] = time.perf_counter() - record.seconds
+        frames[0] += record.frames
+        bar.update(1)
+        bar.set_postfix(frames=frames[0], fps=f"{frames[0] / max(time.perf_counter() - started[0], 1e-9):.0f}")
+
+    try:
+        summary = collect(
+            out,
+            spec,
+            episodes=args.episodes,
+            seed=args.seed,
+            workers=args.workers,
+            mcap=args.mcap,
+            progress=progress,
+            backend=args.backend,
+            address=args.address,
+        )
+    except ValueError as error:  # a DatasetError, or a policy that cannot run on this env
+        bar.close()
+        print(f"dpr collect: error: {flag_message(error)}", file=sys.stderr)
+        return 2
+    bar.close()
+    print(format_summary(summary))
+    if args.json:
+        write_json(args.json, summary.as_dict())
+    return 130 if summary.interrupted else 0
+
+
+def replay_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", help="dataset folder written by `dpr collect`")
+    parser.add_argument(
+        "--episodes",
+        type=lambda text: parse_seeds(text, "--episodes"),
+        help="episode indices, e.g. 0-4 or 1,3 (default: all)",
+    )
+
+
+def cmd_replay(args, parser) -> int:
+    from tqdm import tqdm
+
+    from dpr.datasets.lerobot import DatasetError, LeRobotReader
+    from dpr.datasets.replay import replay_dataset
+
+    try:
+        total = LeRobotReader(args.dataset).num_episodes
+        episodes = args.episodes if args.episodes is not None else list(range(total))
+        with tqdm(total=len(episodes), desc="replay", unit="episode") as bar:
+            checks = replay_dataset(args.dataset, episodes, progress=lambda c: bar.update(1))
+    except (DatasetError, ValueError) as error:
+        print(f"dpr replay: error: {flag_message(error)}", file=sys.stderr)
+        return 2
+    bad = [c for c in checks if not c.equal]
+    for c in bad:
+        worst = {k: v for k, v in c.max_abs_difference.items() if v}
+        print(
+            f"episode {c.episode_index} (seed {c.seed}): differs from frame {c.first_mismatch} on; max |diff| {worst}"
+        )
+    print(
+        f"{len(checks) - len(bad)}/{len(checks)} episodes replay bit-identically "
+        f"({sum(c.frames for c in checks)} frames)"
+    )
+    return 1 if bad else 0
+
+
+COMMANDS = (
+    Command(
+        "collect",
+        help="record policy rollouts as a LeRobot v3.0 dataset (and MCAP logs)",
+        description="Roll a policy out for --episodes seeds (--seed, --seed+1, ...) and append each episode to the "
+        "LeRobot v3.0 dataset in --out. The dataset is valid after every episode; running the same command again "
+        "resumes (seeds already recorded are skipped). An --out folder holding a dataset of another env, policy, "
+        "kwargs or features is refused and left untouched.",
+        arguments=collect_arguments,
+        run=cmd_collect,
+    ),
+    Command(
+        "replay",
+        help="re-run recorded episodes and check they reproduce bit for bit",
+        description="Re-run each episode of a dataset from its stored seed, env kwargs and actions, and compare "
+        "observations, rewards and flags with the recording. Exit status 1 when any episode differs.",
+        arguments=replay_arguments,
+        run=cmd_replay,
+    ),
+)

@@ -1,0 +1,197 @@
+"""`dpr evaluate` (a policy scored with the paper's metrics over seeds) and `dpr report` (tables and figures from
+its JSON files)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from dpr.cli.common import (
+    ALL_ENVS,
+    ENV_ID_LIST,
+    EXAMPLE_ENV_ID,
+    SWARM_DEFAULTS,
+    Command,
+    check_env_kwargs,
+    check_output,
+    check_rerun_output,
+    defaults,
+    env_kwarg_argument,
+    flag_message,
+    json_argument,
+    parse_seeds,
+    positive_int,
+    rerun_argument,
+    swarm_arguments,
+    workers_argument,
+)
+
+DEFAULT_SEEDS = "0-4"
+
+
+def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.policies.registry import WAVE
+    from dpr.rl.evaluation import evaluate
+
+    parser.add_argument(
+        "--policy",
+        default=WAVE,
+        help="'wave' (the paper's hand-crafted policy), 'wave-markov' "
+        "(its phase read from the observation), 'random', or a model file MODEL.zip written by "
+        "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)",
+    )
+    parser.add_argument("--env", nargs="+", default=[EXAMPLE_ENV_ID], help=f"env ids ({ENV_ID_LIST}) or '{ALL_ENVS}'")
+    parser.add_argument(
+        "--seeds",
+        type=parse_seeds,
+        default=parse_seeds(DEFAULT_SEEDS),
+        help=f"e.g. 0-4 or 1,3,7 (default {DEFAULT_SEEDS})",
+    )
+    swarm_arguments(parser)
+    steps = defaults(evaluate)["steps"]
+    parser.add_argument("--steps", type=positive_int, default=steps, help=f"steps per episode (default {steps})")
+    workers_argument(parser, "episodes run in this many processes")
+    env_kwarg_argument(parser, "object_start=paper")
+    json_argument(parser, "episodes and summary")
+    rerun_argument(parser, "also save every evaluated episode (replayed with full state) to this new rerun file")
+
+
+def _evaluate_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser) -> dict:
+    """The env kwargs of ``dpr evaluate``: for a scripted policy the flags (the env's swarm by default); for a
+    ``.zip`` model its own kwargs, where a flag given explicitly must agree with them."""
+    from dpr.policies.sb3 import is_model_path, model_env_kwargs
+
+    given = {"n_robots": args.n_robots, "robot_model": args.robot_model}
+    flags = {"n_robots": "--n-robots", "robot_model": "--robot-model"}
+    explicit = {**{k: v for k, v in given.items() if v is not None}, **dict(args.env_kwarg or [])}
+    if not is_model_path(args.policy):
+        env_kwargs = {**SWARM_DEFAULTS, **explicit}
+        check_env_kwargs(env_ids, env_kwargs, parser)
+        return env_kwargs
+    resolved = {}
+    for env_id in env_ids:
+        try:
+            resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit)
+        except ValueError as error:
+            message = flag_message(error)
+            for name, flag in flags.items():  # name the flag the user typed, not the kwarg
+                if given[name] is not None:
+                    message = message.replace(f"; {name}={given[name]!r}", f"; {flag} {given[name]}")
+            parser.error(message)
+    check_env_kwargs(env_ids, resolved[env_ids[0]], parser)
+    return resolved[env_ids[0]]
+
+
+def cmd_evaluate(args, parser) -> int:
+    from tqdm import tqdm
+
+    from dpr.envs import ENV_IDS
+    from dpr.rl.evaluation import evaluate, format_table, save_evaluation
+
+    env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
+    check_output(args.json, parser, "--json")
+    check_rerun_output(args, parser)
+    env_kwargs = _evaluate_env_kwargs(args, env_ids, parser)
+    try:
+        with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
+            results = evaluate(
+                env_ids,
+                args.policy,
+                args.seeds,
+                steps=args.steps,
+                env_kwargs=env_kwargs,
+                workers=args.workers,
+                progress=lambda r: bar.update(1),
+            )
+    except ValueError as error:
+        parser.error(flag_message(error))
+    print(format_table(results))
+    if args.json:
+        save_evaluation(args.json, args.policy, env_ids, env_kwargs, args.steps, args.seeds, results)
+        print(f"wrote {args.json}")
+    if args.rerun:
+        _log_evaluation_to_rerun(args, env_ids, env_kwargs)
+    return 0
+
+
+def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None:
+    """Replay the evaluated episodes (the simulator is deterministic, so they are the same episodes) with
+    every robot's state recorded, and save them side by side in a new .rrd file."""
+    from tqdm import tqdm
+
+    from dpr.envs.particle_env import split_swarm_kwargs
+    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.rerun_log import save_rrd
+
+    swarm, extra = split_swarm_kwargs(env_kwargs)
+    episodes = []
+    for env_id in tqdm(env_ids, desc="log to rerun", unit="env"):
+        for seed in args.seeds:
+            task = env_id.split("/")[-1].removesuffix("-v0").lower()
+            episodes.append(
+                rollout_episode(
+                    env_id, args.policy, seed, steps=args.steps, env_kwargs=extra, name=f"{task}_seed{seed}", **swarm
+                )
+            )
+    save_rrd(episodes, args.rerun, title=f"dpr evaluate {args.policy}")
+    print(f"wrote {args.rerun}")
+
+
+def report_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("evaluations", nargs="+", metavar="EVAL.json", help="files written by `dpr evaluate --json`")
+    parser.add_argument("--out", required=True, metavar="DIR", help="folder for the report (created if missing)")
+    parser.add_argument(
+        "--label",
+        nargs="+",
+        metavar="NAME",
+        help="display name of each file's policy, one per file "
+        "in order (default: the policy's name; a model file's stem, e.g. navigation-bc-ppo)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        help="seed of the episodes drawn in trajectories.png (default: per task, the smallest seed every policy has)",
+    )
+
+
+def cmd_report(args, parser) -> int:
+    import warnings
+
+    from dpr.rl.report import write_report
+
+    if args.label is not None and len(args.label) != len(args.evaluations):
+        parser.error(f"--label: give one name per file ({len(args.evaluations)} file(s), {len(args.label)} label(s))")
+    with warnings.catch_warnings(record=True) as caught:  # policies left out of a figure: say so plainly
+        warnings.simplefilter("always")
+        try:
+            written = write_report(args.evaluations, args.out, labels=args.label, seed=args.seed)
+        except (ValueError, FileExistsError) as error:
+            parser.error(flag_message(error))
+    for warning in caught:
+        print(f"dpr report: warning: {warning.message}", file=sys.stderr)
+    print(written[0].read_text())
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+COMMANDS = (
+    Command(
+        "evaluate",
+        help="score a policy with the paper's metrics over seeds",
+        description="Run a policy on one or more tasks and print projected displacement, net displacement, "
+        "total distance and success (median, min, max, mean ± std over seeds).",
+        arguments=evaluate_arguments,
+        run=cmd_evaluate,
+    ),
+    Command(
+        "report",
+        help="markdown results table and the paper's figures from `dpr evaluate --json` files",
+        description="Results table (markdown) and figures (bars per task and policy; trajectories from one start) "
+        "from `dpr evaluate --json` files. Files are merged: one policy evaluated task by task, or several "
+        'policies, give one row per (task, policy), with "% of wave" where the wave policy was evaluated on '
+        "the same seeds. Writes results.md, bars.png and trajectories.png into --out (never overwritten).",
+        arguments=report_arguments,
+        run=cmd_report,
+    ),
+)

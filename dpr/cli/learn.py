@@ -1,0 +1,267 @@
+"""`dpr train` (SB3 RL from scratch) and `dpr finetune` (RL from a cloned policy): one run folder each."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from dpr.cli.common import (
+    ENV_ID_LIST,
+    EXAMPLE_ENV_ID,
+    Command,
+    check_rerun_output,
+    check_seed,
+    default_argument,
+    defaults,
+    env_kwarg_argument,
+    flag_message,
+    name_and_value,
+    positive_int,
+    rerun_argument,
+    swarm_arguments,
+    workers_argument,
+)
+
+# Value-head-only steps before a fine-tuned actor moves; the library's TrainConfig does none unless asked.
+FINETUNE_CRITIC_WARMUP = 20_000
+# --from names the model file a fine-tuning run starts from: TrainConfig.init_from, and the model file that
+# dpr.policies.sb3.read_model_info reads ("policy" by default).
+FINETUNE_FLAGS = {"init_from": "--from", "policy": "--from", "anchor_datasets": "--anchor"}
+
+
+def hyperparam(text: str) -> tuple[str, object]:
+    """'n_steps=64' -> ('n_steps', 64); values parse as yaml (numbers, lists, 'lin_3e-4' stays a string)."""
+    import yaml
+
+    key, value = name_and_value(text, "--hyperparam")
+    try:
+        parsed = yaml.safe_load(value)
+    except yaml.YAMLError:
+        raise argparse.ArgumentTypeError(f"--hyperparam {key}: cannot parse {value!r}") from None
+    if isinstance(parsed, str):  # yaml 1.1 reads 1e-4 (no dot) as text; a number is meant
+        try:
+            return key, float(parsed)
+        except ValueError:
+            pass
+    return key, parsed
+
+
+def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> None:
+    """The flags `dpr train` and `dpr finetune` share."""
+    from dpr.rl.train import EVAL_SEED_OFFSET, TrainConfig
+
+    config = defaults(TrainConfig)
+    default_argument(parser, "--seed", config["seed"], "seed of the model and the envs", type=int)
+    default_argument(parser, "--eval-episodes", config["eval_episodes"], "episodes per periodic evaluation")
+    env_kwarg_argument(parser, "reward=projected")
+    parser.add_argument(
+        "--hyperparam",
+        action="append",
+        type=hyperparam,
+        metavar="NAME=VALUE",
+        help=f"override a yaml hyperparameter, e.g. {hyperparam_example} (repeatable)",
+    )
+    parser.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
+    rerun_argument(
+        parser,
+        "after training, roll out every checkpoint and the final model from the evaluation "
+        f"start (seed + {EVAL_SEED_OFFSET}) side by side into this new rerun file",
+    )
+
+
+def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
+    """Roll out every checkpoint of a training run and its final model from one evaluation start, side by side
+    in a new .rrd file (named after their step counts): how the policy changed over the run."""
+    import re
+
+    from tqdm import tqdm
+
+    from dpr.envs import MAX_EPISODE_STEPS
+    from dpr.envs.particle_env import split_swarm_kwargs
+    from dpr.policies.sb3 import read_model_info
+    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.rerun_log import save_rrd
+
+    def step_count(model: Path) -> int:
+        match = re.search(r"_(\d+)_steps", model.stem)
+        return int(match.group(1)) if match else -1
+
+    checkpoints = sorted((result.run_dir / "checkpoints").glob("*.zip"), key=step_count)
+    models = [(f"step_{step_count(m)}", m) for m in checkpoints] + [("final", result.model_path)]
+    info = read_model_info(result.model_path)
+    swarm, extra = split_swarm_kwargs(info.env_kwargs)
+    steps = info.max_episode_steps or MAX_EPISODE_STEPS
+    episodes = [
+        rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
+        for name, model in tqdm(models, desc="log to rerun", unit="model")
+    ]
+    save_rrd(episodes, path, title=f"dpr train {result.run_dir.name} (seed {seed})")
+    print(f"wrote {path}")
+
+
+def _training_done(result, args) -> int:
+    """Say where a `dpr train`/`dpr finetune` run's files are (and log it to rerun when asked)."""
+    from dpr.rl.train import EVAL_SEED_OFFSET
+
+    print(f"model: {result.model_path}")
+    if result.best_model_path:
+        print(f"best model: {result.best_model_path}")
+    print(f"config: {result.config_path}")
+    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    if args.rerun and not result.interrupted:
+        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
+    return 130 if result.interrupted else 0
+
+
+# -- train -------------------------------------------------------------------------------------------------------
+def train_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.policies.hyperparams import DEFAULT_PRESET, PAPER_PRESET
+    from dpr.policies.sb3 import ALGOS
+    from dpr.rl.train import TrainConfig
+
+    config = defaults(TrainConfig)
+    parser.add_argument("--algo", required=True, choices=ALGOS, help="DQN uses Discrete(2^N) actions")
+    parser.add_argument("--env", required=True, help=f"env id: {ENV_ID_LIST}")
+    swarm_arguments(parser, config)
+    parser.add_argument(
+        "--timesteps", type=positive_int, help="env steps to train for (default: the preset's n_timesteps)"
+    )
+    default_argument(parser, "--n-envs", config["n_envs"], "parallel envs, subprocesses when > 1")
+    parser.add_argument(
+        "--preset",
+        choices=(DEFAULT_PRESET, PAPER_PRESET),
+        default=config["preset"],
+        help=f"{DEFAULT_PRESET}: laptop-sized entry of the env id; {PAPER_PRESET}: Shen et al.'s (10M steps)",
+    )
+    default_argument(parser, "--steps-per-episode", config["steps_per_episode"], "episode length")
+    _run_arguments(parser, "n_steps=256 or learning_rate=lin_1e-3")
+
+
+def cmd_train(args, parser) -> int:
+    from dpr.rl.train import TrainConfig, train
+
+    check_seed(args, parser)
+    check_rerun_output(args, parser)
+    try:
+        config = TrainConfig(
+            args.algo,
+            args.env,
+            n_robots=args.n_robots,
+            robot_model=args.robot_model,
+            timesteps=args.timesteps,
+            seed=args.seed,
+            n_envs=args.n_envs,
+            preset=args.preset,
+            steps_per_episode=args.steps_per_episode,
+            env_kwargs=dict(args.env_kwarg or []),
+            hyperparams=dict(args.hyperparam or []),
+            eval_episodes=args.eval_episodes,
+        )
+        result = train(config, args.out)
+    except (TypeError, ValueError) as error:
+        parser.error(flag_message(error))
+    return _training_done(result, args)
+
+
+# -- finetune ----------------------------------------------------------------------------------------------------
+def finetune_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.policies.sb3 import FINETUNE_ALGOS
+    from dpr.rl.train import TrainConfig
+
+    config = defaults(TrainConfig)
+    parser.add_argument("--from", dest="source", required=True, metavar="MODEL.zip", help="the model to start from")
+    parser.add_argument("--env", required=True, help=f"env id the model was trained on, e.g. {EXAMPLE_ENV_ID}")
+    parser.add_argument("--algo", choices=FINETUNE_ALGOS, help="algorithm to fine-tune with (default: the model's)")
+    parser.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
+    default_argument(
+        parser,
+        "--critic-warmup",
+        FINETUNE_CRITIC_WARMUP,
+        "env steps that train only the value head first; 0 to skip",
+        type=int,
+    )
+    parser.add_argument(
+        "--anchor",
+        nargs="+",
+        metavar="DATASET",
+        help="demonstration datasets (from `dpr collect`) to anchor every update to: after each update, "
+        "a few steps of the behaviour-cloning loss on their frames, scaled by --anchor-weight and decaying "
+        "by --anchor-decay per update (DAPG's demonstration term)",
+    )
+    default_argument(
+        parser, "--anchor-weight", config["anchor_weight"], "the anchor's scale at the first update", type=float
+    )
+    decay = config["anchor_decay"]
+    default_argument(
+        parser,
+        "--anchor-decay",
+        decay,
+        "the anchor's scale is multiplied by this after each update; "
+        f"by default {decay**100:.2f} of it is left after 100 updates",
+        type=float,
+    )
+    workers_argument(parser, "parallel envs, subprocesses when > 1", flag="--n-envs")
+    _run_arguments(parser, "learning_rate=1e-5")
+
+
+def cmd_finetune(args, parser) -> int:
+    from dpr.envs import MAX_EPISODE_STEPS
+    from dpr.envs.particle_env import split_swarm_kwargs
+    from dpr.policies.hyperparams import FINETUNE_PRESET
+    from dpr.policies.sb3 import model_env_kwargs, read_model_info
+    from dpr.rl.train import TrainConfig, train
+
+    check_seed(args, parser)
+    check_rerun_output(args, parser)
+    try:
+        info = read_model_info(args.source)
+        if info.env_id != args.env:
+            raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
+        swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, dict(args.env_kwarg or [])))
+        config = TrainConfig(
+            args.algo or info.algo,
+            args.env,
+            **swarm,
+            timesteps=args.timesteps,
+            seed=args.seed,
+            n_envs=args.n_envs,
+            preset=FINETUNE_PRESET,
+            steps_per_episode=info.max_episode_steps or MAX_EPISODE_STEPS,
+            env_kwargs=env_kwargs,
+            hyperparams=dict(args.hyperparam or []),
+            eval_episodes=args.eval_episodes,
+            init_from=args.source,
+            critic_warmup=args.critic_warmup,
+            anchor_datasets=list(args.anchor or []),
+            anchor_weight=args.anchor_weight,
+            anchor_decay=args.anchor_decay,
+        )
+        result = train(config, args.out)
+    except (TypeError, ValueError) as error:
+        parser.error(flag_message(error, FINETUNE_FLAGS))
+    return _training_done(result, args)
+
+
+COMMANDS = (
+    Command(
+        "train",
+        help="train PPO, A2C or DQN from scratch with stable-baselines3",
+        description="Train an SB3 model on a task with the hyperparameters of dpr/rl/hyperparams/<algo>.yml "
+        "(the env id's entry, or --preset paper) and save model.zip, best_model.zip, checkpoints and the "
+        "resolved config.yaml into a new run folder. The model carries its env id and kwargs: "
+        "`dpr evaluate --policy RUN/model.zip --env ID` runs it on the env it was trained on.",
+        arguments=train_arguments,
+        run=cmd_train,
+    ),
+    Command(
+        "finetune",
+        help="fine-tune a behaviour-cloned model with PPO or A2C",
+        description="Start PPO or A2C from the weights of a model written by `dpr bc` (or `dpr train`) and train "
+        "it on the env it was made for, with the `finetune` entry of dpr/rl/hyperparams/<algo>.yml on top of the "
+        "env id's entry: small, clipped updates, so the cloned behaviour is not forgotten. First, --critic-warmup "
+        "steps train only the value head on rollouts of the unchanged actor. Writes a run folder as `dpr train` does.",
+        arguments=finetune_arguments,
+        run=cmd_finetune,
+        flags=FINETUNE_FLAGS,
+    ),
+)

@@ -1,0 +1,70 @@
+"""The `dpr` entry point: one parser with a subcommand per :class:`~dpr.cli.common.Command`, and dispatch."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+from dpr.cli import bc, bench, data, evaluate, learn, pipeline, view
+from dpr.cli.common import ALL_ENVS
+from dpr.envs import ENV_IDS
+
+COMMANDS = (
+    *evaluate.COMMANDS,
+    *learn.COMMANDS,
+    *pipeline.COMMANDS,
+    *bc.COMMANDS,
+    *data.COMMANDS,
+    *bench.COMMANDS,
+    *view.COMMANDS,
+)
+
+
+class CommandParser(argparse.ArgumentParser):
+    """A subcommand's parser whose arguments are added on first use (parsing, help or usage): `dpr --help` and
+    every other command never import the modules that one command's defaults come from."""
+
+    def __init__(self, *args, arguments: Callable[[argparse.ArgumentParser], None] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._add_arguments = arguments
+
+    def _define(self) -> None:
+        add, self._add_arguments = self._add_arguments, None
+        if add is not None:
+            add(self)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._define()
+        return super().parse_known_args(args, namespace)
+
+    def format_usage(self) -> str:
+        self._define()
+        return super().format_usage()
+
+    def format_help(self) -> str:
+        self._define()
+        return super().format_help()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dpr", description="Deep Particle Robot: particle-robot swarms for robot learning."
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=CommandParser)
+    for command in COMMANDS:
+        command_parser = sub.add_parser(
+            command.name, help=command.help, description=command.description, arguments=command.arguments
+        )
+        command_parser.set_defaults(func=command.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "env", None) and args.env != [ALL_ENVS]:
+        requested = [args.env] if isinstance(args.env, str) else args.env
+        unknown = [e for e in requested if e not in ENV_IDS.values()]
+        if unknown:
+            parser.error(f"--env: unknown env id(s) {unknown}; choose from {list(ENV_IDS.values())} or '{ALL_ENVS}'")
+    return args.func(args, parser)
