@@ -88,7 +88,11 @@ LIBRARY_PARAMETERS = {
         *("init_from", "policy", "anchor_datasets", "anchor_weight", "anchor_decay", "critic_warmup"),
         *("timesteps", "seed", "n_envs", "eval_episodes", "out", "env_id", "env_kwargs"),
     },
-    "pipeline": {"out", *(field.name for field in dataclasses.fields(PipelineConfig))},  # each field is checked
+    "pipeline": {
+        "out",
+        "preset",
+        *(field.name for field in dataclasses.fields(PipelineConfig)),
+    },  # each field is checked
     "bc": {
         *("dataset_dirs", "env_id", "algo", "epochs", "batch_size", "lr", "val_fraction", "patience", "seed", "out"),
         *("rounds", "episodes_per_round", "first_seed"),
@@ -163,3 +167,21 @@ def test_defaults_come_from_the_library():
         TrainConfig.robot_model,
         TrainConfig.n_envs,
     )
+
+
+@pytest.mark.parametrize("flag", ["--out", "--json"])
+def test_an_unwritable_destination_is_refused_before_any_work(flag, tmp_path, capsys):
+    """A path under a file (where nothing can be written) is refused at once, not after the work."""
+    from dpr.cli import main
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    paths = {"--out": tmp_path / "dataset", "--json": tmp_path / "summary.json"}
+    paths[flag] = blocker / "x"
+    argv = ["collect", "--env", "dpr/Navigation-v0", "--episodes", "1", "--steps", "5"]
+    argv += ["--out", str(paths["--out"]), "--json", str(paths["--json"])]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert f"{flag}: {blocker} is not a folder" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]

@@ -14,6 +14,7 @@ import dataclasses
 import inspect
 import json
 import os
+import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +52,7 @@ PARAMETER_FLAGS = {
     "env_id": "--env",
     "env_ids": "--env",
     "env_kwargs": "--env-kwarg",
+    "hyperparams": "--hyperparam",
 }
 
 
@@ -95,8 +97,11 @@ def shown(value: Any) -> str:
 
 
 # -- argument types ----------------------------------------------------------------------------------------------
+MAX_SEEDS = 1_000_000  # episodes in one command: far beyond any run, and a list that fits in memory
+
+
 def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
-    """'0-4' -> [0..4], '1,3,7' -> [1, 3, 7], '5' -> [5]."""
+    """'0-4' -> [0..4], '1,3,7' -> [1, 3, 7], '5' -> [5]; each seed once, at most :data:`MAX_SEEDS`."""
     seeds: list[int] = []
     try:
         for part in text.split(","):
@@ -105,6 +110,8 @@ def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
                 lo_i, hi_i = int(lo), int(hi)
                 if hi_i < lo_i:
                     raise ValueError
+                if len(seeds) + hi_i - lo_i + 1 > MAX_SEEDS:
+                    raise argparse.ArgumentTypeError(f"{flag} names more than {MAX_SEEDS} seeds: {text!r}")
                 seeds.extend(range(lo_i, hi_i + 1))
             else:
                 seeds.append(int(part))
@@ -112,6 +119,8 @@ def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
         raise argparse.ArgumentTypeError(f"{flag} must look like '0-4' or '1,3,7', got {text!r}") from None
     if not seeds or min(seeds) < 0:
         raise argparse.ArgumentTypeError(f"{flag} must be non-negative integers, got {text!r}")
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"{flag} names a seed twice: {text!r}")
     return seeds
 
 
@@ -130,6 +139,16 @@ def positive_int(text: str) -> int:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return value
 
 
@@ -206,6 +225,27 @@ def rerun_argument(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 # -- checks ------------------------------------------------------------------------------------------------------
+# Flags that name something a command writes: each is checked writable before the command does any work.
+OUTPUT_FLAGS = ("out", "json", "save", "rerun")
+
+
+def unwritable_destination(path: str) -> str | None:
+    """Why nothing can be written at ``path`` (a file or a folder, which may not exist yet), or None: its
+    nearest existing folder must take a new file, so that hours of work never end in a failed write."""
+    target = Path(path).absolute()
+    base = target if target.is_dir() else target.parent
+    while not base.exists():
+        base = base.parent
+    if not base.is_dir():
+        return f"{base} is not a folder"
+    try:
+        with tempfile.TemporaryFile(dir=base):
+            pass
+    except OSError as error:
+        return f"cannot write in {base}: {error.strerror or error}"
+    return None
+
+
 def check_output(path: str | None, parser: argparse.ArgumentParser, flag: str) -> None:
     """A new file in an existing folder: results are never overwritten."""
     if path is None:

@@ -6,7 +6,7 @@ import argparse
 from collections.abc import Callable
 
 from dpr.cli import bc, bench, data, evaluate, learn, pipeline, view
-from dpr.cli.common import ALL_ENVS
+from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, unwritable_destination
 from dpr.envs import ENV_IDS
 
 COMMANDS = (
@@ -67,4 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [e for e in requested if e not in ENV_IDS.values()]
         if unknown:
             parser.error(f"--env: unknown env id(s) {unknown}; choose from {list(ENV_IDS.values())} or '{ALL_ENVS}'")
+    for name in OUTPUT_FLAGS:
+        value = getattr(args, name, None)
+        problem = unwritable_destination(value) if isinstance(value, str) else None
+        if problem:
+            parser.error(f"--{name}: {problem}")
     return args.func(args, parser)

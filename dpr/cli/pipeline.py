@@ -4,16 +4,18 @@ wave (dpr.rl.pipeline)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+from collections.abc import Callable
 
 from dpr.cli.common import (
     ALL_ENVS,
     TASK_NAMES,
     Command,
-    default_argument,
-    defaults,
     flag_message,
+    non_negative_int,
     parse_seeds,
+    positive_int,
     seeds_text,
     shown,
     workers_argument,
@@ -24,88 +26,91 @@ PIPELINE_OUT = "runs/pipeline"
 
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.policies.sb3 import FINETUNE_ALGOS
-    from dpr.rl.pipeline import SCRATCH_ALGOS, PipelineConfig
+    from dpr.rl.pipeline import DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
 
-    config = defaults(PipelineConfig)
+    presets = {name: dataclasses.asdict(config) for name, config in PRESETS.items()}
+
+    def preset_argument(flag: str, what: str, type: Callable = positive_int, show: Callable = shown, **kwargs) -> None:
+        """A flag that overrides the preset's value (None when not given); its help lists every preset's."""
+        name = flag[2:].replace("-", "_")
+        values = ", ".join(f"{preset} {show(config[name])}" for preset, config in presets.items())
+        parser.add_argument(flag, type=type, default=None, help=f"{what} (preset: {values})", **kwargs)
+
     parser.add_argument("--out", default=PIPELINE_OUT, help=f"run folder (default {PIPELINE_OUT}; resumed if present)")
     parser.add_argument(
-        "--tasks",
-        nargs="+",
-        default=config["tasks"],
-        choices=(*TASK_NAMES, ALL_ENVS),
-        help=f"tasks to run (default {shown(config['tasks'])}; '{ALL_ENVS}' for the four)",
+        "--preset",
+        choices=list(PRESETS),
+        default=DEFAULT_PRESET,
+        help=f"the budgets and seed sets to start from (default {DEFAULT_PRESET}: `make run`'s minutes; full: the "
+        "headline, hours per task); the flags below override single values",
     )
-    default_argument(parser, "--n-robots", config["n_robots"], "swarm size N")
-    default_argument(parser, "--episodes", config["episodes"], "demonstration episodes per task")
-    default_argument(parser, "--demo-seed", config["demo_seed"], "first demonstration seed", type=int)
-    default_argument(parser, "--bc-epochs", config["bc_epochs"], "behaviour-cloning epochs")
-    default_argument(
-        parser, "--critic-warmup", config["critic_warmup"], "value-only steps before fine-tuning", type=int
-    )
-    default_argument(parser, "--finetune-steps", config["finetune_steps"], "fine-tuning steps")
+    preset_argument("--tasks", f"tasks to run, or '{ALL_ENVS}'", type=str, nargs="+", choices=(*TASK_NAMES, ALL_ENVS))
+    preset_argument("--n-robots", "swarm size N")
+    preset_argument("--episodes", "demonstration episodes per task")
+    preset_argument("--demo-seed", "first demonstration seed", type=non_negative_int)
+    preset_argument("--bc-epochs", "behaviour-cloning epochs")
+    preset_argument("--critic-warmup", "value-only steps before fine-tuning", type=non_negative_int)
+    preset_argument("--finetune-steps", "fine-tuning steps")
     parser.add_argument(
         "--anchor",
         action="store_true",
+        default=None,
         help="anchor fine-tuning to the task's demonstrations "
         "(`dpr finetune --anchor` with its default weight and decay)",
     )
-    parser.add_argument(
+    preset_argument(
         "--approach-reward",
+        "Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the swarm-ball approach "
+        "shaping (the env's approach_reward; 0 for none)",
         type=float,
-        default=config["approach_reward"],
         metavar="W",
-        help="Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the "
-        f"swarm-ball approach shaping (the env's approach_reward; default {shown(config['approach_reward'])}, "
-        "0 for none)",
     )
-    parser.add_argument(
-        "--finetune-algos",
-        nargs="+",
-        default=config["finetune_algos"],
-        choices=FINETUNE_ALGOS,
-        help=f"algorithms that fine-tune the clone (default {shown(config['finetune_algos'])})",
+    preset_argument(
+        "--finetune-algos", "algorithms that fine-tune the clone", type=str, nargs="+", choices=FINETUNE_ALGOS
     )
-    parser.add_argument(
+    preset_argument(
         "--scratch-algos",
+        "algorithms trained from scratch for the same total env steps",
+        type=str,
         nargs="*",
-        default=config["scratch_algos"],
         choices=SCRATCH_ALGOS,
-        help=f"algorithms trained from scratch for the same total env steps (default {shown(config['scratch_algos'])})",
     )
-    parser.add_argument(
-        "--eval-seeds",
-        type=lambda text: parse_seeds(text, "--eval-seeds"),
-        default=config["eval_seeds"],
-        help=f"evaluation seeds, never used for training (default {seeds_text(config['eval_seeds'])})",
+    preset_argument(
+        "--train-seeds",
+        "seeds of BC and RL: one training run of every method per seed",
+        type=lambda text: parse_seeds(text, "--train-seeds"),
+        show=seeds_text,
     )
-    default_argument(parser, "--seed", config["seed"], "seed of BC and RL", type=int)
-    default_argument(parser, "--steps", config["steps"], "steps per episode, everywhere")
+    preset_argument(
+        "--validation-seeds",
+        "seeds that make every choice (each method's canonical model is its median run there); needed with "
+        "several training seeds",
+        type=lambda text: parse_seeds(text, "--validation-seeds"),
+        show=lambda seeds: seeds_text(seeds) or "none",
+    )
+    preset_argument(
+        "--test-seeds",
+        "seeds that score every run and the wave for the report, and nothing else",
+        type=lambda text: parse_seeds(text, "--test-seeds"),
+        show=seeds_text,
+    )
+    preset_argument("--steps", "steps per episode, everywhere")
     workers_argument(parser, "worker processes for collection, RL envs and evaluation")
 
 
 def cmd_pipeline(args, parser) -> int:
     from dpr.envs import ENV_IDS
-    from dpr.rl.pipeline import PipelineConfig, run_pipeline
+    from dpr.rl.pipeline import PipelineConfig, preset_config, run_pipeline
 
-    tasks = list(ENV_IDS) if args.tasks == [ALL_ENVS] else args.tasks
+    overrides = {
+        field.name: getattr(args, field.name)
+        for field in dataclasses.fields(PipelineConfig)
+        if getattr(args, field.name, None) is not None
+    }
+    if overrides.get("tasks") == [ALL_ENVS]:
+        overrides["tasks"] = list(ENV_IDS)
     try:
-        config = PipelineConfig(
-            tasks=tasks,
-            n_robots=args.n_robots,
-            episodes=args.episodes,
-            demo_seed=args.demo_seed,
-            bc_epochs=args.bc_epochs,
-            critic_warmup=args.critic_warmup,
-            finetune_steps=args.finetune_steps,
-            finetune_algos=args.finetune_algos,
-            scratch_algos=args.scratch_algos,
-            eval_seeds=args.eval_seeds,
-            anchor=args.anchor,
-            approach_reward=args.approach_reward,
-            seed=args.seed,
-            workers=args.workers,
-            steps=args.steps,
-        )
+        config = preset_config(args.preset, **overrides)
         report = run_pipeline(config, args.out)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error))
@@ -122,9 +127,11 @@ COMMANDS = (
         help="demonstrations -> BC -> fine-tuning, beside RL from scratch, evaluated against the wave",
         description="Per task: record demonstrations of the Markov wave, clone them (BC), fine-tune the clone "
         "with PPO/A2C, train RL from scratch for the same total env steps, evaluate everything and the wave policy "
-        "on unseen seeds, and write OUT/report/results.md with bars.png and trajectories.png. Every stage is "
-        "skipped when its output exists: the same command resumes an interrupted run. The defaults are the "
-        "small budget of `make run` (Navigation, N=9, about 10 minutes on 2 CPU cores).",
+        "on seeds no choice saw, and write OUT/report/results.md (with interval estimates over training runs) and "
+        "its figures. Training seeds, validation seeds (every choice) and test seeds (the report) never overlap. "
+        "Every stage is skipped when its output exists: the same command resumes an interrupted run. --preset "
+        "small (the default) is `make run` (Navigation, N=9, about 13 minutes on 2 CPU cores); --preset full "
+        "--tasks all is the headline.",
         arguments=pipeline_arguments,
         run=cmd_pipeline,
     ),

@@ -144,6 +144,7 @@ class PipelineConfig:
         return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
 
 
+DEFAULT_PRESET = "small"
 PRESETS: dict[str, PipelineConfig] = {
     "small": PipelineConfig(),
     "full": PipelineConfig(
