@@ -30,11 +30,15 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 
     presets = {name: dataclasses.asdict(config) for name, config in PRESETS.items()}
 
-    def preset_argument(flag: str, what: str, type: Callable = positive_int, show: Callable = shown, **kwargs) -> None:
+    def preset_argument(
+        flag: str, what: str, type: Callable = positive_int, show: Callable = shown, aliases=(), **kwargs
+    ) -> None:
         """A flag that overrides the preset's value (None when not given); its help lists every preset's."""
         name = flag[2:].replace("-", "_")
         values = ", ".join(f"{preset} {show(config[name])}" for preset, config in presets.items())
-        parser.add_argument(flag, type=type, default=None, help=f"{what} (preset: {values})", **kwargs)
+        parser.add_argument(
+            flag, *aliases, dest=name, type=type, default=None, help=f"{what} (preset: {values})", **kwargs
+        )
 
     parser.add_argument("--out", default=PIPELINE_OUT, help=f"run folder (default {PIPELINE_OUT}; resumed if present)")
     parser.add_argument(
@@ -80,6 +84,7 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         "seeds of BC and RL: one training run of every method per seed",
         type=lambda text: parse_seeds(text, "--train-seeds"),
         show=seeds_text,
+        aliases=("--seed",),
     )
     preset_argument(
         "--validation-seeds",
@@ -93,6 +98,7 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         "seeds that score every run and the wave for the report, and nothing else",
         type=lambda text: parse_seeds(text, "--test-seeds"),
         show=seeds_text,
+        aliases=("--eval-seeds",),
     )
     preset_argument("--steps", "steps per episode, everywhere")
     workers_argument(parser, "worker processes for collection, RL envs and evaluation")
