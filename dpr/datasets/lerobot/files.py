@@ -11,10 +11,15 @@ from dpr.datasets.lerobot.format import CHUNK_FILE_RE, CHUNKS_SIZE, LOCK_PATH, D
 
 
 class WriterLock:
-    """An advisory ``flock`` on ``meta/.dpr-writer.lock``: one writer per dataset at a time."""
+    """An advisory ``flock`` on ``meta/.dpr-writer.lock``: one writer per dataset at a time.
+
+    The lock file exists only while a writer holds it: :meth:`release` deletes it (a finished dataset holds no lock
+    file). Deleting a flocked file is safe because :meth:`acquire` checks, once it holds the lock, that the file it
+    locked is still the one at the path, and starts again when a releasing writer unlinked it in between."""
 
     def __init__(self, root: Path):
         self.path = root / LOCK_PATH
+        self.created = False  # whether this writer made the lock file (a crashed writer may have left one)
         self._fd: int | None = None
 
     @property
@@ -22,16 +27,39 @@ class WriterLock:
         return self._fd is not None
 
     def acquire(self) -> None:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise DatasetError(f"{self.path}: another writer holds this dataset open") from None
-        self._fd = fd
+        while True:
+            try:
+                fd, created = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
+            except FileExistsError:
+                try:
+                    fd, created = os.open(self.path, os.O_RDWR), False
+                except FileNotFoundError:
+                    continue  # its holder released it just now
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(fd)
+                raise DatasetError(f"{self.path}: another writer holds this dataset open") from None
+            try:
+                current = os.stat(self.path)
+            except FileNotFoundError:
+                current = None
+            locked = os.fstat(fd)
+            if current is None or (current.st_dev, current.st_ino) != (locked.st_dev, locked.st_ino):
+                os.close(fd)  # the previous holder deleted the file we locked: lock the one there now
+                continue
+            self._fd, self.created = fd, created
+            return
 
-    def release(self) -> None:
-        if self._fd is not None:
+    def release(self, *, remove: bool = True) -> None:
+        """Drop the lock; ``remove`` also deletes the lock file (while still holding it, so no one locks a file
+        about to vanish)."""
+        if self._fd is None:
+            return
+        try:
+            if remove:
+                self.path.unlink(missing_ok=True)
+        finally:
             os.close(self._fd)  # closing drops the flock
             self._fd = None
 

@@ -19,6 +19,7 @@ from dpr.datasets.lerobot.format import (
     TASKS_PATH,
     DatasetError,
     chunk_file,
+    parquet_num_rows,
     read_parquet,
 )
 from dpr.datasets.lerobot.stats import Aggregate, merge_aggregates
@@ -181,6 +182,22 @@ def data_file_path(root: Path, info: Mapping, meta: Mapping) -> Path:
     if chunk is None or file is None:
         chunk, file = chunk_file(int(meta["episode_index"]))
     return root / info["data_path"].format(chunk_index=int(chunk), file_index=int(file))
+
+
+def check_data_files(root: Path, info: Mapping, episodes: list[Mapping]) -> dict[Path, int]:
+    """Check that each committed episode's data file has a footer that parses and holds at least the rows of the
+    committed episodes stored there; returns the number of committed episodes per data file."""
+    needed: dict[Path, int] = {}
+    per_file: dict[Path, int] = {}
+    for ep in episodes:
+        path = data_file_path(root, info, ep)
+        needed[path] = needed.get(path, 0) + int(ep["length"])
+        per_file[path] = per_file.get(path, 0) + 1
+    for path, rows in needed.items():
+        have = parquet_num_rows(path)
+        if have < rows:
+            raise DatasetError(f"{path}: holds {have} rows; the committed episodes stored there need {rows}")
+    return per_file
 
 
 def load_tasks(root: Path, needed: int | None) -> list[str]:

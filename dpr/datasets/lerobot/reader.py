@@ -17,12 +17,11 @@ from dpr.datasets.lerobot.format import (
     DatasetError,
     decode_png,
     load_info,
-    parquet_num_rows,
     read_json,
     read_parquet,
     spec_shape,
 )
-from dpr.datasets.lerobot.meta import data_file_path, load_committed_episodes, load_tasks, split_row
+from dpr.datasets.lerobot.meta import check_data_files, data_file_path, load_committed_episodes, load_tasks, split_row
 from dpr.datasets.lerobot.stats import Aggregate, merge_aggregates, stats_json
 
 # ------------------------------------------------------------------------------------------------------ reader
@@ -57,21 +56,8 @@ class LeRobotReader:
             )
         self._starts = [int(e["dataset_from_index"]) for e in self.episodes]
         self.tasks: list[str] = load_tasks(self.root, self.info.get("total_tasks"))
-        self._check_data_files()
+        self._episodes_per_file = check_data_files(self.root, self.info, self.episodes)
         self.stats: dict[str, dict[str, np.ndarray]] = self._load_stats()
-
-    def _check_data_files(self) -> None:
-        """Each data file's footer parses and holds at least the rows of the committed episodes it stores."""
-        needed: dict[Path, int] = {}
-        self._episodes_per_file: dict[Path, int] = {}
-        for ep in self.episodes:
-            path = data_file_path(self.root, self.info, ep)
-            needed[path] = needed.get(path, 0) + int(ep["length"])
-            self._episodes_per_file[path] = self._episodes_per_file.get(path, 0) + 1
-        for path, rows in needed.items():
-            have = parquet_num_rows(path)
-            if have < rows:
-                raise DatasetError(f"{path}: holds {have} rows; the committed episodes stored there need {rows}")
 
     def _load_stats(self) -> dict[str, dict[str, np.ndarray]]:
         """stats.json, or the aggregate of the per-episode stats when stats.json is absent or stale (a crash

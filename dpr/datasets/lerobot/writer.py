@@ -6,6 +6,7 @@ import json
 import os
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -42,7 +43,9 @@ from dpr.datasets.lerobot.format import (
     write_parquet,
 )
 from dpr.datasets.lerobot.meta import (
+    EpisodeRow,
     aggregates_from_rows,
+    check_data_files,
     check_extra_key,
     data_file_path,
     extra_array,
@@ -63,13 +66,24 @@ from dpr.datasets.lerobot.stats import (
 # ---------------------------------------------------------------------------------------------------------- writer
 
 
+@dataclass
+class _Committed:
+    """What a resume reads from a dataset's committed episodes before it changes anything."""
+
+    info: dict
+    rows: list[EpisodeRow]
+    frames: int
+    tasks: list[str]
+    aggregates: dict[str, Aggregate]
+
+
 class LeRobotWriter:
     """Records a LeRobot v3.0 dataset episode by episode; crash-safe (see the module docstring).
 
     Recording contract: ``create``/``open`` -> ``add_frame`` per step -> ``save_episode`` -> ... -> ``finalize``
     (like LeRobot's). The dataset is valid after every ``save_episode``. One writer per dataset at a time (an
-    advisory lock file ``meta/.dpr-writer.lock`` enforces it). As a context manager, an exception discards the
-    unsaved episode and keeps every saved one.
+    advisory lock on ``meta/.dpr-writer.lock`` enforces it; the file exists only while a writer is open). As a
+    context manager, an exception discards the unsaved episode and keeps every saved one.
     """
 
     def __init__(
@@ -155,9 +169,11 @@ class LeRobotWriter:
     ) -> LeRobotWriter:
         """Create the dataset if ``root`` is absent or empty, else check it matches and resume appending.
 
-        Every argument must equal what ``meta/info.json`` holds (else DatasetError naming the first difference,
-        and nothing on disk is touched); then crash leftovers (data/meta files of uncommitted episodes, temp files)
-        are deleted, the aggregates are rebuilt from the committed episodes, and recording resumes after them."""
+        A resume is refused with a DatasetError, before anything on disk changes, when an argument differs from
+        what ``meta/info.json`` holds (the message names the first difference), when another writer holds the
+        dataset, or when the committed episodes are not intact (meta rows, frame totals, tasks, stats columns, data
+        file footers). Only then are crash leftovers (files of uncommitted episodes, temp files) deleted, the
+        aggregates rebuilt from the committed episodes, and recording resumed after them."""
         root_path = Path(root)
         if not root_path.exists() or (root_path.is_dir() and not any(root_path.iterdir())):
             return cls.create(root_path, fps=fps, features=features, robot_type=robot_type, info_extra=info_extra)
@@ -166,38 +182,64 @@ class LeRobotWriter:
         info_path = root_path / INFO_PATH
         if not info_path.is_file():
             raise DatasetError(f"{info_path}: not found; {root_path} is not empty and holds no dataset")
-        info = check_info(read_json(info_path), info_path)
-        difference = first_difference(info, fps=fps, features=normalized, robot_type=robot_type, info_extra=extra)
-        if difference:
-            raise DatasetError(f"{info_path}: does not match the requested dataset: {difference}")
+
+        def check_settings() -> dict:
+            info = check_info(read_json(info_path), info_path)
+            difference = first_difference(info, fps=fps, features=normalized, robot_type=robot_type, info_extra=extra)
+            if difference:
+                raise DatasetError(f"{info_path}: does not match the requested dataset: {difference}")
+            return info
+
+        check_settings()  # before the lock, whose file would be the first change on disk
         writer = cls(root_path, fps=fps, features=normalized, robot_type=robot_type, info_extra=extra)
         writer._lock.acquire()
         try:
-            writer._resume(info)
+            committed = writer._committed_state(check_settings())  # again: another writer may have appended
+        except BaseException:
+            writer._lock.release(remove=writer._lock.created)
+            raise
+        try:
+            writer._resume(committed)
         except BaseException:
             writer._lock.release()
             raise
         return writer
 
-    def _resume(self, info: dict) -> None:
-        """Delete uncommitted leftovers, then rebuild tasks, aggregates and extras from the committed episodes."""
+    def _committed_state(self, info: dict) -> _Committed:
+        """Read and check everything a resume needs, changing nothing on disk (DatasetError when it is not
+        intact)."""
         total = info["total_episodes"]
+        meta_folder = self.root / "meta" / "episodes"
         rows = load_committed_episodes(self.root, total, with_stats=True)
-        referenced = {data_file_path(self.root, info, r.meta).resolve() for r in rows}
-        referenced |= {r.meta_path.resolve() for r in rows}
-        delete_leftovers(self.root, total, referenced)
-
         frames = sum(int(r.meta["length"]) for r in rows)
         if frames != info["total_frames"]:
             raise DatasetError(
                 f"{self.root / INFO_PATH}: total_frames is {info['total_frames']} but the committed episodes hold "
                 f"{frames} frames"
             )
-        self._tasks = load_tasks(self.root, info.get("total_tasks"))
+        check_data_files(self.root, info, [r.meta for r in rows])
+        tasks = load_tasks(self.root, info.get("total_tasks"))
+        return _Committed(
+            info=info,
+            rows=rows,
+            frames=frames,
+            tasks=tasks,
+            aggregates=aggregates_from_rows(rows, self.features, meta_folder),
+        )
+
+    def _resume(self, committed: _Committed) -> None:
+        """Delete uncommitted leftovers, bring tasks.parquet and stats.json back to the committed episodes, and
+        take up recording after them."""
+        info, rows = committed.info, committed.rows
+        referenced = {data_file_path(self.root, info, r.meta).resolve() for r in rows}
+        referenced |= {r.meta_path.resolve() for r in rows}
+        delete_leftovers(self.root, info["total_episodes"], referenced)
+
+        self._tasks = committed.tasks
         self._task_index = {t: i for i, t in enumerate(self._tasks)}
-        self._aggregates = aggregates_from_rows(rows, self.features, self.root / "meta" / "episodes")
+        self._aggregates = committed.aggregates
         self._extra_fields = rows[0].extra_fields if rows else None
-        self._num_episodes, self._num_frames = total, frames
+        self._num_episodes, self._num_frames = info["total_episodes"], committed.frames
 
         # The aggregate files may hold an uncommitted episode's contribution (crash between them and info.json).
         tasks_path = self.root / TASKS_PATH
@@ -500,8 +542,8 @@ class LeRobotWriter:
     # ------------------------------------------------------------------------------------------------ closing
 
     def finalize(self) -> None:
-        """Stop recording (idempotent). Saved episodes are already durable; unsaved frames are discarded with a
-        RuntimeWarning."""
+        """Stop recording (idempotent) and delete the writer's lock file. Saved episodes are already durable;
+        unsaved frames are discarded with a RuntimeWarning."""
         if self._closed:
             return
         if self._frame_tasks:
