@@ -124,3 +124,13 @@ def atomic_write_text(path: str | os.PathLike, text: str, **options: Any) -> Pat
 
 def atomic_write_json(path: str | os.PathLike, obj: Any, *, indent: int | None = 4, **options: Any) -> Path:
     return atomic_write_text(path, json.dumps(obj, indent=indent, ensure_ascii=False) + "\n", **options)
+
+
+def atomic_write_parquet(
+    path: str | os.PathLike, table: Any, *, write_options: dict | None = None, **options: Any
+) -> Path:
+    """Write a pyarrow ``table`` as parquet through :class:`AtomicFile`; ``write_options`` go to
+    ``pyarrow.parquet.write_table`` (compression, use_dictionary, ...), ``options`` to :func:`atomic_write`."""
+    import pyarrow.parquet as pq  # lazy: only the dataset writers need pyarrow
+
+    return atomic_write(path, lambda f: pq.write_table(table, f, **(write_options or {})), **options)

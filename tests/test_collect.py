@@ -2,6 +2,7 @@
 commands: recorded frames equal an independent rollout, resuming, refusing another spec, surviving SIGKILL and
 Ctrl-C of the real CLI, MCAP logs, pixels, discrete actions and bad command-line input."""
 
+import hashlib
 import json
 import os
 import shutil
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from helpers import run_cli
 
@@ -383,6 +386,47 @@ def test_another_spec_is_refused_before_any_work(small_dataset, change, monkeypa
     with pytest.raises(DatasetError, match="does not match"):
         collect(small_dataset, small_spec(**change), episodes=3, workers=1, mcap=mcap)
     assert snapshot(small_dataset) == before
+
+
+def tree_hash(root: Path) -> str:
+    """One hash of every folder's and file's name and every file's bytes under ``root``."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        digest.update(str(path.relative_to(root)).encode() + b"\0")
+        if path.is_file():
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"n_robots": 5}, "feature 'observation.state' has shape [24] in the dataset, [30] requested"),
+        ({"robot_model": "paddle"}, "robot_type is 'disk' in the dataset, 'paddle' requested"),
+        ({"env_id": "dpr/Gate-v0"}, "dpr/Gate-v0"),
+        ({"pixels": True, "image_size": 16}, "features are"),
+    ],
+    ids=["n_robots", "robot_model", "env", "features"],
+)
+def test_a_refused_resume_deletes_nothing(small_dataset, tmp_path, change, message):
+    """A killed run's leftovers (an uncommitted episode's files, temp files) are what a resume cleans up; a
+    resume with other settings is refused before that, and every byte stays as it was."""
+    root = tmp_path / "ds"
+    shutil.copytree(small_dataset, root)
+    shutil.copy(root / "data/chunk-000/file-001.parquet", root / "data/chunk-000/file-002.parquet")
+    meta = pq.read_table(root / "meta/episodes/chunk-000/file-001.parquet")
+    meta = meta.set_column(0, "episode_index", pa.array([2], pa.int64()))  # as if saved, then killed before info.json
+    pq.write_table(meta, root / "meta/episodes/chunk-000/file-002.parquet")
+    (root / "data/chunk-000/.file-003.parquet.1.dpr-tmp").write_bytes(b"half")
+    (root / "meta/.info.json.1.dpr-tmp").write_bytes(b"{")
+    before = tree_hash(root)
+    with pytest.raises(DatasetError, match="does not match") as refused:
+        collect(root, small_spec(**change), episodes=3, workers=1)
+    assert message in str(refused.value) and "meta/info.json" in str(refused.value)
+    assert tree_hash(root) == before
+    summary = collect(root, small_spec(), episodes=3, workers=1)  # the same settings resume and clean up
+    assert (summary.episodes_before, summary.episodes_total) == (2, 3)
+    assert not list(root.rglob("*.dpr-tmp"))
 
 
 # ------------------------------------------------------------------------------------- crash and Ctrl-C (CLI)

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -484,6 +486,116 @@ def test_second_writer_on_the_same_dataset_is_refused(tmp_path):
         LeRobotWriter.open(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")
     first.finalize()
     LeRobotWriter.open(root, fps=10, features=VECTOR_FEATURES, robot_type="disk").finalize()
+
+
+LOCK = "meta/.dpr-writer.lock"
+
+
+def tree_hash(root: Path) -> str:
+    """One hash of every folder's and file's name and every file's bytes under ``root``."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        digest.update(str(path.relative_to(root)).encode() + b"\0")
+        if path.is_file():
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
+def test_a_finished_dataset_holds_no_lock_file(tmp_path):
+    rng = np.random.default_rng(14)
+    root = tmp_path / "ds"
+    writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
+    assert (root / LOCK).exists()  # while a writer is open
+    add_episode(writer, make_episode(rng, 3), "navigate")
+    writer.save_episode()
+    writer.finalize()
+    assert not (root / LOCK).exists()
+    with pytest.raises(RuntimeError, match="boom"):
+        with LeRobotWriter.open(root, fps=10, features=FEATURES, robot_type="disk") as w:
+            assert (root / LOCK).exists()
+            raise RuntimeError("boom")
+    assert not (root / LOCK).exists()
+    (root / LOCK).write_bytes(b"")  # left by a writer that was killed
+    with LeRobotWriter.open(root, fps=10, features=FEATURES, robot_type="disk") as w:
+        assert w.num_episodes == 1
+    assert not (root / LOCK).exists()
+    repair(root)
+    assert not (root / LOCK).exists()
+    assert LeRobotReader(root).num_episodes == 1
+
+
+def test_a_released_lock_can_be_taken_again_while_its_file_comes_and_goes(tmp_path):
+    root = tmp_path / "ds"
+    for _ in range(3):
+        first = LeRobotWriter.open(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")
+        with pytest.raises(DatasetError, match="another writer"):
+            LeRobotWriter.open(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")
+        assert (root / LOCK).exists()  # a refused second writer leaves the holder's lock file alone
+        first.finalize()
+        assert not (root / LOCK).exists()
+
+
+def break_total_frames(root: Path) -> str:
+    info = json.loads((root / "meta/info.json").read_text())
+    info["total_frames"] += 1
+    (root / "meta/info.json").write_text(json.dumps(info, indent=4))
+    return "total_frames"
+
+
+def remove_a_data_file(root: Path) -> str:
+    (root / "data/chunk-000/file-001.parquet").unlink()
+    return "file-001.parquet: file not found"
+
+
+def truncate_a_data_file(root: Path) -> str:
+    path = root / "data/chunk-000/file-000.parquet"
+    path.write_bytes(path.read_bytes()[:100])
+    return "file-000.parquet: corrupt or truncated"
+
+
+def remove_the_tasks(root: Path) -> str:
+    (root / "meta/tasks.parquet").unlink()
+    return "tasks.parquet: file not found"
+
+
+def drop_a_stats_column(root: Path) -> str:
+    path = root / "meta/episodes/chunk-000/file-001.parquet"
+    table = pq.read_table(path)
+    pq.write_table(table.drop_columns(["stats/action/q50"]), path)
+    return "stats/action"
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"fps": 15}, "fps is 10 in the dataset, 15 requested"),
+        ({"robot_type": "paddle"}, "robot_type is 'disk' in the dataset, 'paddle' requested"),
+        ({"features": VECTOR_FEATURES}, "features are"),
+        ({"info_extra": {"dpr": {"env_id": "dpr/Gate-v0"}}}, "info key 'dpr'"),
+        (break_total_frames, None),
+        (remove_a_data_file, None),
+        (truncate_a_data_file, None),
+        (remove_the_tasks, None),
+        (drop_a_stats_column, None),
+    ],
+    ids=["fps", "robot_type", "features", "info_extra", "total_frames", "no_data", "torn_data", "no_tasks", "no_stats"],
+)
+def test_a_refused_resume_changes_no_byte(tmp_path, change, message):
+    """Refusals come before any clean-up: the uncommitted episode's files and the temp files of the crashed dataset
+    are still there, and so is everything else, byte for byte."""
+    root = tmp_path / "ds"
+    make_crashed_dataset(root, np.random.default_rng(15))
+    kwargs = {"fps": 10, "features": FEATURES, "robot_type": "disk", "info_extra": INFO_EXTRA}
+    if callable(change):
+        message = change(root)
+    else:
+        kwargs.update(change)
+    before = tree_hash(root)
+    with pytest.raises(DatasetError, match=re.escape(message)):
+        LeRobotWriter.open(root, **kwargs)
+    assert tree_hash(root) == before
+    assert (root / "data/chunk-000/file-002.parquet").exists()  # the leftover a resume would have deleted
+    assert not (root / LOCK).exists()
 
 
 def test_exception_inside_with_discards_only_the_unsaved_episode(tmp_path):

@@ -1,0 +1,62 @@
+"""LeRobot dataset format v3.0: a crash-safe writer and a lazy reader (pyarrow + numpy + json, no ``lerobot``).
+
+A dataset written here loads unchanged in ``lerobot.datasets.lerobot_dataset.LeRobotDataset(repo_id, root=ROOT)``;
+the layout is described in the repository's ``docs/lerobot_v3_format.md``, and how this project uses it in
+``docs/datasets.md``. Layout::
+
+    ROOT/meta/info.json                                  the commit point (totals, features, fps, ...)
+    ROOT/meta/stats.json                                 stats aggregated over the committed episodes
+    ROOT/meta/tasks.parquet                              pandas frame indexed by task string, column task_index
+    ROOT/meta/episodes/chunk-{c:03d}/file-{f:03d}.parquet  one row per episode (this writer: one file per episode)
+    ROOT/data/chunk-{c:03d}/file-{f:03d}.parquet           one row per frame (this writer: one file per episode)
+
+with ``c, f = divmod(episode_index, 1000)``. Column types: a shape ``[1]`` feature is a scalar column, ``[n]`` a
+``fixed_size_list<dtype>[n]``, an image a ``struct<bytes: binary, path: string>`` holding a PNG. The five LeRobot
+default columns (``timestamp = frame_index / fps`` as float32, ``frame_index``, ``episode_index``, ``index``,
+``task_index``) are derived here, never supplied.
+
+Crash safety. LeRobot's own writer keeps one parquet file open until ``finalize()``, so a crash loses everything.
+Here every :meth:`LeRobotWriter.save_episode` writes the episode's data file and its episodes-meta file, then
+``tasks.parquet`` (when a task is new), ``stats.json`` and last ``info.json``; each through :mod:`dpr.atomic` (a
+temporary name in the same folder that does not end in ``.parquet``, because LeRobot loads every
+``data/*/*.parquet``; fsync; rename; folder fsync). ``info.json``'s ``total_episodes`` is the commit point:
+episodes with an index at or above it are uncommitted, ignored by :class:`LeRobotReader` and deleted by
+:meth:`LeRobotWriter.open`, which then resumes after the last committed episode (:func:`repair` does the clean-up
+alone). Committed data/meta files are never rewritten. LeRobot itself globs every ``data/*/*.parquet``: it would
+see an uncommitted episode's rows until the dataset is opened or repaired.
+
+Modules: :mod:`.format` (paths, info.json, feature specs, :class:`DatasetError`), :mod:`.stats` (statistics),
+:mod:`.meta` (episode rows and tasks), :mod:`.writer` (:class:`LeRobotWriter`, :func:`repair`), :mod:`.reader`
+(:class:`LeRobotReader`).
+"""
+
+from dpr.datasets.lerobot.format import (
+    CHUNKS_SIZE,
+    CODEBASE_VERSION,
+    DATA_PATH,
+    EPISODES_PATH,
+    IMAGE_STATS_MAX_FRAMES,
+    INFO_PATH,
+    STATS_PATH,
+    TASKS_PATH,
+    DatasetError,
+    default_features,
+)
+from dpr.datasets.lerobot.reader import LeRobotReader
+from dpr.datasets.lerobot.writer import LeRobotWriter, repair
+
+__all__ = [
+    "CHUNKS_SIZE",
+    "CODEBASE_VERSION",
+    "DATA_PATH",
+    "EPISODES_PATH",
+    "IMAGE_STATS_MAX_FRAMES",
+    "INFO_PATH",
+    "STATS_PATH",
+    "TASKS_PATH",
+    "DatasetError",
+    "LeRobotReader",
+    "LeRobotWriter",
+    "default_features",
+    "repair",
+]

@@ -1,0 +1,194 @@
+"""A lazy reader of LeRobot v3.0 datasets, ours or LeRobot's own layout."""
+
+from __future__ import annotations
+
+import os
+from bisect import bisect_right
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from dpr.datasets.lerobot.format import (
+    INFO_PATH,
+    STATS_PATH,
+    DatasetError,
+    decode_png,
+    load_info,
+    read_json,
+    read_parquet,
+    spec_shape,
+)
+from dpr.datasets.lerobot.meta import check_data_files, data_file_path, load_committed_episodes, load_tasks, split_row
+from dpr.datasets.lerobot.stats import Aggregate, merge_aggregates, stats_json
+
+# ------------------------------------------------------------------------------------------------------ reader
+
+
+class LeRobotReader:
+    """Reads a LeRobot v3.0 dataset (ours or LeRobot's own layout) lazily: frame data only on request.
+
+    The constructor validates ``meta/info.json`` (codebase_version, required keys), the committed episodes' meta
+    rows, ``meta/tasks.parquet``, ``meta/stats.json`` and every committed data file's parquet footer. Episodes at or
+    above ``info.total_episodes`` (crash leftovers) are ignored. Arrays come back as ``[T, *shape]`` in the
+    feature's dtype (shape-[1] features as ``[T, 1]``); images as uint8 ``[T, H, W, 3]``.
+    """
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise DatasetError(f"{self.root}: dataset folder not found")
+        self.info: dict[str, Any] = load_info(self.root)
+        self.fps: int = self.info["fps"]
+        self.features: dict[str, dict] = self.info["features"]
+        self.num_episodes: int = self.info["total_episodes"]
+        self.num_frames: int = self.info["total_frames"]
+        rows = load_committed_episodes(self.root, self.num_episodes, with_stats=False)
+        self._meta_paths = [r.meta_path for r in rows]
+        self._episode_stats: dict[int, dict[str, dict[str, np.ndarray]]] = {}  # read on demand
+        self.episodes: list[dict[str, Any]] = [r.meta for r in rows]
+        frames = rows[-1].meta["dataset_to_index"] if rows else 0
+        if frames != self.num_frames:
+            raise DatasetError(
+                f"{self.root / INFO_PATH}: total_frames is {self.num_frames}, the episodes cover {frames} frames"
+            )
+        self._starts = [int(e["dataset_from_index"]) for e in self.episodes]
+        self.tasks: list[str] = load_tasks(self.root, self.info.get("total_tasks"))
+        self._episodes_per_file = check_data_files(self.root, self.info, self.episodes)
+        self.stats: dict[str, dict[str, np.ndarray]] = self._load_stats()
+
+    def _load_stats(self) -> dict[str, dict[str, np.ndarray]]:
+        """stats.json, or the aggregate of the per-episode stats when stats.json is absent or stale (a crash
+        between writing it and info.json leaves it counting an uncommitted episode)."""
+        path = self.root / STATS_PATH
+        stats = read_json(path) if path.exists() else None
+        if stats is not None and not isinstance(stats, dict):
+            raise DatasetError(f"{path}: expected a JSON object of feature -> stats")
+        index_count = None
+        if stats is not None:
+            try:
+                index_count = int(np.asarray(stats["index"]["count"]).reshape(-1)[0])
+            except (KeyError, TypeError, ValueError, IndexError):
+                index_count = None
+        if stats is None or (self.num_frames and index_count is not None and index_count != self.num_frames):
+            if not self.episodes:
+                return {}
+            all_stats = [self.episode_stats(i) for i in range(self.num_episodes)]
+            names = [n for n in self.features if all(n in s for s in all_stats)]
+            aggregates: dict[str, Aggregate] = {}
+            for ep_stats in all_stats:
+                aggregates = merge_aggregates(aggregates, {n: ep_stats[n] for n in names})
+            stats = stats_json(aggregates)
+        return {
+            feature: {key: np.asarray(value) for key, value in feature_stats.items()}
+            for feature, feature_stats in stats.items()
+        }
+
+    # ------------------------------------------------------------------------------------------------ access
+
+    def episode_stats(self, index: int) -> dict[str, dict[str, np.ndarray]]:
+        """The per-episode stats stored in episode ``index``'s meta row."""
+        self._check_episode(index)
+        if index not in self._episode_stats:
+            path = self._meta_paths[index]
+            table = read_parquet(path)
+            for row in table.to_pylist():  # keep every row's stats: LeRobot's files hold many episodes
+                other = row.get("episode_index")
+                if other is not None and other < self.num_episodes:
+                    self._episode_stats[other] = split_row(row, table.schema, path).stats
+            if index not in self._episode_stats:
+                raise DatasetError(f"{path}: no meta row for episode {index}")
+        return self._episode_stats[index]
+
+    def _check_episode(self, index: int) -> None:
+        if not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_episodes:
+            raise IndexError(f"{self.root}: episode index {index!r} out of range [0, {self.num_episodes})")
+
+    def _columns(self, columns: list[str] | None) -> list[str]:
+        readable = [n for n, s in self.features.items() if s["dtype"] != "video"]
+        if columns is None:
+            return readable
+        unknown = [c for c in columns if c not in readable]
+        if unknown:
+            raise DatasetError(f"{self.root / INFO_PATH}: unknown columns {unknown}; features are {readable}")
+        return list(columns)
+
+    def episode(self, index: int, columns: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Episode ``index``'s frames as ``{column: [T, *shape] array}``; reads only its data file's rows."""
+        self._check_episode(index)
+        ep = self.episodes[index]
+        names = self._columns(columns)
+        path = data_file_path(self.root, self.info, ep)
+        shared = self._episodes_per_file.get(path, 1) > 1
+        if shared:  # LeRobot's own layout: many episodes per file, pick this one's rows
+            table = read_parquet(path, columns=names, filters=[("episode_index", "=", int(index))])
+        else:
+            table = read_parquet(path, columns=names)
+        length = int(ep["length"])
+        if table.num_rows != length:
+            raise DatasetError(f"{path}: episode {index} has {table.num_rows} rows, its meta row says {length}")
+        try:
+            return {name: self._to_numpy(table.column(name), self.features[name], length) for name in names}
+        except (pa.ArrowException, OSError, ValueError) as exc:
+            raise DatasetError(f"{path}: cannot decode episode {index}: {exc}") from exc
+
+    @staticmethod
+    def _to_numpy(column: pa.ChunkedArray, spec: Mapping, length: int) -> np.ndarray:
+        shape = spec_shape(spec)
+        array = column.combine_chunks()
+        if spec["dtype"] == "image":
+            # flatten() applies the array's slice offset, which field() would not
+            data = array.flatten()[array.type.get_field_index("bytes")] if pa.types.is_struct(array.type) else array
+            frames = [decode_png(b) for b in data.to_pylist()]
+            out = np.stack(frames) if frames else np.zeros((0, *shape), np.uint8)
+            if out.shape[1:] != shape:
+                raise ValueError(f"images decode to {out.shape[1:]}, the feature says {shape}")
+            return out
+        dtype = np.dtype(spec["dtype"])
+        if (
+            pa.types.is_list(array.type)
+            or pa.types.is_fixed_size_list(array.type)
+            or pa.types.is_large_list(array.type)
+        ):
+            values = array.flatten().to_numpy(zero_copy_only=False)
+        else:
+            values = array.to_numpy(zero_copy_only=False)
+        return values.astype(dtype, copy=False).reshape(length, *shape)
+
+    def frame_range(self, start: int, stop: int, columns: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Frames with global index in ``[start, stop)``, reading only the episodes that hold them."""
+        if not (0 <= start <= stop <= self.num_frames):
+            raise IndexError(f"{self.root}: frame range [{start}, {stop}) outside [0, {self.num_frames})")
+        names = self._columns(columns)
+        parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
+        index = bisect_right(self._starts, start) - 1
+        while start < stop:
+            ep = self.episodes[index]
+            ep_start, ep_stop = int(ep["dataset_from_index"]), int(ep["dataset_to_index"])
+            data = self.episode(index, names)
+            lo, hi = start - ep_start, min(stop, ep_stop) - ep_start
+            for name in names:
+                parts[name].append(data[name][lo:hi])
+            start = min(stop, ep_stop)
+            index += 1
+        return {name: np.concatenate(chunks) if chunks else self._empty(name) for name, chunks in parts.items()}
+
+    def _empty(self, name: str) -> np.ndarray:
+        spec = self.features[name]
+        dtype = np.uint8 if spec["dtype"] == "image" else np.dtype(spec["dtype"])
+        return np.zeros((0, *spec_shape(spec)), dtype=dtype)
+
+    def iter_episodes(
+        self, columns: list[str] | None = None, indices: Iterable[int] | None = None
+    ) -> Iterator[dict[str, np.ndarray]]:
+        """Yield :meth:`episode` for each index (all episodes in order by default), one at a time."""
+        for index in range(self.num_episodes) if indices is None else indices:
+            yield self.episode(index, columns)
+
+    def __len__(self) -> int:
+        return self.num_frames
+
+    def __repr__(self) -> str:
+        return f"LeRobotReader({str(self.root)!r}, episodes={self.num_episodes}, frames={self.num_frames})"
