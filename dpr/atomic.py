@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
@@ -134,3 +135,25 @@ def atomic_write_parquet(
     import pyarrow.parquet as pq  # lazy: only the dataset writers need pyarrow
 
     return atomic_write(path, lambda f: pq.write_table(table, f, **(write_options or {})), **options)
+
+
+def atomic_link(source: str | os.PathLike, path: str | os.PathLike, *, sync_folder: bool = True) -> Path:
+    """Give the finished, durable file ``source`` a second name ``path`` (a hard link: no bytes copied; a copy
+    through :func:`atomic_write` where the filesystem has no hard links), replacing any file at ``path``: a reader
+    of ``path`` sees the old file or the whole of ``source``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temp_path = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TMP_SUFFIX}")
+    try:
+        os.link(source, temp_path)
+    except OSError:  # no hard links on this filesystem
+        with open(source, "rb") as original:
+            return atomic_write(path, lambda f: shutil.copyfileobj(original, f, 1 << 20), sync_folder=sync_folder)
+    try:
+        os.replace(temp_path, path)
+    except BaseException:
+        temp_path.unlink(missing_ok=True)
+        raise
+    if sync_folder:
+        fsync_dir(path.parent)
+    return path

@@ -429,6 +429,23 @@ def test_a_refused_resume_deletes_nothing(small_dataset, tmp_path, change, messa
     assert not list(root.rglob("*.dpr-tmp"))
 
 
+def test_collect_compact_packs_the_dataset_and_resumes(small_dataset, tmp_path):
+    root = tmp_path / "ds"
+    summary = collect(root, small_spec(), episodes=3, workers=1, compact=True)
+    assert summary.episodes_total == 3
+    assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
+    assert parquet_files(root, "meta/episodes") == ["meta/episodes/chunk-000/file-000.parquet"]
+    assert not (root / "meta/.dpr-writer.lock").exists()
+    summary = collect(root, small_spec(), episodes=4, workers=1, compact=True)  # resumes: seed 3 only
+    assert (summary.episodes_added, summary.episodes_total) == (1, 4)
+    assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
+    reader, recorded = LeRobotReader(root), LeRobotReader(small_dataset)
+    for index in range(2):  # seeds 0 and 1, as in the uncompacted dataset
+        for name in COLUMNS:
+            np.testing.assert_array_equal(reader.episode(index)[name], recorded.episode(index)[name])
+    assert all(check.equal for check in replay_dataset(root))
+
+
 # ------------------------------------------------------------------------------------- crash and Ctrl-C (CLI)
 
 

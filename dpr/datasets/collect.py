@@ -354,10 +354,13 @@ def collect(
     progress: Callable[[EpisodeRecord, int], None] | None = None,
     backend: str = "processes",
     address: str | None = None,
+    compact: bool = False,
 ) -> CollectSummary:
     """Record ``episodes`` episodes of seeds ``seed .. seed + episodes - 1`` into the dataset at ``root``,
     skipping seeds it already holds. ``progress(record, episode_index)`` is called after each saved episode.
-    Ctrl-C stops after the episodes already saved (the summary says ``interrupted``)."""
+    Ctrl-C stops after the episodes already saved (the summary says ``interrupted``). ``compact=True`` packs the
+    dataset into LeRobot's ~100 MB files once every episode is recorded (not after Ctrl-C or an error; see
+    :func:`dpr.datasets.lerobot.compact`)."""
     check_int("episodes", episodes, 1)
     check_int("seed", seed, 0)
     check_choice("backend", backend, BACKENDS)
@@ -384,6 +387,7 @@ def collect(
     started = time.perf_counter()
     added: list[SavedEpisode] = []
     interrupted = False
+    completed = False  # every episode recorded: only then is the dataset compacted
     episodes_before = writer.num_episodes
     try:
         done = _recorded_seeds(root)
@@ -427,8 +431,10 @@ def collect(
                 settle()  # the episode being saved is finished, not abandoned
         finally:
             saver.shutdown(wait=True)
+        completed = not interrupted
     finally:
-        writer.finalize()  # releases the dataset's writer lock; saved episodes are already durable
+        # releases (and deletes) the dataset's writer lock; saved episodes are already durable
+        writer.finalize(compact=compact and completed)
     return CollectSummary(
         root=str(root),
         env_id=spec.env_id,

@@ -7,27 +7,31 @@ the layout is described in the repository's ``docs/lerobot_v3_format.md``, and h
     ROOT/meta/info.json                                  the commit point (totals, features, fps, ...)
     ROOT/meta/stats.json                                 stats aggregated over the committed episodes
     ROOT/meta/tasks.parquet                              pandas frame indexed by task string, column task_index
-    ROOT/meta/episodes/chunk-{c:03d}/file-{f:03d}.parquet  one row per episode (this writer: one file per episode)
-    ROOT/data/chunk-{c:03d}/file-{f:03d}.parquet           one row per frame (this writer: one file per episode)
+    ROOT/meta/episodes/chunk-{c:03d}/file-{f:03d}.parquet  one row per episode (recording: one file per episode)
+    ROOT/data/chunk-{c:03d}/file-{f:03d}.parquet           one row per frame (recording: one file per episode)
 
-with ``c, f = divmod(episode_index, 1000)``. Column types: a shape ``[1]`` feature is a scalar column, ``[n]`` a
-``fixed_size_list<dtype>[n]``, an image a ``struct<bytes: binary, path: string>`` holding a PNG. The five LeRobot
-default columns (``timestamp = frame_index / fps`` as float32, ``frame_index``, ``episode_index``, ``index``,
-``task_index``) are derived here, never supplied.
+with ``c, f = divmod(n, 1000)`` for file number ``n``: recording gives each new episode the next number, and
+:func:`compact` packs the files into LeRobot's ~100 MB ones (:mod:`.compaction`). ``info.json``'s
+``dpr_live_files = [first, end]`` says which numbers hold the dataset. Column types: a shape ``[1]`` feature is
+a scalar column, ``[n]`` a ``fixed_size_list<dtype>[n]``, an image a ``struct<bytes: binary, path: string>``
+holding a PNG. The five LeRobot default columns (``timestamp = frame_index / fps`` as float32,
+``frame_index``, ``episode_index``, ``index``, ``task_index``) are derived here, never supplied.
 
 Crash safety. LeRobot's own writer keeps one parquet file open until ``finalize()``, so a crash loses everything.
 Here every :meth:`LeRobotWriter.save_episode` writes the episode's data file and its episodes-meta file, then
 ``tasks.parquet`` (when a task is new), ``stats.json`` and last ``info.json``; each through :mod:`dpr.atomic` (a
 temporary name in the same folder that does not end in ``.parquet``, because LeRobot loads every
-``data/*/*.parquet``; fsync; rename; folder fsync). ``info.json``'s ``total_episodes`` is the commit point:
-episodes with an index at or above it are uncommitted, ignored by :class:`LeRobotReader` and deleted by
-:meth:`LeRobotWriter.open`, which then resumes after the last committed episode (:func:`repair` does the clean-up
-alone). Committed data/meta files are never rewritten. LeRobot itself globs every ``data/*/*.parquet``: it would
-see an uncommitted episode's rows until the dataset is opened or repaired.
+``data/*/*.parquet``; fsync; rename; folder fsync). ``info.json`` is the commit point: episodes at or above its
+``total_episodes``, and files outside its ``dpr_live_files``, are uncommitted, ignored by :class:`LeRobotReader`
+and deleted by :meth:`LeRobotWriter.open`, which then resumes after the last committed episode (:func:`repair`
+does the clean-up alone). Only compaction rewrites committed files, and it writes the new ones beside them before
+it swaps info.json. LeRobot itself globs every ``data/*/*.parquet``: it would see an uncommitted episode's rows
+(or both layouts of an interrupted compaction) until the dataset is opened or repaired.
 
 Modules: :mod:`.format` (paths, info.json, feature specs, :class:`DatasetError`), :mod:`.stats` (statistics),
-:mod:`.meta` (episode rows and tasks), :mod:`.writer` (:class:`LeRobotWriter`, :func:`repair`), :mod:`.reader`
-(:class:`LeRobotReader`).
+:mod:`.meta` (episode rows and tasks), :mod:`.tables` (an episode as arrow tables), :mod:`.files` (writer lock,
+leftovers), :mod:`.writer` (:class:`LeRobotWriter`, :func:`repair`, :func:`compact`), :mod:`.compaction` (file
+packing), :mod:`.reader` (:class:`LeRobotReader`).
 """
 
 from dpr.datasets.lerobot.format import (
@@ -43,7 +47,7 @@ from dpr.datasets.lerobot.format import (
     default_features,
 )
 from dpr.datasets.lerobot.reader import LeRobotReader
-from dpr.datasets.lerobot.writer import LeRobotWriter, repair
+from dpr.datasets.lerobot.writer import LeRobotWriter, compact, repair
 
 __all__ = [
     "CHUNKS_SIZE",
@@ -57,6 +61,7 @@ __all__ = [
     "DatasetError",
     "LeRobotReader",
     "LeRobotWriter",
+    "compact",
     "default_features",
     "repair",
 ]

@@ -1,13 +1,16 @@
-"""The dataset's files as a whole: the one-writer lock and the removal of crash leftovers."""
+"""The dataset's files as a whole: the one-writer lock and the removal of leftovers (of crashes and compactions)."""
 
 from __future__ import annotations
 
 import fcntl
 import os
+import re
 from pathlib import Path
 
 from dpr.atomic import TMP_SUFFIX
-from dpr.datasets.lerobot.format import CHUNK_FILE_RE, CHUNKS_SIZE, LOCK_PATH, DatasetError
+from dpr.datasets.lerobot.format import LOCK_PATH, DatasetError, file_number
+
+CHUNK_DIR_RE = re.compile(r"^chunk-\d{3,}$")
 
 
 class WriterLock:
@@ -64,19 +67,31 @@ class WriterLock:
             self._fd = None
 
 
-def delete_leftovers(root: Path, total_episodes: int, referenced: set[Path]) -> None:
-    """Remove temp files and the data/meta files of episodes >= total_episodes (never a referenced file)."""
+def remove_file(path: Path) -> None:
+    """Delete one leftover file (a seam for tests that stop a clean-up half way)."""
+    path.unlink(missing_ok=True)
+
+
+def delete_leftovers(root: Path, live: tuple[int, int], referenced: set[Path] = frozenset()) -> int:
+    """Remove temp files and every numbered data/meta file outside the live numbers ``[first, end)`` (files of
+    uncommitted episodes, or the side of a compaction that is not live), never a file in ``referenced``; then
+    the chunk folders left empty. Returns the number of files removed."""
+    first, end = live
+    removed = 0
     for folder in (root / "data", root / "meta"):
-        if not folder.is_dir():
-            continue
-        for path in folder.rglob(f"*{TMP_SUFFIX}"):
-            path.unlink(missing_ok=True)
+        if folder.is_dir():
+            for path in folder.rglob(f"*{TMP_SUFFIX}"):
+                remove_file(path)
+                removed += 1
     for base in (root / "data", root / "meta" / "episodes"):
         if not base.is_dir():
             continue
-        for path in base.glob("*/*.parquet"):
-            match = CHUNK_FILE_RE.match(f"{path.parent.name}/{path.name}")
-            if match is None or path.resolve() in referenced:
-                continue
-            if int(match.group(1)) * CHUNKS_SIZE + int(match.group(2)) >= total_episodes:
-                path.unlink()
+        for path in sorted(base.glob("*/*.parquet")):
+            number = file_number(path)
+            if number is not None and not first <= number < end and path.resolve() not in referenced:
+                remove_file(path)
+                removed += 1
+        for chunk in base.iterdir():
+            if chunk.is_dir() and CHUNK_DIR_RE.match(chunk.name) and not any(chunk.iterdir()):
+                chunk.rmdir()
+    return removed

@@ -22,7 +22,7 @@ from dpr.atomic import atomic_write_parquet
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000  # files per chunk folder, LeRobot's default
-DATA_FILES_SIZE_IN_MB = 100  # written to info.json for LeRobot's own appender; one file per episode here
+DATA_FILES_SIZE_IN_MB = 100  # LeRobot's file size limit; compaction packs to it, recording writes a file per episode
 VIDEO_FILES_SIZE_IN_MB = 200
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
@@ -31,6 +31,9 @@ STATS_PATH = "meta/stats.json"
 TASKS_PATH = "meta/tasks.parquet"
 LOCK_PATH = "meta/.dpr-writer.lock"
 CHUNK_FILE_RE = re.compile(r"^chunk-(\d{3,})/file-(\d{3,})\.parquet$")
+# info.json key of this writer: files numbered n = chunk_index * CHUNKS_SIZE + file_index in [first, end) hold the
+# dataset (data and meta/episodes alike); any other numbered file is a leftover of a crash or of a compaction.
+LIVE_FILES_KEY = "dpr_live_files"
 
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
 STAT_KEYS = ("min", "max", "mean", "std", "count", *QUANTILES)
@@ -74,6 +77,7 @@ STANDARD_INFO_KEYS = frozenset(
         "data_path",
         "video_path",
         "features",
+        LIVE_FILES_KEY,
     }
 )
 REQUIRED_INFO_KEYS = ("codebase_version", "fps", "features", "total_episodes", "total_frames", "data_path")
@@ -100,8 +104,28 @@ def write_parquet(path: Path, table: pa.Table, *, sync_folder: bool = True, **op
     )
 
 
-def chunk_file(episode_index: int) -> tuple[int, int]:
-    return divmod(episode_index, CHUNKS_SIZE)
+def chunk_file(number: int) -> tuple[int, int]:
+    """(chunk_index, file_index) of file number ``number`` (files are numbered chunk by chunk)."""
+    return divmod(number, CHUNKS_SIZE)
+
+
+def file_number(path: Path) -> int | None:
+    """The number of a ``chunk-XXX/file-YYY.parquet`` file (None for any other name)."""
+    match = CHUNK_FILE_RE.match(f"{path.parent.name}/{path.name}")
+    return None if match is None else int(match.group(1)) * CHUNKS_SIZE + int(match.group(2))
+
+
+def numbered_path(root: Path, template: str, number: int) -> Path:
+    """The path of file number ``number`` under ``template`` (DATA_PATH or EPISODES_PATH)."""
+    chunk, file = chunk_file(number)
+    return root / template.format(chunk_index=chunk, file_index=file)
+
+
+def live_files(info: Mapping[str, Any]) -> tuple[int, int]:
+    """The numbers [first, end) of the files that hold the dataset; a dataset without the key (LeRobot's own,
+    or one written before compaction existed) stores episode i in file i or in files before it."""
+    first, end = info.get(LIVE_FILES_KEY, (0, info["total_episodes"]))
+    return first, end
 
 
 def read_json(path: Path) -> Any:
@@ -236,6 +260,14 @@ def check_info(info: Any, path: Path) -> dict:
     for name, spec in features.items():
         if not isinstance(spec, dict) or "dtype" not in spec or "shape" not in spec:
             raise DatasetError(f"{path}: feature {name!r} needs dtype and shape, got {spec!r}")
+    live = info.get(LIVE_FILES_KEY, [0, 0])
+    if (
+        not isinstance(live, list)
+        or len(live) != 2
+        or not all(isinstance(n, int) and not isinstance(n, bool) for n in live)
+        or not 0 <= live[0] <= live[1]
+    ):
+        raise DatasetError(f"{path}: {LIVE_FILES_KEY} must be [first, end] with 0 <= first <= end, got {live!r}")
     return info
 
 

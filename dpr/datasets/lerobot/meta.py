@@ -19,6 +19,8 @@ from dpr.datasets.lerobot.format import (
     TASKS_PATH,
     DatasetError,
     chunk_file,
+    file_number,
+    live_files,
     parquet_num_rows,
     read_parquet,
 )
@@ -104,9 +106,11 @@ def check_extra_key(key: Any, where: str) -> None:
         raise DatasetError(f"{where}: episode_meta key {key!r} clashes with LeRobot's episode columns (no '/' allowed)")
 
 
-def episode_meta_paths(root: Path) -> list[Path]:
-    """Every episodes-meta parquet file, in LeRobot's (lexicographic) order."""
-    return sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+def episode_meta_paths(root: Path, info: Mapping) -> list[Path]:
+    """The live episodes-meta parquet files (see ``live_files``), in LeRobot's (lexicographic) order."""
+    first, end = live_files(info)
+    paths = (root / "meta" / "episodes").glob("*/*.parquet")
+    return sorted(p for p in paths if (n := file_number(p)) is None or first <= n < end)
 
 
 @dataclass
@@ -137,11 +141,12 @@ def split_row(row: dict[str, Any], schema: pa.Schema, path: Path) -> EpisodeRow:
     return EpisodeRow(meta=meta, stats=stats, extra_fields=extra_fields, meta_path=path)
 
 
-def load_committed_episodes(root: Path, total_episodes: int, *, with_stats: bool) -> list[EpisodeRow]:
-    """Rows 0..total_episodes-1 of the episodes meta, checked to be complete, ordered and contiguous
+def load_committed_episodes(root: Path, info: Mapping, *, with_stats: bool) -> list[EpisodeRow]:
+    """Rows 0..total_episodes-1 of the live episodes meta, checked to be complete, ordered and contiguous
     (``with_stats=False`` leaves each row's ``stats`` empty and reads about half as much)."""
+    total_episodes = info["total_episodes"]
     rows: dict[int, EpisodeRow] = {}
-    for path in episode_meta_paths(root):
+    for path in episode_meta_paths(root, info):
         table = read_parquet(path, skip_stats=not with_stats)
         if "episode_index" not in table.column_names:
             raise DatasetError(f"{path}: missing column 'episode_index'")

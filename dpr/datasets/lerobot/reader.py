@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from dpr.datasets.lerobot.format import (
     INFO_PATH,
@@ -45,7 +47,7 @@ class LeRobotReader:
         self.features: dict[str, dict] = self.info["features"]
         self.num_episodes: int = self.info["total_episodes"]
         self.num_frames: int = self.info["total_frames"]
-        rows = load_committed_episodes(self.root, self.num_episodes, with_stats=False)
+        rows = load_committed_episodes(self.root, self.info, with_stats=False)
         self._meta_paths = [r.meta_path for r in rows]
         self._episode_stats: dict[int, dict[str, dict[str, np.ndarray]]] = {}  # read on demand
         self.episodes: list[dict[str, Any]] = [r.meta for r in rows]
@@ -57,6 +59,11 @@ class LeRobotReader:
         self._starts = [int(e["dataset_from_index"]) for e in self.episodes]
         self.tasks: list[str] = load_tasks(self.root, self.info.get("total_tasks"))
         self._episodes_per_file = check_data_files(self.root, self.info, self.episodes)
+        self._file_starts: dict[Path, int] = {}  # global index of each data file's first row
+        for ep in reversed(self.episodes):
+            self._file_starts[data_file_path(self.root, self.info, ep)] = int(ep["dataset_from_index"])
+        self._row_group_starts: dict[Path, tuple[pq.FileMetaData, list[int]]] = {}
+        self._row_groups: tuple[tuple, pa.Table] | None = None  # the row groups read last
         self.stats: dict[str, dict[str, np.ndarray]] = self._load_stats()
 
     def _load_stats(self) -> dict[str, dict[str, np.ndarray]]:
@@ -121,18 +128,42 @@ class LeRobotReader:
         ep = self.episodes[index]
         names = self._columns(columns)
         path = data_file_path(self.root, self.info, ep)
-        shared = self._episodes_per_file.get(path, 1) > 1
-        if shared:  # LeRobot's own layout: many episodes per file, pick this one's rows
-            table = read_parquet(path, columns=names, filters=[("episode_index", "=", int(index))])
+        length = int(ep["length"])
+        if self._episodes_per_file.get(path, 1) > 1:  # a packed file (LeRobot's layout): pick this episode's rows
+            offset = int(ep["dataset_from_index"]) - self._file_starts[path]
+            table = self._rows_of_packed_file(path, int(index), offset, length, names)
         else:
             table = read_parquet(path, columns=names)
-        length = int(ep["length"])
         if table.num_rows != length:
             raise DatasetError(f"{path}: episode {index} has {table.num_rows} rows, its meta row says {length}")
         try:
             return {name: self._to_numpy(table.column(name), self.features[name], length) for name in names}
         except (pa.ArrowException, OSError, ValueError) as exc:
             raise DatasetError(f"{path}: cannot decode episode {index}: {exc}") from exc
+
+    def _rows_of_packed_file(self, path: Path, index: int, offset: int, length: int, names: list[str]) -> pa.Table:
+        """Episode ``index``'s rows in a file holding episodes back to back from row 0: only the row groups that
+        hold them are decoded, and the last row groups read are kept (episodes are mostly read in order)."""
+        wanted = list(dict.fromkeys([*names, "episode_index"]))
+        try:
+            if path not in self._row_group_starts:
+                footer = pq.read_metadata(path)
+                sizes = [footer.row_group(g).num_rows for g in range(footer.num_row_groups)]
+                self._row_group_starts[path] = (footer, [0, *np.cumsum(sizes).tolist()])
+            footer, starts = self._row_group_starts[path]
+            first = bisect_right(starts, offset) - 1
+            stop = min(bisect_left(starts, offset + length), footer.num_row_groups)
+            key = (path, first, stop, tuple(wanted))
+            if self._row_groups is None or self._row_groups[0] != key:
+                with pq.ParquetFile(path, metadata=footer) as parquet:
+                    self._row_groups = (key, parquet.read_row_groups(range(first, stop), columns=wanted))
+            table = self._row_groups[1].slice(offset - starts[first], length)
+        except (pa.ArrowException, OSError, ValueError) as exc:
+            raise DatasetError(f"{path}: corrupt or truncated parquet file: {exc}") from exc
+        if table.num_rows == length and pc.all(pc.equal(table.column("episode_index"), index)).as_py():
+            return table.select(names)
+        # the rows are not where the meta rows say: find them by value
+        return read_parquet(path, columns=names, filters=[("episode_index", "=", index)])
 
     @staticmethod
     def _to_numpy(column: pa.ChunkedArray, spec: Mapping, length: int) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""The crash-safe LeRobot v3.0 writer and :func:`repair` (see the package docstring for the commit protocol)."""
+"""The crash-safe LeRobot v3.0 writer, :func:`repair` and :func:`compact` (the commit protocol: the package's
+docstring; compaction's: :mod:`dpr.datasets.lerobot.compaction`)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ import numpy as np
 import pyarrow as pa
 
 from dpr.atomic import atomic_write_json
+from dpr.checks import check_int
+from dpr.datasets.lerobot.compaction import DEFAULT_TARGET_BYTES, compact_files
 from dpr.datasets.lerobot.files import WriterLock, delete_leftovers
 from dpr.datasets.lerobot.format import (
     CHUNKS_SIZE,
@@ -24,19 +27,20 @@ from dpr.datasets.lerobot.format import (
     DEFAULT_FEATURE_DTYPES,
     EPISODES_PATH,
     INFO_PATH,
+    LIVE_FILES_KEY,
     STANDARD_INFO_KEYS,
-    STAT_KEYS,
     STATS_PATH,
     TASKS_PATH,
     VIDEO_FILES_SIZE_IN_MB,
     DatasetError,
     check_info,
     chunk_file,
-    decode_png,
     encode_png,
     first_difference,
+    live_files,
     load_info,
     normalize_features,
+    numbered_path,
     parquet_num_rows,
     read_json,
     spec_shape,
@@ -56,12 +60,10 @@ from dpr.datasets.lerobot.meta import (
 )
 from dpr.datasets.lerobot.stats import (
     Aggregate,
-    image_sample_indices,
-    image_stats,
     merge_aggregates,
     stats_json,
-    vector_stats,
 )
+from dpr.datasets.lerobot.tables import data_table, episode_stats, meta_table
 
 # ---------------------------------------------------------------------------------------------------------- writer
 
@@ -110,6 +112,7 @@ class LeRobotWriter:
         self._extra_fields: list[pa.Field] | None = None  # fixed by the first saved episode
         self._num_episodes = 0
         self._num_frames = 0
+        self._live = (0, 0)  # the numbers of the files that hold the committed episodes (see live_files)
         self._lock = WriterLock(root)
         self._closed = False
         self._reset_buffer()
@@ -154,7 +157,7 @@ class LeRobotWriter:
         (root / "meta").mkdir(parents=True, exist_ok=True)
         writer = cls(root, fps=fps, features=normalized, robot_type=robot_type, info_extra=extra)
         writer._lock.acquire()
-        atomic_write_json(root / INFO_PATH, writer._info(0, 0, 0))
+        atomic_write_json(root / INFO_PATH, writer._info(0, 0, 0, (0, 0)))
         return writer
 
     @classmethod
@@ -208,9 +211,8 @@ class LeRobotWriter:
     def _committed_state(self, info: dict) -> _Committed:
         """Read and check everything a resume needs, changing nothing on disk (DatasetError when it is not
         intact)."""
-        total = info["total_episodes"]
         meta_folder = self.root / "meta" / "episodes"
-        rows = load_committed_episodes(self.root, total, with_stats=True)
+        rows = load_committed_episodes(self.root, info, with_stats=True)
         frames = sum(int(r.meta["length"]) for r in rows)
         if frames != info["total_frames"]:
             raise DatasetError(
@@ -233,7 +235,8 @@ class LeRobotWriter:
         info, rows = committed.info, committed.rows
         referenced = {data_file_path(self.root, info, r.meta).resolve() for r in rows}
         referenced |= {r.meta_path.resolve() for r in rows}
-        delete_leftovers(self.root, info["total_episodes"], referenced)
+        delete_leftovers(self.root, live_files(info), referenced)
+        self._live = live_files(info)
 
         self._tasks = committed.tasks
         self._task_index = {t: i for i, t in enumerate(self._tasks)}
@@ -378,9 +381,9 @@ class LeRobotWriter:
         if n == 0:
             raise DatasetError(f"{self.root}: save_episode: no frames buffered (call add_frame first)")
         episode = self._num_episodes
-        chunk, file = chunk_file(episode)
-        data_path = self.root / DATA_PATH.format(chunk_index=chunk, file_index=file)
-        meta_path = self.root / EPISODES_PATH.format(chunk_index=chunk, file_index=file)
+        first, number = self._live  # a new episode gets the next file number, for its data and its meta row
+        data_path = numbered_path(self.root, DATA_PATH, number)
+        meta_path = numbered_path(self.root, EPISODES_PATH, number)
 
         tasks = list(self._tasks)
         task_index = dict(self._task_index)
@@ -393,26 +396,33 @@ class LeRobotWriter:
         new_tasks = len(tasks) > len(self._tasks)
 
         columns = self._episode_columns(episode, n, task_index)
-        episode_stats = self._episode_stats(columns)
+        stats = episode_stats(self.features, columns)
         extra_fields, extra_arrays = self._extra_columns(episode_meta, meta_path)
-
-        data_table = self._data_table(columns, n)
-        meta_table = self._meta_table(
-            episode, n, episode_tasks, (chunk, file), episode_stats, extra_fields, extra_arrays
+        data = data_table(self.features, columns, n)
+        meta = meta_table(
+            episode=episode,
+            frames=(self._num_frames, self._num_frames + n),
+            tasks=episode_tasks,
+            data_file=chunk_file(number),
+            meta_file=chunk_file(number),
+            stats=stats,
+            extra_fields=extra_fields,
+            extra_arrays=extra_arrays,
         )
-        aggregates = merge_aggregates(self._aggregates, episode_stats)
+        aggregates = merge_aggregates(self._aggregates, stats)
+        live = (first, number + 1)
 
         # Commit order: data, episode meta, tasks, stats, and info.json last (the commit point). tasks/stats live
         # in meta/ beside info.json, whose folder fsync makes their renames durable too.
-        write_parquet(data_path, data_table)
-        write_parquet(meta_path, meta_table, write_statistics=False)  # 1-row file: stats are noise
+        write_parquet(data_path, data)
+        write_parquet(meta_path, meta, write_statistics=False)  # 1-row file: stats are noise
         if new_tasks:
             write_parquet(self.root / TASKS_PATH, tasks_table(tasks), sync_folder=False)
         # compact: indenting sends json through its pure-Python encoder, several ms per episode for ~600 numbers
         atomic_write_json(self.root / STATS_PATH, stats_json(aggregates), sync_folder=False, indent=None)
-        atomic_write_json(self.root / INFO_PATH, self._info(episode + 1, self._num_frames + n, len(tasks)))
+        atomic_write_json(self.root / INFO_PATH, self._info(episode + 1, self._num_frames + n, len(tasks), live))
 
-        self._tasks, self._task_index, self._aggregates = tasks, task_index, aggregates
+        self._tasks, self._task_index, self._aggregates, self._live = tasks, task_index, aggregates, live
         self._extra_fields = extra_fields
         self._num_episodes += 1
         self._num_frames += n
@@ -435,35 +445,6 @@ class LeRobotWriter:
         columns["task_index"] = np.fromiter((task_index[t] for t in self._frame_tasks), dtype=np.int64, count=n)
         return columns
 
-    def _episode_stats(self, columns: Mapping[str, Any]) -> dict[str, dict[str, np.ndarray]]:
-        stats: dict[str, dict[str, np.ndarray]] = {}
-        for name, spec in self.features.items():
-            values = columns[name]
-            if spec["dtype"] == "image":
-                sample = [decode_png(values[i]) for i in image_sample_indices(len(values))]
-                stats[name] = image_stats(sample)
-            else:
-                stats[name] = vector_stats(np.asarray(values).reshape(len(values), -1))
-        return stats
-
-    def _data_table(self, columns: Mapping[str, Any], n: int) -> pa.Table:
-        arrays, names = [], []
-        for name, spec in self.features.items():
-            values = columns[name]
-            if spec["dtype"] == "image":
-                paths = [f"frame-{i:06d}.png" for i in range(n)]
-                array: pa.Array = pa.StructArray.from_arrays(
-                    [pa.array(values, type=pa.binary()), pa.array(paths, type=pa.string())], names=["bytes", "path"]
-                )
-            elif spec_shape(spec) == (1,):
-                array = pa.array(values.reshape(n))
-            else:
-                width = spec_shape(spec)[0]
-                array = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1)), width)
-            arrays.append(array)
-            names.append(name)
-        return pa.Table.from_arrays(arrays, names=names)
-
     def _extra_columns(self, episode_meta: dict | None, meta_path: Path) -> tuple[list[pa.Field], list[pa.Array]]:
         where = str(meta_path)
         given = dict(episode_meta or {})
@@ -484,42 +465,7 @@ class LeRobotWriter:
             )
         return self._extra_fields, [extra_array(f, given[f.name], where) for f in self._extra_fields]
 
-    def _meta_table(
-        self,
-        episode: int,
-        n: int,
-        episode_tasks: list[str],
-        chunk_file: tuple[int, int],
-        episode_stats: Mapping[str, Mapping[str, np.ndarray]],
-        extra_fields: list[pa.Field],
-        extra_arrays: list[pa.Array],
-    ) -> pa.Table:
-        chunk, file = chunk_file
-        fields: list[pa.Field] = []
-        arrays: list[pa.Array] = []
-
-        def add(name: str, value: Any, type_: pa.DataType | None = None) -> None:
-            array = pa.array([value], type=type_)
-            fields.append(pa.field(name, array.type))
-            arrays.append(array)
-
-        add("episode_index", episode, pa.int64())
-        add("tasks", episode_tasks, pa.list_(pa.string()))
-        add("length", n, pa.int64())
-        add("data/chunk_index", chunk, pa.int64())
-        add("data/file_index", file, pa.int64())
-        add("dataset_from_index", self._num_frames, pa.int64())
-        add("dataset_to_index", self._num_frames + n, pa.int64())
-        for name, stats in episode_stats.items():
-            for key in STAT_KEYS:
-                add(f"stats/{name}/{key}", stats[key].tolist())
-        add("meta/episodes/chunk_index", chunk, pa.int64())
-        add("meta/episodes/file_index", file, pa.int64())
-        fields.extend(extra_fields)
-        arrays.extend(extra_arrays)
-        return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
-
-    def _info(self, total_episodes: int, total_frames: int, total_tasks: int) -> dict[str, Any]:
+    def _info(self, total_episodes: int, total_frames: int, total_tasks: int, live: tuple[int, int]) -> dict[str, Any]:
         """info.json as LeRobot writes it, plus the caller's info_extra keys."""
         info: dict[str, Any] = {
             "codebase_version": CODEBASE_VERSION,
@@ -535,17 +481,24 @@ class LeRobotWriter:
             "data_path": DATA_PATH,
             "video_path": None,
             "features": self.features,
+            LIVE_FILES_KEY: list(live),
         }
         info.update(self.info_extra)
         return info
 
     # ------------------------------------------------------------------------------------------------ closing
 
-    def finalize(self) -> None:
+    def finalize(self, *, compact: bool = False, target_bytes: int = DEFAULT_TARGET_BYTES) -> None:
         """Stop recording (idempotent) and delete the writer's lock file. Saved episodes are already durable;
-        unsaved frames are discarded with a RuntimeWarning."""
+        unsaved frames are discarded with a RuntimeWarning.
+
+        ``compact=True`` first packs the per-episode files into LeRobot's files of up to ``target_bytes``
+        (:mod:`dpr.datasets.lerobot.compaction`; crash-safe, a kill leaves the old or the new layout). It is off by
+        default: recording is already a valid LeRobot dataset, and compaction rewrites the episodes recorded
+        since the last one, seconds to minutes for gigabytes."""
         if self._closed:
             return
+        check_int("target_bytes", target_bytes, 1)
         if self._frame_tasks:
             warnings.warn(
                 f"{self.root}: finalize() discards {len(self._frame_tasks)} frames never passed to save_episode()",
@@ -554,7 +507,11 @@ class LeRobotWriter:
             )
         self._reset_buffer()
         self._closed = True
-        self._lock.release()
+        try:
+            if compact and self._num_episodes:
+                compact_files(self.root, load_info(self.root), target_bytes)
+        finally:
+            self._lock.release()
 
     def __enter__(self) -> LeRobotWriter:
         return self
@@ -574,14 +531,27 @@ class LeRobotWriter:
 
 def repair(root: str | os.PathLike) -> None:
     """Bring a dataset left by a crash back to its committed state without appending: delete the files of
-    uncommitted episodes and temp files, and rewrite tasks.parquet/stats.json from the committed episodes.
+    uncommitted episodes, temp files and the side of an interrupted compaction that is not live, and rewrite
+    tasks.parquet/stats.json from the committed episodes.
 
     LeRobot loads every ``data/*/*.parquet``, so run this (or :meth:`LeRobotWriter.open`) before handing a crashed
     dataset to it; :class:`LeRobotReader` already ignores uncommitted episodes."""
+    _open_as_recorded(root).finalize()
+
+
+def compact(root: str | os.PathLike, *, target_bytes: int = DEFAULT_TARGET_BYTES) -> None:
+    """Pack the dataset at ``root`` into LeRobot's files of up to ``target_bytes`` (after the clean-up of
+    :func:`repair`); crash-safe, see :mod:`dpr.datasets.lerobot.compaction`. Recording can resume afterwards."""
+    check_int("target_bytes", target_bytes, 1)
+    _open_as_recorded(root).finalize(compact=True, target_bytes=target_bytes)
+
+
+def _open_as_recorded(root: str | os.PathLike) -> LeRobotWriter:
+    """A writer on an existing dataset with the settings its info.json holds."""
     root = Path(root)
     info = load_info(root)
     features = {k: v for k, v in info["features"].items() if k not in DEFAULT_FEATURE_DTYPES}
     extra = {k: v for k, v in info.items() if k not in STANDARD_INFO_KEYS}
-    LeRobotWriter.open(
+    return LeRobotWriter.open(
         root, fps=info["fps"], features=features, robot_type=info.get("robot_type"), info_extra=extra
-    ).finalize()
+    )
