@@ -446,6 +446,14 @@ def test_collect_compact_packs_the_dataset_and_resumes(small_dataset, tmp_path):
     assert all(check.equal for check in replay_dataset(root))
 
 
+def test_cli_collect_compact(tmp_path):
+    root = tmp_path / "ds"
+    argv = ["collect", "--env", "dpr/Navigation-v0", "--robot-model", "disk", "--n-robots", "4", "--steps", "8"]
+    assert run_cli([*argv, "--episodes", "3", "--workers", "1", "--out", str(root), "--compact"]) == 0
+    assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
+    assert LeRobotReader(root).num_episodes == 3
+
+
 # ------------------------------------------------------------------------------------- crash and Ctrl-C (CLI)
 
 

@@ -53,6 +53,12 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pixels", action="store_true", help="also record render() frames as observation.image (PNG)")
     default_argument(parser, "--image-size", spec["image_size"], "frame size for --pixels")
     parser.add_argument("--mcap", action="store_true", help="also write one MCAP log per episode into OUT/mcap/")
+    parser.add_argument(
+        "--compact",
+        action="store_true",
+        help="once every episode is recorded, pack the per-episode files into LeRobot's ~100 MB files "
+        "(crash-safe: a kill during packing loses no episode; a resume may add episodes and pack again)",
+    )
     workers_argument(parser, "rollout processes")
     env_kwarg_argument(parser, "object_type=box")
     parser.add_argument(
@@ -131,6 +137,7 @@ def cmd_collect(args, parser) -> int:
             seed=args.seed,
             workers=args.workers,
             mcap=args.mcap,
+            compact=args.compact,
             progress=progress,
             backend=args.backend,
             address=args.address,
