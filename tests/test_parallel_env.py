@@ -60,7 +60,8 @@ def test_spaces_agents_and_defaults():
 
     continuous = parallel_env("navigation", action_type="continuous", local_obs=True, max_neighbours=3, **SMALL)
     assert continuous.action_space("robot_0") == spaces.Box(0.0, 1.0, (1,), dtype=np.float32)
-    assert continuous.observation_space("robot_0").shape == (6 + 7 * 3,) == (local_observation_size(3, False),)
+    # own 6, 3 neighbour slots of 6 and their mask, goal signal 3
+    assert continuous.observation_space("robot_0").shape == (6 + 7 * 3 + 3,) == (local_observation_size(3, False),)
 
 
 # -- same trajectory as the super-agent env ------------------------------------------------------------------
@@ -124,12 +125,14 @@ def test_local_observation_layout_on_a_hand_made_state():
     robots[:, 5] = [0.0, 1.0, 0.5, 0.0, 0.25]
     state = np.concatenate([robots.ravel(), np.float32([0.1, 0.2, 0.3, 0.4])])  # + object features
     rows = local_observations(state, 5, neighbour_range=100.0, max_neighbours=2, has_object=True)
-    assert rows.shape == (5, local_observation_size(2, True)) == (5, 6 + 14 + 4)
+    assert rows.shape == (5, local_observation_size(2, True)) == (5, 6 + 14 + 3 + 4)
     k = 2
     own, slots = rows[:, :6], rows[:, 6 : 6 + 6 * k].reshape(5, k, 6)
-    mask, obj = rows[:, 6 + 6 * k : 6 + 7 * k], rows[:, -4:]
+    mask, goal, obj = rows[:, 6 + 6 * k : 6 + 7 * k], rows[:, 6 + 7 * k : 9 + 7 * k], rows[:, -4:]
     np.testing.assert_array_equal(own, robots)
     np.testing.assert_allclose(obj, [[0.1, 0.2, 0.3, 0.4]] * 5)
+    np.testing.assert_allclose(goal[3], [-1.0, 0.0, 1.0], atol=1e-7)  # toward the goal at the origin, 1000 away
+    np.testing.assert_array_equal(goal[0], [0.0, 0.0, 0.0])  # on the goal: no direction
     # robot 0: neighbours 4 (40 away) then 1 (60 away), nearest first; relative positions
     np.testing.assert_array_equal(mask[0], [1, 1])
     np.testing.assert_array_equal(slots[0, :, 2], [14, 11])
@@ -155,12 +158,14 @@ def test_local_observations_in_the_env_follow_the_global_state():
         action = policy(state)
         obs, *_ = env.step({agent: action[i] for i, agent in enumerate(env.agents)})
     state = env.state()
-    expected = local_observations(state, 9, env.swarm_env.swarm_class.magnet_range, MAX_NEIGHBOURS)
+    dead = env.swarm_env.world.dead  # Unresponsive: each robot's row ends with its own dead flag
+    expected = local_observations(state, 9, env.swarm_env.swarm_class.magnet_range, MAX_NEIGHBOURS, dead=dead)
     for i, agent in enumerate(env.possible_agents):
         np.testing.assert_array_equal(obs[agent], expected[i])
         np.testing.assert_array_equal(obs[agent][:6], state[6 * i : 6 * i + 6])
         assert env.observation_space(agent).contains(obs[agent])
-    mask = expected[:, 6 + 6 * MAX_NEIGHBOURS :]
+    np.testing.assert_array_equal(expected[:, -1], dead)
+    mask = expected[:, 6 + 6 * MAX_NEIGHBOURS : 6 + 7 * MAX_NEIGHBOURS]
     assert mask.sum(axis=1).min() >= 1  # a connected swarm: everybody has a magnet neighbour
     with pytest.raises(ValueError):
         obs["robot_0"][0] = 1.0  # read-only: shared buffers must not be edited by a learner

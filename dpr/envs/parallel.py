@@ -10,8 +10,10 @@ Conventions (also in :class:`ParticleParallelEnv`'s docstring):
 * Actions: ``Discrete(2)`` per agent for ``action_type="multibinary"`` (1 = expand), ``Box(0, 1, (1,))``
   for ``"continuous"``; ``"discrete"`` (one ``Discrete(2^N)`` choice for the whole swarm) has no per-agent
   meaning and is refused. Every agent in ``env.agents`` must be given an action at every step.
-* Observations: the shared global state vector (the paper's setup), or with ``local_obs=True`` a
-  fixed-size local vector per robot (see :func:`local_observations` for its layout).
+* Observations: the shared global state vector (the paper's setup), or with ``local_obs=True`` what each
+  robot senses, one vector per robot whose size does not depend on N (layout in
+  :class:`dpr.envs.local_obs.LocalObservation`): its own state, its goal signal, its magnet neighbours, and
+  optionally a clock shared by all robots (``clock_period``).
 * Rewards: ``shared_reward=True`` gives every agent the super-agent reward; ``False`` gives each agent
   ``reward / N``, so that the agents' rewards sum to the team reward.
 * Dead robots (Unresponsive task) stay in ``agents``; their actions are validated and ignored (as the
@@ -43,83 +45,13 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from dpr.checks import check_int
-from dpr.envs.particle_env import MAX_EPISODE_STEPS, OBJECT_FEATURES, ROBOT_FEATURES, ParticleSwarmEnv
+from dpr.checks import ParameterError, check_int
+from dpr.envs.local_obs import MAX_NEIGHBOURS, LocalObservation, local_observation_size, local_observations
+from dpr.envs.particle_env import MAX_EPISODE_STEPS, ParticleSwarmEnv
 from dpr.envs.tasks import TASK_CLASSES
 from dpr.sim.constants import FPS
-from dpr.sim.neighbours import pairs_within
 
-MAX_NEIGHBOURS = 8  # neighbour slots of a local observation (a robot on the start grid has 8 within magnet range)
 PER_AGENT_ACTION_TYPES = ("multibinary", "continuous")
-# The state vector stores positions / 1000 (dpr.envs.particle_env.LENGTH_SCALE); neighbour search needs units.
-_STATE_TO_UNITS = 1000.0
-
-
-def local_observation_size(max_neighbours: int, has_object: bool) -> int:
-    """Length of one robot's local observation (see :func:`local_observations`)."""
-    return ROBOT_FEATURES + max_neighbours * (ROBOT_FEATURES + 1) + (OBJECT_FEATURES if has_object else 0)
-
-
-def local_observations(
-    state: np.ndarray,
-    n_robots: int,
-    neighbour_range: float,
-    max_neighbours: int = MAX_NEIGHBOURS,
-    has_object: bool = False,
-) -> np.ndarray:
-    """Every robot's local observation, one row each, computed from a global ``state`` vector alone.
-
-    Row layout (float32, ``6 + 7K`` values, ``+ 4`` with an object; K = ``max_neighbours``):
-
-    * ``[0:6]`` the robot's own features, as in the state: x, y (goal frame), vx, vy (all / 1000), angular
-      velocity, expansion;
-    * ``[6 : 6 + 6K]`` K neighbour slots of 6 values: the neighbour's x, y *relative to this robot*
-      (/ 1000), then its vx, vy, angular velocity and expansion as in the state. Neighbours are the robots
-      whose centres lie closer than ``neighbour_range`` (the magnet range: the pairs the magnets link at the
-      next step), nearest first; beyond K only the K nearest are kept. Unused slots are zeros;
-    * ``[6 + 6K : 6 + 7K]`` the mask: 1.0 where the slot holds a neighbour, 0.0 where it is padding;
-    * ``[6 + 7K : 6 + 7K + 4]`` (Manipulation) the object's x, y (goal frame), vx, vy, / 1000.
-    """
-    n, k = n_robots, max_neighbours
-    robots = np.asarray(state[: ROBOT_FEATURES * n], dtype=np.float32).reshape(n, ROBOT_FEATURES)
-    out = np.zeros((n, local_observation_size(k, has_object)), dtype=np.float32)
-    out[:, :ROBOT_FEATURES] = robots
-    if has_object:
-        out[:, -OBJECT_FEATURES:] = state[-OBJECT_FEATURES:]
-
-    positions = robots[:, 0:2].astype(np.float64) * _STATE_TO_UNITS
-    pairs = pairs_within(positions, neighbour_range)
-    if len(pairs) == 0:
-        return out
-    # Each pair gives both robots a neighbour; sort by owner, then by distance, and rank inside each owner.
-    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    delta = positions[other] - positions[owner]
-    distance = np.einsum("ij,ij->i", delta, delta)
-    order = np.lexsort((other, distance, owner))  # ties broken by index, so the layout is deterministic
-    owner, other = owner[order], other[order]
-    counts = np.bincount(owner, minlength=n)
-    rank = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
-    keep = rank < k
-    owner, other, rank = owner[keep], other[keep], rank[keep]
-
-    slots = out[:, ROBOT_FEATURES : ROBOT_FEATURES + k * ROBOT_FEATURES].reshape(n, k, ROBOT_FEATURES)
-    slots[owner, rank] = robots[other]
-    slots[owner, rank, 0:2] -= robots[owner, 0:2]
-    mask = out[:, ROBOT_FEATURES + k * ROBOT_FEATURES : ROBOT_FEATURES + k * (ROBOT_FEATURES + 1)]
-    mask[owner, rank] = 1.0
-    return out
-
-
-def _local_observation_space(max_neighbours: int, has_object: bool) -> spaces.Box:
-    size = local_observation_size(max_neighbours, has_object)
-    low = np.full(size, -np.inf, dtype=np.float32)
-    high = np.full(size, np.inf, dtype=np.float32)
-    bounded = [5]  # own expansion
-    bounded += [ROBOT_FEATURES + 6 * slot + 5 for slot in range(max_neighbours)]  # neighbours' expansion
-    bounded += list(range(ROBOT_FEATURES * (1 + max_neighbours), ROBOT_FEATURES + max_neighbours * 7))  # mask
-    low[bounded], high[bounded] = 0.0, 1.0
-    return spaces.Box(low, high, dtype=np.float32)
 
 
 def _check_flag(name: str, value: Any) -> bool:
@@ -147,9 +79,25 @@ class ParticleParallelEnv(ParallelEnv):
 
     ## Observation Space (per agent)
     ``local_obs=False`` (default, the paper's setup): the super-agent env's global state vector, ``Box(6N,)``
-    (``+4`` in Manipulation); every agent receives the same read-only array. ``local_obs=True``: the
-    robot's own features, ``max_neighbours`` neighbour slots and their mask (layout in
-    :func:`local_observations`); rows of one read-only array.
+    (``+4`` in Manipulation); every agent receives the same read-only array.
+
+    ``local_obs=True``: what the robot senses, ``Box(6 + 7K + 3 [+ 2] [+ 1] [+ 4],)`` float32 with
+    K = ``max_neighbours`` (8), the same for every swarm size N; rows of one read-only array. In order:
+
+    * own state (6): x, y (goal frame), vx, vy (all / 1000), angular velocity, expansion in [0, 1];
+    * K neighbour slots (6 each): the robots within magnet range (the ones this robot is linked to),
+      nearest first, K nearest at most: x, y relative to this robot (/ 1000), vx, vy, angular velocity,
+      expansion; zeros in unused slots;
+    * the neighbours' mask (K): 1 for a filled slot, 0 for padding (fewer than K neighbours, N - 1 < K);
+    * the goal signal (3): the unit vector from the robot toward the goal, and its distance to the goal
+      (/ 1000);
+    * with ``clock_period=T``, a clock shared by all robots (2): ``sin`` and ``cos`` of ``2 pi t / T``, t the
+      steps since the reset;
+    * on tasks with unresponsive robots (Unresponsive), the robot's own dead flag (1): 1 if it ignores
+      commands;
+    * in Manipulation, the object's x, y (goal frame), vx, vy (4), / 1000.
+
+    :class:`dpr.envs.local_obs.LocalObservation` (``env.local_layout``) gives each part's slice.
 
     ## Rewards
     ``shared_reward=True`` (default): every agent receives the super-agent reward. ``False``: each agent
@@ -164,8 +112,9 @@ class ParticleParallelEnv(ParallelEnv):
 
     ## Arguments
     ``task`` (``"navigation"``, ``"gate"``, ``"unresponsive"``, ``"manipulation"``), ``max_episode_steps``
-    (``MAX_EPISODE_STEPS``), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, with
-    ``local_obs``), and the super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``,
+    (``MAX_EPISODE_STEPS``), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, an
+    integer >= 1, with ``local_obs``), ``clock_period`` (None: no clock; an integer >= 2, with ``local_obs``
+    only), and the super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``,
     ``reward``, ``render_mode``, task options such as ``n_dead``...). Only ``obs_type="state"`` is supported.
     ``state()`` returns the global state; ``swarm_env`` is the wrapped super-agent env.
     """
@@ -180,6 +129,7 @@ class ParticleParallelEnv(ParallelEnv):
         local_obs: bool = False,
         shared_reward: bool = True,
         max_neighbours: int = MAX_NEIGHBOURS,
+        clock_period: int | None = None,
         **env_kwargs: Any,
     ):
         if task not in TASK_CLASSES:
@@ -199,6 +149,15 @@ class ParticleParallelEnv(ParallelEnv):
         self.local_obs = _check_flag("local_obs", local_obs)
         self.shared_reward = _check_flag("shared_reward", shared_reward)
         self.max_neighbours = _check_count("max_neighbours", max_neighbours)
+        if clock_period is not None:
+            if not self.local_obs:
+                raise ParameterError(
+                    "clock_period", "the shared clock is part of the local observation: set local_obs=True"
+                )
+            clock_period = check_int(
+                "clock_period", int(clock_period) if isinstance(clock_period, np.integer) else clock_period, 2
+            )
+        self.clock_period = clock_period
 
         self._env: ParticleSwarmEnv = TASK_CLASSES[task](**env_kwargs)
         base = self._env
@@ -212,8 +171,9 @@ class ParticleParallelEnv(ParallelEnv):
         self._all_agents = frozenset(self.possible_agents)
         self._steps = 0
 
+        self.local_layout = LocalObservation.for_env(base, self.max_neighbours, self.clock_period)
         if self.local_obs:
-            observation_space = _local_observation_space(self.max_neighbours, base.has_object)
+            observation_space = self.local_layout.space()
         else:
             observation_space = base.observation_space
         if base.action_type == "multibinary":
@@ -282,9 +242,9 @@ class ParticleParallelEnv(ParallelEnv):
 
     def _observations(self, state: np.ndarray) -> dict[str, np.ndarray]:
         if self.local_obs:
-            rows = local_observations(
-                state, self.n_robots, self._env.swarm_class.magnet_range, self.max_neighbours, self._env.has_object
-            )
+            base = self._env
+            dead = base.world.dead if self.local_layout.dead_flag else None
+            rows = self.local_layout.observe(state, self.n_robots, base.swarm_class.magnet_range, self._steps, dead)
             rows.flags.writeable = False
             return dict(zip(self.possible_agents, rows))
         shared = np.array(state, dtype=np.float32)  # a copy: the agents' array outlives the env's next step
@@ -352,6 +312,17 @@ class ParticleParallelEnv(ParallelEnv):
 def parallel_env(task: str, **kwargs: Any) -> ParticleParallelEnv:
     """A PettingZoo ParallelEnv of ``task`` with one agent per robot (see :class:`ParticleParallelEnv`)."""
     return ParticleParallelEnv(task, **kwargs)
+
+
+__all__ = [
+    "MAX_NEIGHBOURS",
+    "PER_AGENT_ACTION_TYPES",
+    "LocalObservation",
+    "ParticleParallelEnv",
+    "local_observation_size",
+    "local_observations",
+    "parallel_env",
+]
 
 
 # -- Stable-Baselines3 adapter (built on first use: SB3 imports torch) -------------------------------------

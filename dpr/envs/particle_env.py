@@ -72,6 +72,7 @@ class ParticleSwarmEnv(gym.Env):
     task = ""
     task_description = ""  # one sentence for datasets (LeRobot's per-frame "task" string)
     has_object = False
+    has_dead_robots = False  # whether some robots may ignore commands (what a robot's local dead flag is for)
 
     def __init__(
         self,

@@ -37,6 +37,7 @@ class UnresponsiveEnv(ParticleSwarmEnv):
 
     task = "unresponsive"
     task_description = "navigate the swarm to the goal despite its unresponsive robots"
+    has_dead_robots = True
 
     def __init__(self, n_dead: int | None = None, **kwargs):
         super().__init__(**kwargs)

@@ -12,7 +12,8 @@ from __future__ import annotations
 WAVE = "wave"  # the paper's hand-crafted policy
 WAVE_MARKOV = "wave-markov"  # the same wave, its phase read from the observation: an expert imitation can copy
 RANDOM = "random"
-SCRIPTED_POLICIES = (WAVE, WAVE_MARKOV, RANDOM)
+DECENTRALISED_WAVE = "decentralised-wave"  # every robot runs the wave from its own local observation
+SCRIPTED_POLICIES = (WAVE, WAVE_MARKOV, RANDOM, DECENTRALISED_WAVE)
 
 
 class RandomPolicy:
@@ -57,7 +58,9 @@ def check_policy_name(name: str) -> str:
 def make_policy(name: str, env):
     """The policy called ``name`` for ``env``: "wave" (the paper's hand-crafted policy, phases held a fixed
     number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
-    can reproduce), "random", or a ``.zip`` model file trained on ``env``'s id and spaces."""
+    can reproduce), "random", "decentralised-wave" (every robot decides from its own local observation and a
+    shared clock, :mod:`dpr.policies.decentralised`), or a ``.zip`` model file trained on ``env``'s id and
+    spaces."""
     check_policy_name(name)
     from dpr.policies.sb3 import is_model_path, load_model_policy
 
@@ -71,4 +74,8 @@ def make_policy(name: str, env):
         from dpr.policies.wave import MarkovWavePolicy
 
         return _Unseeded(MarkovWavePolicy.from_env(env))
+    if name == DECENTRALISED_WAVE:
+        from dpr.policies.decentralised import DecentralisedWavePolicy
+
+        return DecentralisedWavePolicy.for_env(env)
     return RandomPolicy(env)
