@@ -37,7 +37,8 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         "--policy",
         default=WAVE,
         help="'wave' (the paper's hand-crafted policy), 'wave-markov' "
-        "(its phase read from the observation), 'random', or a model file MODEL.zip written by "
+        "(its phase read from the observation), 'decentralised-wave' (every robot decides from its own local "
+        "observation), 'random', or a model file MODEL.zip written by "
         "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)",
     )
     parser.add_argument("--env", nargs="+", default=[EXAMPLE_ENV_ID], help=f"env ids ({ENV_ID_LIST}) or '{ALL_ENVS}'")
