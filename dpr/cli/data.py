@@ -35,8 +35,8 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--policy",
         default=spec["policy"],
-        help=f"'wave', 'wave-markov', 'decentralised-wave', 'random' or a model .zip: any policy `dpr evaluate` accepts "
-        f"(default {spec['policy']})",
+        help="'wave', 'wave-markov', 'decentralised-wave', 'random' or a model .zip: any policy `dpr evaluate` "
+        f"accepts (default {spec['policy']})",
     )
     parser.add_argument(
         "--label-policy",
