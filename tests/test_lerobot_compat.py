@@ -1,10 +1,10 @@
 """Datasets written by ``dpr.datasets.lerobot`` load unchanged in the real ``LeRobotDataset``.
 
 LeRobot is not a dependency of dpr, so these tests run only where ``lerobot`` is importable (the scratch venv
-described at the top of ``tools/check_lerobot_load.py``) and are skipped everywhere else. They record real
-wave-policy rollouts with our writer and run the tool's checks in-process: length, every frame's values
-(state, action, reward, done, success, PNG images), tasks, stats, episode boundaries with
-``delta_timestamps`` padding, and one DataLoader epoch.
+described at the top of ``tools/check_lerobot_load.py``) and are skipped everywhere else. They record wave-policy
+rollouts with ``dpr collect``'s pipeline, as recorded and compacted, and run the tool's checks in-process: length,
+every frame's values (PNG images included), tasks, episode rows and their data files, stats, ``delta_timestamps``
+padding at episode boundaries, one DataLoader epoch and an episode subset.
 """
 
 from __future__ import annotations
@@ -34,34 +34,33 @@ def tool(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
     return module
 
 
-def test_state_dataset_loads_in_lerobot(tool: ModuleType, tmp_path: Path) -> None:
-    recording = tool.record_dataset(tmp_path / "state", pixels=False, episodes=3, steps=30, seed=0)
-    report = tool.check_dataset(recording.root, recording)
+@pytest.mark.parametrize("compact", [False, True], ids=["as-recorded", "compacted"])
+@pytest.mark.parametrize("pixels", [False, True], ids=["state", "pixels"])
+def test_dataset_loads_in_lerobot(tool: ModuleType, tmp_path: Path, pixels: bool, compact: bool) -> None:
+    root = tool.record(tmp_path / "ds", pixels=pixels, episodes=3, steps=30, compact=compact)
+    data_files = list((root / "data").glob("*/*.parquet"))
+    assert len(data_files) == (2 if compact else 3)  # compacted: several episodes per file, in two files
+    report = tool.check_dataset(root)
     assert report.ok, report.format()
     assert {c.name for c in report.checks} >= {
         "len(ds) == total frames",
         "ds[i] equals the recorded frames",
+        "meta.episodes rows and the data files they name",
         "delta_timestamps values and *_is_pad at episode boundaries",
         "DataLoader(batch_size=8, shuffle=True) runs one epoch",
     }
 
 
-def test_pixel_dataset_loads_in_lerobot(tool: ModuleType, tmp_path: Path) -> None:
-    recording = tool.record_dataset(tmp_path / "pixels", pixels=True, episodes=2, steps=25, seed=3)
-    assert recording.episodes[0]["observation.image"].shape == (25, tool.IMAGE_SIZE, tool.IMAGE_SIZE, 3)
-    report = tool.check_dataset(recording.root, recording)
-    assert report.ok, report.format()
-
-
-def _tasks_without_pandas_metadata(root: Path, task: str) -> None:
+def _tasks_without_pandas_metadata(root: Path) -> None:
     """Task strings as a plain column: LeRobot then returns the row number as the task."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    task = pq.read_table(root / "meta" / "tasks.parquet").column("__index_level_0__")[0].as_py()
     pq.write_table(pa.table({"task": [task], "task_index": pa.array([0], pa.int64())}), root / "meta" / "tasks.parquet")
 
 
-def _episode_rows_reversed(root: Path, task: str) -> None:
+def _episode_rows_reversed(root: Path) -> None:
     """Episode rows in reverse order (kept per file counts): LeRobot indexes meta.episodes by position."""
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -85,8 +84,9 @@ def _episode_rows_reversed(root: Path, task: str) -> None:
 )
 def test_checker_catches_silently_wrong_layouts(tool: ModuleType, tmp_path: Path, mutate, failing_check) -> None:
     """Layouts LeRobot loads without error but reads wrongly must fail the check (else the check proves nothing)."""
-    recording = tool.record_dataset(tmp_path / "ds", pixels=False, episodes=2, steps=10, seed=1)
-    mutate(recording.root, recording.task)
-    report = tool.check_dataset(recording.root, recording)
+    root = tool.record(tmp_path / "ds", pixels=False, episodes=2, steps=10)
+    expected = tool.Expected.read(root)  # what was recorded, read before the damage
+    mutate(root)
+    report = tool.check_dataset(root, expected)
     failed = {c.name for c in report.failed}
     assert failed and failing_check in failed, report.format()

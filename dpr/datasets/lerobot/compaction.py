@@ -27,12 +27,12 @@ from 0 (hard links and rewritten meta rows, no data rewritten), so that a compac
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from dpr.atomic import atomic_link, atomic_write, atomic_write_json, fsync_dir
@@ -45,17 +45,19 @@ from dpr.datasets.lerobot.format import (
     LIVE_FILES_KEY,
     DatasetError,
     chunk_file,
+    in_threads,
     live_files,
     numbered_path,
     read_parquet,
     write_parquet,
 )
-from dpr.datasets.lerobot.meta import data_file_path, episode_meta_paths
+from dpr.datasets.lerobot.meta import data_file_path, read_live_meta
 
 DEFAULT_TARGET_BYTES = DATA_FILES_SIZE_IN_MB * 2**20
 # Row groups of about this many bytes in memory, cut at episode boundaries: reading one episode of a packed file
 # decodes only its row group(s).
 ROW_GROUP_BYTES = 2 * 2**20
+SOURCE_BATCH = 64  # source files read at once when packing
 POINTER_COLUMNS = ("data/chunk_index", "data/file_index", "meta/episodes/chunk_index", "meta/episodes/file_index")
 
 
@@ -84,12 +86,15 @@ class _Output:
     source: _DataFile | None = None
 
 
-def compact_files(root: Path, info: dict, target_bytes: int = DEFAULT_TARGET_BYTES) -> dict:
+def compact_files(
+    root: Path, info: dict, target_bytes: int = DEFAULT_TARGET_BYTES, meta: pa.Table | None = None
+) -> dict:
     """Pack the live files of the dataset at ``root``, whose committed state is ``info`` (info.json as on disk),
-    and return the info.json now live. The caller holds the writer lock and has deleted leftovers."""
+    and return the info.json now live. The caller holds the writer lock and has deleted leftovers; ``meta``: the
+    committed meta rows with their stats columns, when the caller has read them already."""
     if info["total_episodes"] == 0:
         return info
-    meta = _live_meta_table(root, info)
+    meta = _live_meta_table(root, info, meta)
     files = _data_files(root, info, meta)
     data_plan = _plan_data(files, meta, target_bytes)
     meta_plan = _plan_meta(meta, target_bytes)
@@ -109,18 +114,13 @@ def compact_files(root: Path, info: dict, target_bytes: int = DEFAULT_TARGET_BYT
 # ---------------------------------------------------------------------------------------------- what is there
 
 
-def _live_meta_table(root: Path, info: dict) -> pa.Table:
-    """Every committed episode's meta row, in episode order, with its columns exactly as stored."""
+def _live_meta_table(root: Path, info: dict, meta: pa.Table | None = None) -> pa.Table:
+    """Every committed episode's meta row (``meta`` when the caller has read them), in episode order, with its
+    columns exactly as stored."""
     total = info["total_episodes"]
-    tables = []
-    for path in episode_meta_paths(root, info):
-        table = read_parquet(path)
-        tables.append(table.filter(pc.less(table.column("episode_index"), total)))
-    try:
-        meta = pa.concat_tables(tables)
-    except pa.ArrowInvalid as exc:
-        raise DatasetError(f"{root / 'meta' / 'episodes'}: the meta files' columns differ: {exc}") from exc
-    if meta.column("episode_index").to_pylist() != list(range(total)):
+    if meta is None:
+        meta, _ = read_live_meta(root, info, with_stats=True)
+    if meta is None or meta.column("episode_index").to_pylist() != list(range(total)):
         raise DatasetError(f"{root / 'meta' / 'episodes'}: the meta rows are not episodes 0..{total - 1} in order")
     return meta
 
@@ -131,31 +131,40 @@ def _data_files(root: Path, info: dict, meta: pa.Table) -> list[_DataFile]:
     numbers = meta.column("data/file_index").to_pylist()
     starts = meta.column("dataset_from_index").to_pylist()
     lengths = meta.column("length").to_pylist()
-    files: list[_DataFile] = []
+    runs: list[tuple[Path, range, int]] = []  # (file, its episodes, rows they need)
     for episode, key in enumerate(zip(chunks, numbers, strict=True)):
-        if files and key == (chunks[episode - 1], numbers[episode - 1]):
-            last = files[-1]
-            last.episodes = range(last.episodes.start, episode + 1)
-            last.needed += lengths[episode]
+        if runs and key == (chunks[episode - 1], numbers[episode - 1]):
+            path, episodes, needed = runs[-1]
+            runs[-1] = (path, range(episodes.start, episode + 1), needed + lengths[episode])
             continue
-        path = data_file_path(root, info, {"data/chunk_index": key[0], "data/file_index": key[1]})
-        if any(f.path == path for f in files):
-            raise DatasetError(f"{path}: holds episodes that are not consecutive; compaction needs them in order")
-        try:
-            footer = pq.read_metadata(path)
-        except (pa.ArrowException, OSError) as exc:
-            raise DatasetError(f"{path}: corrupt or truncated parquet file: {exc}") from exc
-        files.append(
-            _DataFile(
-                path=path,
-                episodes=range(episode, episode + 1),
-                first_frame=starts[episode],
-                rows=footer.num_rows,
-                needed=lengths[episode],
-                data_bytes=max(path.stat().st_size - footer.serialized_size, 1),
+        runs.append(
+            (
+                data_file_path(root, info, {"data/chunk_index": key[0], "data/file_index": key[1]}),
+                range(episode, episode + 1),
+                lengths[episode],
             )
         )
-    return files
+    if len({path for path, _, _ in runs}) != len(runs):
+        raise DatasetError(f"{root / 'data'}: a data file holds episodes that are not consecutive")
+    footers = in_threads(_footer, [path for path, _, _ in runs])
+    return [
+        _DataFile(
+            path=path,
+            episodes=episodes,
+            first_frame=starts[episodes.start],
+            rows=footer.num_rows,
+            needed=needed,
+            data_bytes=max(path.stat().st_size - footer.serialized_size, 1),
+        )
+        for (path, episodes, needed), footer in zip(runs, footers, strict=True)
+    ]
+
+
+def _footer(path: Path) -> pq.FileMetaData:
+    try:
+        return pq.read_metadata(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise DatasetError(f"{path}: corrupt or truncated parquet file: {exc}") from exc
 
 
 # ------------------------------------------------------------------------------------------------------- plans
@@ -273,15 +282,16 @@ def _pack_data(path: Path, episodes: range, files: list[_DataFile], meta: pa.Tab
     in row groups of about ROW_GROUP_BYTES cut at episode boundaries."""
     starts = meta.column("dataset_from_index").to_pylist()
     lengths = meta.column("length").to_pylist()
-    owner = {e: f for f in files for e in f.episodes if e in episodes}
-    cache: dict[Path, pa.Table] = {}
+    sources = [f for f in files if f.episodes.start < episodes.stop and f.episodes.stop > episodes.start]
 
-    def rows_of(episode: int) -> pa.Table:
-        source = owner[episode]
-        if source.path not in cache:
-            cache.clear()  # one source file in memory at a time
-            cache[source.path] = read_parquet(source.path)
-        return cache[source.path].slice(starts[episode] - source.first_frame, lengths[episode])
+    def episode_rows() -> Iterator[pa.Table]:
+        for i in range(0, len(sources), SOURCE_BATCH):  # a batch of source files read on threads
+            batch = sources[i : i + SOURCE_BATCH]
+            for source, table in zip(batch, in_threads(lambda f: read_parquet(f.path), batch), strict=True):
+                for episode in range(
+                    max(source.episodes.start, episodes.start), min(source.episodes.stop, episodes.stop)
+                ):
+                    yield table.slice(starts[episode] - source.first_frame, lengths[episode])
 
     def write(sink) -> None:
         writer: pq.ParquetWriter | None = None
@@ -297,8 +307,7 @@ def _pack_data(path: Path, episodes: range, files: list[_DataFile], meta: pa.Tab
             group, group_bytes = [], 0
 
         try:
-            for episode in episodes:
-                rows = rows_of(episode)
+            for rows in episode_rows():
                 if group and group_bytes + rows.nbytes > ROW_GROUP_BYTES:
                     flush()
                 group.append(rows)

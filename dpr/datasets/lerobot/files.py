@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 from dpr.atomic import TMP_SUFFIX
-from dpr.datasets.lerobot.format import LOCK_PATH, DatasetError, file_number
+from dpr.datasets.lerobot.format import LOCK_PATH, DatasetError, file_number, in_threads
 
 CHUNK_DIR_RE = re.compile(r"^chunk-\d{3,}$")
 
@@ -77,21 +77,19 @@ def delete_leftovers(root: Path, live: tuple[int, int], referenced: set[Path] = 
     uncommitted episodes, or the side of a compaction that is not live), never a file in ``referenced``; then
     the chunk folders left empty. Returns the number of files removed."""
     first, end = live
-    removed = 0
+    doomed: list[Path] = []
     for folder in (root / "data", root / "meta"):
         if folder.is_dir():
-            for path in folder.rglob(f"*{TMP_SUFFIX}"):
-                remove_file(path)
-                removed += 1
-    for base in (root / "data", root / "meta" / "episodes"):
-        if not base.is_dir():
-            continue
+            doomed.extend(folder.rglob(f"*{TMP_SUFFIX}"))
+    bases = [base for base in (root / "data", root / "meta" / "episodes") if base.is_dir()]
+    for base in bases:
         for path in sorted(base.glob("*/*.parquet")):
             number = file_number(path)
             if number is not None and not first <= number < end and path.resolve() not in referenced:
-                remove_file(path)
-                removed += 1
+                doomed.append(path)
+    in_threads(remove_file, doomed)
+    for base in bases:
         for chunk in base.iterdir():
             if chunk.is_dir() and CHUNK_DIR_RE.match(chunk.name) and not any(chunk.iterdir()):
                 chunk.rmdir()
-    return removed
+    return len(doomed)

@@ -20,6 +20,7 @@ from dpr.datasets.lerobot.format import (
     DatasetError,
     chunk_file,
     file_number,
+    in_threads,
     live_files,
     parquet_num_rows,
     read_parquet,
@@ -130,8 +131,9 @@ def split_row(row: dict[str, Any], schema: pa.Schema, path: Path) -> EpisodeRow:
     for field in schema:
         name, value = field.name, row[field.name]
         if name.startswith("stats/"):
-            feature, _, stat = name[len("stats/") :].rpartition("/")
-            stats.setdefault(feature, {})[stat] = np.asarray(value)
+            if value is not None:  # (None: a file without this column, merged with others)
+                feature, _, stat = name[len("stats/") :].rpartition("/")
+                stats.setdefault(feature, {})[stat] = np.asarray(value)
             continue
         if name not in STANDARD_EPISODE_COLUMNS and not name.startswith(RESERVED_PREFIXES):
             extra_fields.append(field)
@@ -141,28 +143,53 @@ def split_row(row: dict[str, Any], schema: pa.Schema, path: Path) -> EpisodeRow:
     return EpisodeRow(meta=meta, stats=stats, extra_fields=extra_fields, meta_path=path)
 
 
-def load_committed_episodes(root: Path, info: Mapping, *, with_stats: bool) -> list[EpisodeRow]:
-    """Rows 0..total_episodes-1 of the live episodes meta, checked to be complete, ordered and contiguous
-    (``with_stats=False`` leaves each row's ``stats`` empty and reads about half as much)."""
-    total_episodes = info["total_episodes"]
-    rows: dict[int, EpisodeRow] = {}
-    for path in episode_meta_paths(root, info):
-        table = read_parquet(path, skip_stats=not with_stats)
+def read_live_meta(root: Path, info: Mapping, *, with_stats: bool) -> tuple[pa.Table | None, list[Path]]:
+    """The committed rows (episode_index < total_episodes) of the live episodes-meta files, concatenated in file
+    order with their columns as stored, and the file of each row (None and [] when there are none).
+    ``with_stats=False`` leaves out the ``stats/`` columns and reads about half as much."""
+    total = info["total_episodes"]
+    paths = episode_meta_paths(root, info)
+    tables = in_threads(lambda path: read_parquet(path, skip_stats=not with_stats), paths)
+    kept: list[pa.Table] = []
+    row_paths: list[Path] = []
+    for path, table in zip(paths, tables, strict=True):
         if "episode_index" not in table.column_names:
             raise DatasetError(f"{path}: missing column 'episode_index'")
-        indices = table.column("episode_index").to_pylist()
-        if all(i is None or i >= total_episodes for i in indices):
+        committed = [i is not None and i < total for i in table.column("episode_index").to_pylist()]
+        if not any(committed):
             continue  # an uncommitted leftover of a crash
         for required in ("dataset_from_index", "dataset_to_index"):
             if required not in table.column_names:
                 raise DatasetError(f"{path}: missing column {required!r}")
-        for row in table.to_pylist():
-            index = row["episode_index"]
-            if index is None or index >= total_episodes:
-                continue
-            if index in rows:
-                raise DatasetError(f"{path}: episode {index} is listed twice in meta/episodes")
-            rows[index] = split_row(row, table.schema, path)
+        kept.append(table if all(committed) else table.filter(pa.array(committed)))
+        row_paths.extend([path] * sum(committed))
+    if not kept:
+        return None, []
+    try:
+        return pa.concat_tables(kept), row_paths
+    except pa.ArrowInvalid:  # files written by different writers: columns merged, types promoted
+        try:
+            return pa.concat_tables(kept, promote_options="permissive"), row_paths
+        except pa.ArrowInvalid as exc:
+            raise DatasetError(f"{root / 'meta' / 'episodes'}: the meta files' columns do not match: {exc}") from exc
+
+
+def load_committed_episodes(root: Path, info: Mapping, *, with_stats: bool) -> list[EpisodeRow]:
+    """Rows 0..total_episodes-1 of the live episodes meta, checked to be complete, ordered and contiguous
+    (``with_stats=False`` leaves each row's ``stats`` empty and reads about half as much)."""
+    table, row_paths = read_live_meta(root, info, with_stats=with_stats)
+    return episode_rows(root, info, table, row_paths)
+
+
+def episode_rows(root: Path, info: Mapping, table: pa.Table | None, row_paths: list[Path]) -> list[EpisodeRow]:
+    """The rows of :func:`read_live_meta` by episode index, checked to be complete, ordered and contiguous."""
+    total_episodes = info["total_episodes"]
+    rows: dict[int, EpisodeRow] = {}
+    for row, path in zip([] if table is None else table.to_pylist(), row_paths, strict=True):
+        index = row["episode_index"]
+        if index in rows:
+            raise DatasetError(f"{path}: episode {index} is listed twice in meta/episodes")
+        rows[index] = split_row(row, table.schema, path)
     missing = [i for i in range(total_episodes) if i not in rows]
     if missing:
         raise DatasetError(
@@ -198,8 +225,7 @@ def check_data_files(root: Path, info: Mapping, episodes: list[Mapping]) -> dict
         path = data_file_path(root, info, ep)
         needed[path] = needed.get(path, 0) + int(ep["length"])
         per_file[path] = per_file.get(path, 0) + 1
-    for path, rows in needed.items():
-        have = parquet_num_rows(path)
+    for (path, rows), have in zip(needed.items(), in_threads(parquet_num_rows, needed), strict=True):
         if have < rows:
             raise DatasetError(f"{path}: holds {have} rows; the committed episodes stored there need {rows}")
     return per_file

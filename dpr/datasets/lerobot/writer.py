@@ -52,10 +52,11 @@ from dpr.datasets.lerobot.meta import (
     check_data_files,
     check_extra_key,
     data_file_path,
+    episode_rows,
     extra_array,
-    load_committed_episodes,
     load_tasks,
     new_extra_field,
+    read_live_meta,
     tasks_table,
 )
 from dpr.datasets.lerobot.stats import (
@@ -74,6 +75,7 @@ class _Committed:
 
     info: dict
     rows: list[EpisodeRow]
+    meta: pa.Table | None  # the rows as stored (what compaction rewrites)
     frames: int
     tasks: list[str]
     aggregates: dict[str, Aggregate]
@@ -113,6 +115,7 @@ class LeRobotWriter:
         self._num_episodes = 0
         self._num_frames = 0
         self._live = (0, 0)  # the numbers of the files that hold the committed episodes (see live_files)
+        self._meta_at_open: pa.Table | None = None
         self._lock = WriterLock(root)
         self._closed = False
         self._reset_buffer()
@@ -212,7 +215,8 @@ class LeRobotWriter:
         """Read and check everything a resume needs, changing nothing on disk (DatasetError when it is not
         intact)."""
         meta_folder = self.root / "meta" / "episodes"
-        rows = load_committed_episodes(self.root, info, with_stats=True)
+        meta, row_paths = read_live_meta(self.root, info, with_stats=True)
+        rows = episode_rows(self.root, info, meta, row_paths)
         frames = sum(int(r.meta["length"]) for r in rows)
         if frames != info["total_frames"]:
             raise DatasetError(
@@ -224,6 +228,7 @@ class LeRobotWriter:
         return _Committed(
             info=info,
             rows=rows,
+            meta=meta,
             frames=frames,
             tasks=tasks,
             aggregates=aggregates_from_rows(rows, self.features, meta_folder),
@@ -239,6 +244,7 @@ class LeRobotWriter:
         self._live = live_files(info)
 
         self._tasks = committed.tasks
+        self._meta_at_open = committed.meta  # until an episode is added: spares compaction reading it again
         self._task_index = {t: i for i, t in enumerate(self._tasks)}
         self._aggregates = committed.aggregates
         self._extra_fields = rows[0].extra_fields if rows else None
@@ -423,6 +429,7 @@ class LeRobotWriter:
         atomic_write_json(self.root / INFO_PATH, self._info(episode + 1, self._num_frames + n, len(tasks), live))
 
         self._tasks, self._task_index, self._aggregates, self._live = tasks, task_index, aggregates, live
+        self._meta_at_open = None
         self._extra_fields = extra_fields
         self._num_episodes += 1
         self._num_frames += n
@@ -509,8 +516,9 @@ class LeRobotWriter:
         self._closed = True
         try:
             if compact and self._num_episodes:
-                compact_files(self.root, load_info(self.root), target_bytes)
+                compact_files(self.root, load_info(self.root), target_bytes, self._meta_at_open)
         finally:
+            self._meta_at_open = None
             self._lock.release()
 
     def __enter__(self) -> LeRobotWriter:
