@@ -287,18 +287,39 @@ def test_replay_finds_the_first_tampered_frame(small_dataset, monkeypatch):
     assert checks[1].max_abs_difference["next.done"] == checks[1].max_abs_difference["next.success"] == 0.0
 
 
-def test_replay_detects_a_data_file_from_other_seeds(small_dataset, tmp_path):
-    """An episode whose frames come from another seed's rollout fails replay from its first frame."""
+def test_a_data_file_from_another_episode_is_refused(small_dataset, tmp_path):
+    """An episode whose data file was replaced by another episode's is refused when read, not replayed."""
     other = tmp_path / "other"
     collect(other, small_spec(), episodes=1, seed=5, workers=1)
     tampered = tmp_path / "tampered"
     shutil.copytree(small_dataset, tampered)
     data_file = "data/chunk-000/file-001.parquet"
     shutil.copyfile(other / "data/chunk-000/file-000.parquet", tampered / data_file)
-    checks = replay_dataset(tampered)
-    assert checks[0].equal
-    assert not checks[1].equal and checks[1].first_mismatch == 0
-    assert checks[1].max_abs_difference["observation.state"] > 0
+    reader = LeRobotReader(tampered)
+    reader.episode(0)
+    with pytest.raises(DatasetError, match=r"file-001.parquet: holds rows of episode\(s\) \[0\] where episode 1"):
+        reader.episode(1)
+
+
+def test_a_changed_value_fails_its_checksum(small_dataset, tmp_path):
+    """A value changed in place (parquet still decodes it) fails the episode's checksum, naming the column."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    tampered = tmp_path / "tampered"
+    shutil.copytree(small_dataset, tampered)
+    path = tampered / "data/chunk-000/file-001.parquet"
+    table = pq.read_table(path)
+    rewards = table.column("next.reward").to_numpy().copy()
+    rewards[3] = -4.3e24
+    index = table.column_names.index("next.reward")
+    pq.write_table(table.set_column(index, "next.reward", pa.array(rewards, table.schema.field(index).type)), path)
+    reader = LeRobotReader(tampered)
+    np.testing.assert_array_equal(
+        reader.episode(1, ["action"])["action"], LeRobotReader(small_dataset).episode(1)["action"]
+    )
+    with pytest.raises(DatasetError, match="episode 1: column 'next.reward' does not match its checksum"):
+        reader.episode(1)
 
 
 def test_cli_replay_good_dataset(small_dataset, capsys):

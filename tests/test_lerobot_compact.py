@@ -162,7 +162,7 @@ def test_a_compacted_dataset_reads_back_bit_exact(recorded, tmp_path, monkeypatc
     assert len(parquet_files(root)) == 60
     compact(root, target_bytes=TARGET)
     files_after = parquet_files(root)
-    assert 2 < len(files_after) < 20, files_after
+    assert 2 < len(files_after) <= 30, files_after  # from 60: a few episodes a file at this tiny target
     assert live(root) == [0, len([f for f in files_after if f.startswith("data/")])]
     assert_same(view(root), before)
     small_row_groups = row_group_bytes < 2000  # (each row group's own overhead makes files pass the estimate)

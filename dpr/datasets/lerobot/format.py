@@ -57,6 +57,7 @@ DEFAULT_FEATURE_DTYPES = {
 IMAGE_NAMES = ["height", "width", "channels"]
 STANDARD_EPISODE_COLUMNS = (
     "episode_index",
+    "dpr_checksums",  # dpr.datasets.lerobot.checksums: content checksums of the episode's columns
     "tasks",
     "length",
     "data/chunk_index",

@@ -13,6 +13,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from dpr.datasets.lerobot.checksums import CHECKSUMS_COLUMN, check_checksums
 from dpr.datasets.lerobot.format import (
     INFO_PATH,
     STATS_PATH,
@@ -133,9 +134,13 @@ class LeRobotReader:
             offset = int(ep["dataset_from_index"]) - self._file_starts[path]
             table = self._rows_of_packed_file(path, int(index), offset, length, names)
         else:
-            table = read_parquet(path, columns=names)
+            table = read_parquet(path, columns=list(dict.fromkeys([*names, "episode_index"])))
         if table.num_rows != length:
             raise DatasetError(f"{path}: episode {index} has {table.num_rows} rows, its meta row says {length}")
+        if not pc.all(pc.equal(table.column("episode_index"), index)).as_py():
+            found = sorted(set(table.column("episode_index").to_pylist()))[:3]
+            raise DatasetError(f"{path}: holds rows of episode(s) {found} where episode {index} belongs")
+        check_checksums(table, ep.get(CHECKSUMS_COLUMN), names, f"{path}: episode {index}")
         try:
             return {name: self._to_numpy(table.column(name), self.features[name], length) for name in names}
         except (pa.ArrowException, OSError, ValueError) as exc:
@@ -161,9 +166,9 @@ class LeRobotReader:
         except (pa.ArrowException, OSError, ValueError) as exc:
             raise DatasetError(f"{path}: corrupt or truncated parquet file: {exc}") from exc
         if table.num_rows == length and pc.all(pc.equal(table.column("episode_index"), index)).as_py():
-            return table.select(names)
+            return table.select(wanted)
         # the rows are not where the meta rows say: find them by value
-        return read_parquet(path, columns=names, filters=[("episode_index", "=", index)])
+        return read_parquet(path, columns=wanted, filters=[("episode_index", "=", index)])
 
     @staticmethod
     def _to_numpy(column: pa.ChunkedArray, spec: Mapping, length: int) -> np.ndarray:

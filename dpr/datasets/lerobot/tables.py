@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from dpr.datasets.lerobot.checksums import CHECKSUMS_COLUMN
 from dpr.datasets.lerobot.format import STAT_KEYS, decode_png, spec_shape
 from dpr.datasets.lerobot.stats import image_sample_indices, image_stats, vector_stats
 
@@ -55,9 +56,11 @@ def meta_table(
     stats: Mapping[str, Mapping[str, np.ndarray]],
     extra_fields: list[pa.Field],
     extra_arrays: list[pa.Array],
+    checksums: str | None = None,
 ) -> pa.Table:
     """The episode's one-row episodes-meta table; ``frames`` its global frame range [from, to), ``data_file`` and
-    ``meta_file`` the (chunk_index, file_index) of the files that hold it."""
+    ``meta_file`` the (chunk_index, file_index) of the files that hold it, ``checksums`` its data's
+    (:func:`dpr.datasets.lerobot.checksums.checksums_text`)."""
     fields: list[pa.Field] = []
     arrays: list[pa.Array] = []
 
@@ -78,6 +81,8 @@ def meta_table(
             add(f"stats/{name}/{key}", feature_stats[key].tolist())
     add("meta/episodes/chunk_index", meta_file[0], pa.int64())
     add("meta/episodes/file_index", meta_file[1], pa.int64())
+    if checksums is not None:
+        add(CHECKSUMS_COLUMN, checksums, pa.string())
     fields.extend(extra_fields)
     arrays.extend(extra_arrays)
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields))

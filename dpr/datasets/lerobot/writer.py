@@ -17,6 +17,7 @@ import pyarrow as pa
 
 from dpr.atomic import atomic_write_json
 from dpr.checks import check_int
+from dpr.datasets.lerobot.checksums import checksums_text
 from dpr.datasets.lerobot.compaction import DEFAULT_TARGET_BYTES, compact_files
 from dpr.datasets.lerobot.files import WriterLock, delete_leftovers
 from dpr.datasets.lerobot.format import (
@@ -414,6 +415,7 @@ class LeRobotWriter:
             stats=stats,
             extra_fields=extra_fields,
             extra_arrays=extra_arrays,
+            checksums=checksums_text(data),
         )
         aggregates = merge_aggregates(self._aggregates, stats)
         live = (first, number + 1)
