@@ -301,23 +301,26 @@ def test_a_data_file_from_another_episode_is_refused(small_dataset, tmp_path):
         reader.episode(1)
 
 
-def test_a_changed_value_fails_its_checksum(small_dataset, tmp_path):
-    """A value changed in place (parquet still decodes it) fails the episode's checksum, naming the column."""
+def change_a_reward(path: Path) -> None:
+    """Rewrite the data file at ``path`` with one reward changed: parquet still decodes it."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    tampered = tmp_path / "tampered"
-    shutil.copytree(small_dataset, tampered)
-    path = tampered / "data/chunk-000/file-001.parquet"
     table = pq.read_table(path)
     rewards = table.column("next.reward").to_numpy().copy()
     rewards[3] = -4.3e24
     index = table.column_names.index("next.reward")
     pq.write_table(table.set_column(index, "next.reward", pa.array(rewards, table.schema.field(index).type)), path)
+
+
+def test_a_changed_value_fails_its_checksum(small_dataset, tmp_path):
+    """A value changed in place fails the episode's checksum when read, naming the column."""
+    tampered = tmp_path / "tampered"
+    shutil.copytree(small_dataset, tampered)
+    change_a_reward(tampered / "data/chunk-000/file-001.parquet")
     reader = LeRobotReader(tampered)
-    np.testing.assert_array_equal(
-        reader.episode(1, ["action"])["action"], LeRobotReader(small_dataset).episode(1)["action"]
-    )
+    original = LeRobotReader(small_dataset).episode(1)["action"]
+    np.testing.assert_array_equal(reader.episode(1, ["action"])["action"], original)  # other columns still read
     with pytest.raises(DatasetError, match="episode 1: column 'next.reward' does not match its checksum"):
         reader.episode(1)
 
@@ -752,3 +755,44 @@ def test_cli_replay_refuses_missing_folder_and_episodes(small_dataset, tmp_path,
     assert str(tmp_path / "absent") in capsys.readouterr().err
     assert run_cli(["replay", str(small_dataset), "--episodes", "0-2"]) == 2
     assert "--episodes: [2] are not in the dataset" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ("not a dict", "entry 'action' must be an object of stats"),
+        ({"mean": "big"}, "action/mean must be numbers"),
+        ({"mean": [1.0, float("inf")]}, "action/mean holds non-finite values"),
+        ({"mean": [[1.0], [2.0]]}, r"action/mean has shape \(2, 1\), the feature's is"),
+    ],
+)
+def test_a_malformed_stats_entry_is_one_clear_error(small_dataset, tmp_path, entry, message):
+    tampered = tmp_path / "tampered"
+    shutil.copytree(small_dataset, tampered)
+    stats = json.loads((tampered / "meta/stats.json").read_text())
+    stats["action"] = entry
+    (tampered / "meta/stats.json").write_text(json.dumps(stats))  # json writes inf as Infinity
+    with pytest.raises(DatasetError, match=message):
+        LeRobotReader(tampered)
+
+
+def test_verify_catches_wrong_stats(small_dataset, tmp_path):
+    """stats.json with wrong numbers (valid JSON, right shapes) fails the verification against the meta rows."""
+    tampered = tmp_path / "tampered"
+    shutil.copytree(small_dataset, tampered)
+    stats = json.loads((tampered / "meta/stats.json").read_text())
+    stats["next.reward"]["mean"] = [123.0]
+    (tampered / "meta/stats.json").write_text(json.dumps(stats))
+    with pytest.raises(DatasetError, match="next.reward/mean is not the aggregate of the episodes' stats"):
+        LeRobotReader(tampered).verify()
+    assert LeRobotReader(small_dataset).verify() == 80
+
+
+def test_collect_verify_names_a_corrupt_file(small_dataset, tmp_path, capsys):
+    tampered = tmp_path / "tampered"
+    shutil.copytree(small_dataset, tampered)
+    change_a_reward(tampered / "data/chunk-000/file-000.parquet")
+    argv = ["collect", "--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--steps", "40", "--episodes", "2"]
+    assert run_cli([*argv, "--workers", "1", "--out", str(tampered), "--verify"]) == 1
+    err = capsys.readouterr().err
+    assert "verify:" in err and "file-000.parquet: episode 0: column 'next.reward' does not match its checksum" in err

@@ -59,6 +59,12 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         help="once every episode is recorded, pack the per-episode files into LeRobot's ~100 MB files "
         "(crash-safe: a kill during packing loses no episode; a resume may add episodes and pack again)",
     )
+    parser.add_argument(
+        "--verify",
+        action="store_true",
+        help="then read the whole dataset back: every column of every episode against its checksum and meta "
+        "row, and stats.json against the episodes' own stats (exit 1 at the first corrupt file)",
+    )
     workers_argument(parser, "rollout processes")
     env_kwarg_argument(parser, "object_type=box")
     parser.add_argument(
@@ -150,7 +156,23 @@ def cmd_collect(args, parser) -> int:
     print(format_summary(summary))
     if args.json:
         write_json(args.json, summary.as_dict())
-    return 130 if summary.interrupted else 0
+    if summary.interrupted:
+        return 130
+    return verify_dataset(out) if args.verify else 0
+
+
+def verify_dataset(root) -> int:
+    """`dpr collect --verify`: 0 when every episode and stats.json hold, 1 (with the file named) otherwise."""
+    from dpr.datasets.lerobot import DatasetError, LeRobotReader
+
+    try:
+        reader = LeRobotReader(root)
+        frames = reader.verify()
+    except DatasetError as error:
+        print(f"dpr collect: verify: {error}", file=sys.stderr)
+        return 1
+    print(f"verified {root}: {reader.num_episodes} episodes, {frames} frames; checksums and stats.json hold")
+    return 0
 
 
 def replay_arguments(parser: argparse.ArgumentParser) -> None:

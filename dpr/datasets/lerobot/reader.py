@@ -89,10 +89,55 @@ class LeRobotReader:
             for ep_stats in all_stats:
                 aggregates = merge_aggregates(aggregates, {n: ep_stats[n] for n in names})
             stats = stats_json(aggregates)
-        return {
-            feature: {key: np.asarray(value) for key, value in feature_stats.items()}
-            for feature, feature_stats in stats.items()
-        }
+        return self._checked_stats(stats, path)
+
+    def _checked_stats(self, stats: Mapping[str, Any], path: Path) -> dict[str, dict[str, np.ndarray]]:
+        """stats.json's entries as arrays, each a finite number array; a feature's mean/std/min/max shaped as
+        the feature (an image's per channel); a malformed entry is a DatasetError naming it."""
+        checked: dict[str, dict[str, np.ndarray]] = {}
+        for feature, feature_stats in stats.items():
+            if not isinstance(feature_stats, Mapping):
+                raise DatasetError(f"{path}: entry {feature!r} must be an object of stats, got {feature_stats!r}")
+            spec = self.features.get(feature)
+            checked[feature] = {}
+            for key, value in feature_stats.items():
+                try:
+                    array = np.asarray(value, dtype=np.float64)
+                except (TypeError, ValueError):
+                    raise DatasetError(f"{path}: {feature}/{key} must be numbers, got {value!r}") from None
+                if not np.isfinite(array).all():
+                    raise DatasetError(f"{path}: {feature}/{key} holds non-finite values")
+                if spec is not None and key in ("mean", "std", "min", "max"):
+                    image = spec["dtype"] in ("image", "video")
+                    expected = (spec_shape(spec)[-1], 1, 1) if image else spec_shape(spec)
+                    if array.shape != tuple(expected):
+                        raise DatasetError(
+                            f"{path}: {feature}/{key} has shape {array.shape}, the feature's is {tuple(expected)}"
+                        )
+                checked[feature][key] = np.asarray(value)
+        return checked
+
+    def verify(self) -> int:
+        """Read every episode's every column (each checked against its checksum and meta row) and check that
+        stats.json is the aggregate of the episodes' own stats; returns the frames read. DatasetError at the
+        first problem, naming the file."""
+        frames = 0
+        for index in range(self.num_episodes):
+            frames += len(next(iter(self.episode(index).values()), ()))
+        if not self.episodes:
+            return frames
+        aggregates: dict[str, Aggregate] = {}
+        for index in range(self.num_episodes):
+            episode_stats = self.episode_stats(index)
+            aggregates = merge_aggregates(aggregates, {n: s for n, s in episode_stats.items() if n in self.stats})
+        for feature, feature_stats in stats_json(aggregates).items():
+            for key, value in feature_stats.items():
+                stored = self.stats.get(feature, {}).get(key)
+                if stored is None or not np.allclose(stored, value, rtol=1e-6, atol=1e-9):
+                    raise DatasetError(
+                        f"{self.root / STATS_PATH}: {feature}/{key} is not the aggregate of the episodes' stats"
+                    )
+        return frames
 
     # ------------------------------------------------------------------------------------------------ access
 
