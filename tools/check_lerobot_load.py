@@ -4,14 +4,16 @@
 LeRobot is not a dependency of dpr (lerobot 0.4.x pins torch<2.11; dpr uses torch 2.13), so this runs in a
 scratch virtualenv holding LeRobot beside torch 2.13 (its dataset code does not need the newer pins):
 
-    python3.11 -m venv /tmp/lerobot-venv && /tmp/lerobot-venv/bin/pip install -U pip torch==2.13.0
+    python3.11 -m venv /tmp/lerobot-venv
+    /tmp/lerobot-venv/bin/pip install -U pip
+    /tmp/lerobot-venv/bin/pip install torch==2.13.0
     /tmp/lerobot-venv/bin/pip install --no-deps lerobot==0.4.4
     /tmp/lerobot-venv/bin/pip install -c constraints.txt torchvision==0.28.0 "datasets>=4,<5" \\
         "huggingface-hub[hf-transfer]>=0.34.2,<0.36" "av>=15,<16" "jsonlines>=4,<5" "packaging>=24.2,<26" \\
         draccus==0.10.0 "deepdiff>=7.0.1,<9" "termcolor>=2.4,<4" "einops>=0.8,<0.9" \\
-        "imageio[ffmpeg]>=2.34,<3" "gymnasium>=1.1.1,<2" "accelerate>=1.10,<2" "pandas>=2.2,<3" \\
-        "pyarrow>=18,<23" "pillow>=10,<13" "pymunk>=7.1,<8" "pygame-ce>=2.5,<3" "mcap>=1.2,<2" \\
-        "pettingzoo>=1.25,<1.28" pyyaml tqdm pytest
+        "imageio[ffmpeg]>=2.34,<3" "gymnasium>=1.1.1,<2" "accelerate>=1.10,<2"
+    /tmp/lerobot-venv/bin/pip install -c constraints.txt "pandas>=2.2,<3" "pyarrow>=18,<23" "pillow>=10,<13" \\
+        "pymunk>=7.1,<8" "pygame-ce>=2.5,<3" "mcap>=1.2,<2" "pettingzoo>=1.25,<1.28" pyyaml tqdm pytest
 
 (pip warns that lerobot wants older torch/torchvision: expected; see :func:`make_torchvision_importable`.)
 From the repository root:
