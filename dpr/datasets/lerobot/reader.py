@@ -31,12 +31,15 @@ from dpr.datasets.lerobot.stats import Aggregate, merge_aggregates, stats_json
 
 
 class LeRobotReader:
-    """Reads a LeRobot v3.0 dataset (ours or LeRobot's own layout) lazily: frame data only on request.
+    """Reads a LeRobot v3.0 dataset lazily, frame data only on request: as recorded (a file per episode), compacted
+    or written by LeRobot (many episodes per file, read by row group), or a mix after a resume.
 
     The constructor validates ``meta/info.json`` (codebase_version, required keys), the committed episodes' meta
     rows, ``meta/tasks.parquet``, ``meta/stats.json`` and every committed data file's parquet footer. Episodes at or
-    above ``info.total_episodes`` (crash leftovers) are ignored. Arrays come back as ``[T, *shape]`` in the
-    feature's dtype (shape-[1] features as ``[T, 1]``); images as uint8 ``[T, H, W, 3]``.
+    above ``info.total_episodes`` and files outside ``info.dpr_live_files`` (leftovers of a crash or of an
+    interrupted compaction) are ignored. A reader is a snapshot: open a new one after a compaction. Arrays come
+    back as ``[T, *shape]`` in the feature's dtype (shape-[1] features as ``[T, 1]``); images as uint8
+    ``[T, H, W, 3]``.
     """
 
     def __init__(self, root: str | os.PathLike):
