@@ -1,5 +1,8 @@
 """Helpers shared by the test modules (tests/ is on sys.path under pytest's default import mode)."""
 
+import hashlib
+from pathlib import Path
+
 import numpy as np
 
 ENV_IDS = ("dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Unresponsive-v0", "dpr/Manipulation-v0")
@@ -61,3 +64,14 @@ def run_cli(argv: list[str]) -> int:
         return main(argv)
     except SystemExit as exit_:
         return exit_.code
+
+
+def tree_hash(root: Path) -> str:
+    """One hash of every folder's and file's name and every file's bytes under ``root``: equal before and after
+    a refused command means it touched nothing."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        digest.update(str(path.relative_to(root)).encode() + b"\0")
+        if path.is_file():
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()

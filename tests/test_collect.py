@@ -2,7 +2,6 @@
 commands: recorded frames equal an independent rollout, resuming, refusing another spec, surviving SIGKILL and
 Ctrl-C of the real CLI, MCAP logs, pixels, discrete actions and bad command-line input."""
 
-import hashlib
 import json
 import os
 import shutil
@@ -17,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from helpers import run_cli
+from helpers import run_cli, tree_hash
 
 import dpr.datasets.collect as collect_module
 from dpr.datasets.collect import CollectSpec, collect
@@ -410,16 +409,6 @@ def test_another_spec_is_refused_before_any_work(small_dataset, change, monkeypa
     with pytest.raises(DatasetError, match="does not match"):
         collect(small_dataset, small_spec(**change), episodes=3, workers=1, mcap=mcap)
     assert snapshot(small_dataset) == before
-
-
-def tree_hash(root: Path) -> str:
-    """One hash of every folder's and file's name and every file's bytes under ``root``."""
-    digest = hashlib.sha256()
-    for path in sorted(root.rglob("*")):
-        digest.update(str(path.relative_to(root)).encode() + b"\0")
-        if path.is_file():
-            digest.update(hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()
 
 
 @pytest.mark.parametrize(

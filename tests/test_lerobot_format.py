@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -18,6 +17,7 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from helpers import tree_hash
 
 from dpr.datasets.lerobot import (
     CODEBASE_VERSION,
@@ -489,16 +489,6 @@ def test_second_writer_on_the_same_dataset_is_refused(tmp_path):
 
 
 LOCK = "meta/.dpr-writer.lock"
-
-
-def tree_hash(root: Path) -> str:
-    """One hash of every folder's and file's name and every file's bytes under ``root``."""
-    digest = hashlib.sha256()
-    for path in sorted(root.rglob("*")):
-        digest.update(str(path.relative_to(root)).encode() + b"\0")
-        if path.is_file():
-            digest.update(hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()
 
 
 def test_a_finished_dataset_holds_no_lock_file(tmp_path):

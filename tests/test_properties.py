@@ -9,13 +9,13 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import tree_hash
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -140,14 +140,6 @@ def test_malformed_actions_are_refused(action_type: str) -> None:
     check()
 
 
-def tree_digest(folder: Path) -> dict[str, str]:
-    return {
-        str(path.relative_to(folder)): hashlib.sha256(path.read_bytes()).hexdigest()
-        for path in sorted(folder.rglob("*"))
-        if path.is_file()
-    }
-
-
 BAD_COLLECT_ARGUMENTS = st.sampled_from(
     [
         ["--episodes", "0"],
@@ -175,7 +167,7 @@ def test_a_refused_collect_touches_no_file(bad: list[list[str]], tmp_path_factor
     from dpr.cli import main
 
     root = existing_dataset(tmp_path_factory)
-    before = tree_digest(root)
+    before = tree_hash(root)
     argv = ["collect", "--env", "dpr/Manipulation-v0", "--robot-model", "disk", "--episodes", "2", "--steps", "5"]
     argv += ["--out", str(root)] + [token for pair in bad for token in pair]
     try:
@@ -183,7 +175,7 @@ def test_a_refused_collect_touches_no_file(bad: list[list[str]], tmp_path_factor
     except SystemExit as exit_:  # argparse refuses malformed flags itself
         status = exit_.code
     assert status == 2
-    assert tree_digest(root) == before
+    assert tree_hash(root) == before
 
 
 _DATASET: dict[str, Path] = {}
