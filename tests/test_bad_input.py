@@ -330,3 +330,9 @@ def test_a_corrupt_model_file_is_one_clear_error(tmp_path):
             target.writestr(item, data[: len(data) // 2] if item.filename == "policy.pth" else data)
     with pytest.raises(ValueError, match="policy: cannot load ppo model"):
         evaluate(["dpr/Navigation-v0"], str(corrupt), seeds=[0, 1], steps=5, workers=2)
+
+
+def test_a_very_large_paddle_swarm_is_announced():
+    """Building thousands of paddle robots takes seconds per reset: said up front, not left to look like a hang."""
+    with pytest.warns(UserWarning, match="n_robots=1000 paddle robots: every reset builds them"):
+        gym.make("dpr/Navigation-v0", n_robots=1000, robot_model="paddle").close()

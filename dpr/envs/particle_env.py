@@ -21,6 +21,7 @@ GOAL_CLEARANCE = 100.0  # the least gap between the goal and the front of the sw
 START_ANGLES = 720  # start angles checked for the clearances (their worst case gets a unit of rounding margin)
 MAX_EPISODE_STEPS = 2500  # every registered task's TimeLimit, and the default episode length everywhere
 MAX_ROBOTS = 10_000  # a paddle swarm of 1000 takes seconds to build; far more would look like a hang
+SLOW_PADDLE_SWARM = 1000  # from this size on, a paddle swarm's build is announced (about 7 s at 1000, per reset)
 IMAGE_SIZE_RANGE = (16, 2048)  # pixels per side of observations and renders (2048^2 RGB is 12 MiB a frame)
 
 ACTION_TYPES = ("multibinary", "discrete", "continuous")
@@ -124,6 +125,11 @@ class ParticleSwarmEnv(gym.Env):
         self.render_size = int(render_size)
         self.render_mode = render_mode
         self.swarm_class = swarm_class(robot_model)
+        if robot_model == "paddle" and self.n_robots >= SLOW_PADDLE_SWARM:
+            gym.logger.warn(
+                f"n_robots={self.n_robots} paddle robots: every reset builds them, about 7 s per 1000 robots; "
+                "robot_model='disk' is about 20x faster"
+            )
 
         n = self.n_robots
         if action_type == "multibinary":
