@@ -8,6 +8,7 @@ its own flag (``"--dataset: ..."``), so that each layer speaks its own vocabular
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Iterable
 from typing import Any
 
@@ -62,6 +63,18 @@ def check_number(
     if below is not None and not value < below:
         raise ParameterError(name, f"must be < {below}, got {value}")
     return value
+
+
+def check_seeds(name: str, seeds: Iterable[Any], *, allow_empty: bool = False) -> list[int]:
+    """``seeds`` as ints >= 0, each once (a repeated seed would count its episode twice in every statistic), and
+    at least one unless ``allow_empty``."""
+    seeds = [check_int(name, seed, 0) for seed in seeds]
+    if not seeds and not allow_empty:
+        raise ParameterError(name, "must name at least one seed")
+    repeated = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
+    if repeated:
+        raise ParameterError(name, f"each seed must appear once; repeated: {repeated[:10]}")
+    return seeds
 
 
 def check_choice(name: str, value: Any, choices: Iterable[Any]) -> Any:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 
 from dpr.atomic import atomic_write_text
-from dpr.checks import ParameterError, check_choice, check_int
+from dpr.checks import check_choice, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.metrics import EpisodeMetrics, summarize
 from dpr.policies.registry import check_policy_name, make_policy
@@ -25,17 +24,6 @@ METRICS = ("projected_displacement", "net_displacement", "total_distance", "succ
 # (MAX_EPISODE_STEPS = 2500 steps -> 251 points) and keeps the file small.
 TRAJECTORY_EVERY = 10
 TRAJECTORY_DECIMALS = 1
-
-
-def check_seeds(seeds: list[int], parameter: str = "seeds") -> list[int]:
-    """``seeds`` as ints >= 0, each once: a repeated seed would count its episode twice in every statistic."""
-    seeds = [check_int(parameter, seed, 0) for seed in seeds]
-    if not seeds:
-        raise ParameterError(parameter, "expected at least one seed")
-    repeated = sorted(seed for seed, count in Counter(seeds).items() if count > 1)
-    if repeated:
-        raise ParameterError(parameter, f"each seed must appear once; repeated: {repeated[:10]}")
-    return seeds
 
 
 def check_env_id(env_id: str, parameter: str = "env_id") -> str:
@@ -146,7 +134,7 @@ def evaluate(
     for env_id in env_ids:
         check_env_id(env_id, "env_ids")
     check_policy_name(policy)
-    seeds = check_seeds(seeds)
+    seeds = check_seeds("seeds", seeds)
     if is_model_path(policy):
         load_model(policy)  # a corrupt model file is refused here, once, before any worker starts
     # Resolved here, once per env id, so that a conflict is reported before any episode runs.

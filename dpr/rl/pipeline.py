@@ -41,7 +41,7 @@ from typing import Any
 import yaml
 
 from dpr.atomic import atomic_write_text
-from dpr.checks import ParameterError, check_int
+from dpr.checks import ParameterError, check_int, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.policies.hyperparams import FINETUNE_PRESET
 from dpr.policies.registry import WAVE, WAVE_MARKOV
@@ -99,14 +99,7 @@ class PipelineConfig:
                 "episodes", f"must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}"
             )
         for name in ("test_seeds", "validation_seeds", "train_seeds"):
-            seeds = getattr(self, name)
-            for seed in seeds:
-                check_int(name, seed, 0)
-            if len(set(seeds)) != len(seeds):
-                raise ParameterError(name, f"each seed must appear once, got {seeds}")
-        for name in ("test_seeds", "train_seeds"):
-            if not getattr(self, name):
-                raise ParameterError(name, "must name at least one seed")
+            check_seeds(name, getattr(self, name), allow_empty=name == "validation_seeds")
         if len(self.train_seeds) > 1 and not self.validation_seeds:
             raise ParameterError(
                 "validation_seeds", "several train_seeds need validation seeds to choose each method's median run"
@@ -400,17 +393,18 @@ def _choose_canonical_models(
         key = f"{task}-{method}"
         if canonical.exists():
             continue
-        scores = {}
-        for seed in config.train_seeds:
-            if len(config.train_seeds) == 1:
-                scores[seed] = None
-                continue
-            path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
-            episodes = json.loads(path.read_text())["episodes"]
-            scores[seed] = float(np.median([episode["projected_displacement"] for episode in episodes]))
-        ranked = sorted(config.train_seeds, key=lambda s: (scores[s] or 0.0, s))
-        chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
-        choices[key] = {"chosen_seed": chosen, "validation_medians": scores}
+        if len(config.train_seeds) == 1:
+            (chosen,) = config.train_seeds
+            medians = {chosen: None}
+        else:
+            medians = {}
+            for seed in config.train_seeds:
+                path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
+                episodes = json.loads(path.read_text())["episodes"]
+                medians[seed] = float(np.median([episode["projected_displacement"] for episode in episodes]))
+            ranked = sorted(medians, key=lambda seed: (medians[seed], seed))
+            chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
+        choices[key] = {"chosen_seed": chosen, "validation_medians": medians}
         atomic_write_text(choices_path, yaml.safe_dump(choices, sort_keys=True))
         log(f"dpr pipeline: {key}: the median run is seed {chosen} -> {canonical}")
         _copy_new(_model_path(out, task, method, chosen), canonical)

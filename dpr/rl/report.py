@@ -34,8 +34,8 @@ from dpr.rl.statistics import (
     interval_rows,
     interval_table,
     profile_figure,
+    scores_of_runs,
 )
-from dpr.rl.statistics import method_scores as scores_of
 
 TASK_ORDER = ("Navigation", "Gate", "Unresponsive", "Manipulation")
 WAVE_POLICY = WAVE  # the baseline every row is a percentage of
@@ -391,7 +391,7 @@ def _sources_line(evaluations: list[dict]) -> str:
 def method_scores(evaluations: list[dict]) -> dict[str, dict[str, MethodScores]]:
     """task -> label -> the method's score matrix (test seeds x training runs), for the interval estimates."""
     return {
-        task: {label: scores_of(task, label, list(group.runs.values())) for label, group in groups.items()}
+        task: {label: scores_of_runs(task, label, list(group.runs.values())) for label, group in groups.items()}
         for task, groups in _groups(evaluations).items()
     }
 

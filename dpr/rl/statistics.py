@@ -61,7 +61,7 @@ class IntervalRow:
     p_improvement: Interval | None = None
 
 
-def method_scores(task: str, label: str, runs: list[tuple[str, str, list[dict]]]) -> MethodScores:
+def scores_of_runs(task: str, label: str, runs: list[tuple[str, str, list[dict]]]) -> MethodScores:
     """The score matrix of a method on ``task`` from its ``runs`` (source, policy, episodes). Every run must
     hold the same test seeds, each once (ValueError naming the sources otherwise)."""
     seeds = sorted(episode["seed"] for episode in runs[0][2])

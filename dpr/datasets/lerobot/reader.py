@@ -86,13 +86,20 @@ class LeRobotReader:
         if stats is None or (self.num_frames and index_count is not None and index_count != self.num_frames):
             if not self.episodes:
                 return {}
-            all_stats = [self.episode_stats(i) for i in range(self.num_episodes)]
-            names = [n for n in self.features if all(n in s for s in all_stats)]
-            aggregates: dict[str, Aggregate] = {}
-            for ep_stats in all_stats:
-                aggregates = merge_aggregates(aggregates, {n: ep_stats[n] for n in names})
-            stats = stats_json(aggregates)
+            stats = self._aggregate_of_episodes()
         return self._checked_stats(stats, path)
+
+    def _aggregate_of_episodes(self, names: Iterable[str] | None = None) -> dict[str, Any]:
+        """stats.json as the episodes' own stats (their meta rows) make it, for ``names`` (default: the features
+        every episode has stats of)."""
+        all_stats = [self.episode_stats(i) for i in range(self.num_episodes)]
+        if names is None:
+            names = [n for n in self.features if all(n in s for s in all_stats)]
+        names = list(names)
+        aggregates: dict[str, Aggregate] = {}
+        for episode_stats in all_stats:
+            aggregates = merge_aggregates(aggregates, {n: episode_stats[n] for n in names if n in episode_stats})
+        return stats_json(aggregates)
 
     def _checked_stats(self, stats: Mapping[str, Any], path: Path) -> dict[str, dict[str, np.ndarray]]:
         """stats.json's entries as arrays, each a finite number array; a feature's mean/std/min/max shaped as
@@ -129,11 +136,7 @@ class LeRobotReader:
             frames += len(next(iter(self.episode(index).values()), ()))
         if not self.episodes:
             return frames
-        aggregates: dict[str, Aggregate] = {}
-        for index in range(self.num_episodes):
-            episode_stats = self.episode_stats(index)
-            aggregates = merge_aggregates(aggregates, {n: s for n, s in episode_stats.items() if n in self.stats})
-        for feature, feature_stats in stats_json(aggregates).items():
+        for feature, feature_stats in self._aggregate_of_episodes(self.stats).items():
             for key, value in feature_stats.items():
                 stored = self.stats.get(feature, {}).get(key)
                 if stored is None or not np.allclose(stored, value, rtol=1e-6, atol=1e-9):
