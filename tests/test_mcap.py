@@ -4,6 +4,9 @@ episode metadata, damaged files, and the writer's write-to-temp-then-rename beha
 import json
 import math
 import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -12,7 +15,6 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from dpr.atomic import is_temporary
 from dpr.checks import ParameterError
 from dpr.datasets.mcap import (
     MAGNET_DECIMALS,
@@ -409,10 +411,7 @@ def test_nothing_under_the_final_name_until_close(tmp_path):
     path = tmp_path / "episode.mcap"
     writer = McapEpisodeWriter(path, metadata={})
     write_minimal_steps(writer, steps=3, n=2)
-    assert not path.exists()
-    temporary = list(tmp_path.iterdir())
-    assert temporary == [writer.temp_path]  # one hidden temporary file, which dpr.atomic recognises as such
-    assert is_temporary(writer.temp_path) and writer.temp_path.name.startswith(".episode.mcap.")
+    assert list(tmp_path.iterdir()) == []  # an unfinished episode is on disk under no name at all
     writer.close()
     assert path.is_file() and list(tmp_path.iterdir()) == [path]
     umask = os.umask(0)
@@ -420,6 +419,34 @@ def test_nothing_under_the_final_name_until_close(tmp_path):
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not a temp file's private 0600
     writer.close()  # a second close is a no-op
     assert read_mcap(path).n_steps == 3
+
+
+_KILLED_WRITER = """
+import sys, time
+sys.path.insert(0, {tests!r})
+from test_mcap import write_minimal_steps
+from dpr.datasets.mcap import McapEpisodeWriter
+writer = McapEpisodeWriter({path!r}, metadata={{}})
+write_minimal_steps(writer, steps=50, n=9)
+print("written", flush=True)
+time.sleep(60)
+"""
+
+
+def test_a_killed_writer_leaves_nothing_on_disk(tmp_path):
+    """kill -9 in the middle of an episode: no file of it remains, not even a temporary one."""
+    folder = tmp_path / "mcap"
+    folder.mkdir()
+    code = _KILLED_WRITER.format(tests=str(Path(__file__).parent), path=str(folder / "episode.mcap"))
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == "written"
+        assert list(folder.iterdir()) == []
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+    assert process.returncode == -signal.SIGKILL
+    assert list(folder.iterdir()) == []
 
 
 def test_exception_inside_with_leaves_no_file_and_keeps_an_old_one(tmp_path):

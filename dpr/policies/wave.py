@@ -25,6 +25,13 @@ MODEL_DEFAULTS = {
 DISK_NEAR_SIDE_FROM = 200
 
 
+def default_start_side(robot_model: str, n_robots: int) -> str:
+    """The wave side that moves a swarm of ``n_robots`` of ``robot_model`` toward the goal."""
+    if robot_model == "disk" and n_robots >= DISK_NEAR_SIDE_FROM:
+        return "near"
+    return MODEL_DEFAULTS[robot_model]["start_side"]
+
+
 class WavePolicy:
     """Expansion waves that travel away from the goal, so that the swarm moves toward it.
 
@@ -72,8 +79,7 @@ class WavePolicy:
         if base.obs_type == "pixels":
             raise ValueError("the wave policy reads robot positions: use obs_type 'state' or 'pixels_state'")
         kwargs = dict(MODEL_DEFAULTS[base.robot_model])
-        if base.robot_model == "disk" and base.n_robots >= DISK_NEAR_SIDE_FROM:
-            kwargs["start_side"] = "near"
+        kwargs["start_side"] = default_start_side(base.robot_model, base.n_robots)
         kwargs.update(overrides)
         return cls(base.n_robots, base.action_type, **kwargs)
 

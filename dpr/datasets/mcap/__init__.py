@@ -41,10 +41,10 @@ Floats are written with Python's ``repr`` (the shortest text that parses back to
 file reads back bit-exact (all but the magnet end points, which are rounded). JSON has no NaN or infinity:
 a message holding one (a physics blow-up) stores ``null`` in its place, which reads back as NaN.
 
-Crash safety: the writer writes to a temporary file beside the target (``.<name>.<pid>.<random>.dpr-tmp``, see
-:mod:`dpr.atomic`) and renames it onto the final name only in :meth:`McapEpisodeWriter.close` (after an fsync), so
-a killed run never leaves a half-written file under the final name; an exception inside
-``with McapEpisodeWriter(...)`` removes the temporary file.
+Crash safety: an unfinished episode's log lives in an anonymous spool (memory, then an unlinked temporary
+file), so a killed run leaves nothing of it on disk. :meth:`McapEpisodeWriter.close` copies the log into a
+temporary file beside the target (``.<name>.<pid>.<random>.dpr-tmp``, see :mod:`dpr.atomic`), fsyncs it and
+renames it onto the final name; an exception inside ``with McapEpisodeWriter(...)`` drops the spool.
 
 Modules: :mod:`~dpr.datasets.mcap.schema` (topics, JSON schemas, encoding, :class:`McapError`),
 :mod:`~dpr.datasets.mcap.writer` (:class:`McapEpisodeWriter`, logging a live env) and

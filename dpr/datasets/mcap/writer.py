@@ -1,15 +1,18 @@
 """Writing ``dpr-mcap/1`` episode logs: :class:`McapEpisodeWriter`, and logging a live env into one with
 :func:`log_env_scene` and :func:`log_env_step`.
 
-Crash safety: the writer writes to a :class:`dpr.atomic.AtomicFile` (a temporary file beside the target) and
-renames it onto the final name only in :meth:`McapEpisodeWriter.close` (after an fsync), so a killed run never
-leaves a half-written file under the final name; an exception inside ``with McapEpisodeWriter(...)`` removes the
-temporary file.
+Crash safety: while an episode runs, its log lives in an anonymous spool (memory, spilling past
+``SPOOL_MEMORY`` bytes to an unlinked file in the system's temporary folder), so a killed run leaves nothing of an
+unfinished episode on disk. :meth:`McapEpisodeWriter.close` copies the finished log into a
+:class:`dpr.atomic.AtomicFile` beside the target, fsyncs it and renames it onto the final name; an exception inside
+``with McapEpisodeWriter(...)`` drops the spool.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -70,14 +73,20 @@ def _array(path: Path, name: str, value: Any, shape: tuple[int, ...], dtype=np.f
     return array
 
 
+# An episode log stays in memory up to this size (a 2500-step episode of 9 robots takes about 2 MB), then
+# spills to an unlinked temporary file that the operating system reclaims however the process ends.
+SPOOL_MEMORY = 64 << 20
+
+
 class McapEpisodeWriter:
     """Writes one episode to an MCAP file; use as a context manager.
 
     Call :meth:`write_scene` once and :meth:`write_step` for steps 0, 1, 2, ... in order (step 0 is the reset
     state and takes no action, reward or metrics; every later step needs them). Nothing appears under
-    ``path`` until :meth:`close` succeeds: the data goes to a temporary file beside it (``temp_path``, see
-    :class:`dpr.atomic.AtomicFile`), fsynced and renamed onto ``path`` on close (replacing any file there).
-    Leaving the ``with`` block by an exception, or :meth:`abort`, deletes the temporary file.
+    ``path`` until :meth:`close` succeeds, and nothing of the episode is on disk under any name before it: the
+    data goes to an anonymous spool, copied on close into a temporary file beside ``path`` (see
+    :class:`dpr.atomic.AtomicFile`), fsynced and renamed onto ``path`` (replacing any file there). Leaving the
+    ``with`` block by an exception, or :meth:`abort`, drops the spool.
 
     ``compression``: "zstd" (default), "lz4" or "none", applied per MCAP chunk of ``chunk_size`` bytes. A bad
     ``compression`` or ``chunk_size`` raises :class:`dpr.checks.ParameterError` naming it.
@@ -97,9 +106,7 @@ class McapEpisodeWriter:
         if not self.path.parent.is_dir():
             raise McapError(self.path, f"directory {str(self.path.parent)!r} does not exist")
         encoded_metadata = _encode_metadata(self.path, metadata)
-        self._target = AtomicFile(self.path)
-        self.temp_path = self._target.temp_path
-        self._file = self._target.file
+        self._file = tempfile.SpooledTemporaryFile(max_size=SPOOL_MEMORY)
         self._channels: dict[str, int] = {}
         self._closed = False
         self._scene_written = False
@@ -334,17 +341,17 @@ class McapEpisodeWriter:
             raise McapError(self.path, "; ".join(problems) + "; nothing was written")
         try:
             self._writer.finish()
-            self._target.commit()  # fsynced before the rename: the name never points at missing data
-        except BaseException:
+            self._file.seek(0)
+            with AtomicFile(self.path) as target:  # fsynced before the rename: the name never points at missing data
+                shutil.copyfileobj(self._file, target.file, 1 << 20)
+        finally:
             self.abort()
-            raise
         self._closed = True
 
     def abort(self) -> None:
-        """Drop the episode: close and delete the temporary file; ``path`` is left as it was."""
+        """Drop the episode's spool; ``path`` is left as it was."""
         self._closed = True
-        if not self._target.done:
-            self._target.abort()
+        self._file.close()
 
     @property
     def steps_written(self) -> int:
