@@ -87,9 +87,8 @@ def test_n_dead_edges_are_accepted():
         ("paddle", 50.0),
         ("paddle", 0.0),
         ("paddle", -10.0),
-        ("disk", 105.0),
-        ("disk", 90.0),
-        ("disk", 77.6),
+        ("disk", 77.5),
+        ("disk", 60.0),
     ],
 )
 def test_gate_narrower_than_one_robot(robot_model, width):
@@ -97,7 +96,7 @@ def test_gate_narrower_than_one_robot(robot_model, width):
         gym.make("dpr/Gate-v0", robot_model=robot_model, gate_width=width)
 
 
-@pytest.mark.parametrize("robot_model, width", [("paddle", 78.0), ("disk", 106.0)])
+@pytest.mark.parametrize("robot_model, width", [("paddle", 78.0), ("disk", 78.0)])
 def test_gate_just_wider_than_one_robot(robot_model, width):
     env = gym.make("dpr/Gate-v0", robot_model=robot_model, n_robots=2, gate_width=width)
     env.reset(seed=0)

@@ -253,7 +253,13 @@ def test_recorded_frames_equal_an_independent_rollout(small_dataset):
     assert features["action"] == {"dtype": "float32", "shape": [4], "names": [f"robot{i}.expand" for i in range(4)]}
     for flag in ("next.done", "next.success"):
         assert features[flag]["dtype"] == "bool" and features[flag]["shape"] == [1]
-    assert reader.info["dpr"] == {"env_id": NAV, "policy": "wave", "env_kwargs": spec.make_kwargs(), "mcap": False}
+    assert reader.info["dpr"] == {
+        "env_id": NAV,
+        "policy": "wave",
+        "env_kwargs": spec.make_kwargs(),
+        "mcap": False,
+        "robot_model_revision": 2,  # the disk model's physics since force-limited growth
+    }
     assert reader.info["robot_type"] == "disk" and reader.fps == 10
 
 

@@ -202,7 +202,7 @@ def test_the_wave_expands_bands_in_turn():
 
 
 def test_the_decentralised_wave_moves_a_disk_swarm_toward_the_goal():
-    env = parallel_env("navigation", n_robots=9, max_episode_steps=300, **DISK, **wave_env_kwargs("disk"))
+    env = parallel_env("navigation", n_robots=9, max_episode_steps=1000, **DISK, **wave_env_kwargs("disk"))
     policy = DecentralisedWavePolicy.from_parallel_env(env)
     observations, infos = env.reset(seed=0)
     while env.agents:

@@ -21,6 +21,7 @@ from dpr.envs.parallel import (
     local_observations,
 )
 from dpr.policies.wave import WavePolicy
+from dpr.sim import constants as C
 
 TASKS = tuple(TASK_CLASSES)
 SMALL = {"n_robots": 4, "robot_model": "disk"}
@@ -388,7 +389,8 @@ def test_bench_scale_runs_small_and_writes_json(tmp_path, capsys):
     assert episode["steps"] == 10 and episode["checks"]["no_physics_error"]
     assert episode["min_centre_distance"] > 0
     # tunnelling: a centre inside another robot's contracted disk; touching-contact overlap is reported apart
-    assert episode["tunnelling_below"] == 27.5 and episode["min_allowed_distance"] == 50.0
-    assert episode["checks"]["no_tunnelling"] == (episode["min_centre_distance"] >= 27.5)
-    assert episode["overlap_within_tolerance"] == (episode["min_centre_distance"] >= 50.0)
+    contracted = C.DISK_CONTRACTED_RADIUS
+    assert episode["tunnelling_below"] == contracted and episode["min_allowed_distance"] == 2 * contracted - 5.0
+    assert episode["checks"]["no_tunnelling"] == (episode["min_centre_distance"] >= contracted)
+    assert episode["checks"]["contact_within_tolerance"] == (episode["min_centre_distance"] >= 2 * contracted - 5.0)
     assert "| wave | 16 |" in capsys.readouterr().out

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from dpr.envs.particle_env import HELD_STEPS_CAP
-from dpr.policies.wave import DISK_NEAR_SIDE_FROM, MODEL_DEFAULTS, MarkovWavePolicy, WavePolicy, encode_action
+from dpr.policies.wave import MODEL_DEFAULTS, MarkovWavePolicy, WavePolicy, encode_action
 
 # Robots along the goal direction (+x before rotation), y summing to 0 so that the swarm centre lies on it.
 XS = np.array([440.0, 470.0, 520.0, 590.0, 650.0, 700.0])
@@ -164,23 +164,18 @@ def test_paddle_default_is_the_papers():
     assert policy.hold_steps == 10 and policy.start_side == "near" and policy.bin_width == 60.0
 
 
-def test_disk_default_side_depends_on_swarm_size():
-    """Far side (tuned at N=9) below DISK_NEAR_SIDE_FROM robots, near side from it on; hold 4 throughout; an
-    explicit start_side or hold_steps wins; the paddle model's defaults do not depend on N."""
-    assert MODEL_DEFAULTS["disk"] == {"hold_steps": 4, "start_side": "far"}
-    for n, side in ((9, "far"), (DISK_NEAR_SIDE_FROM - 1, "far"), (DISK_NEAR_SIDE_FROM, "near"), (1000, "near")):
+def test_disk_defaults_hold_at_every_swarm_size():
+    """Hold 4 from the near side at every N (tools/model_agreement.py: no size switch on either model); an
+    explicit start_side or hold_steps wins."""
+    assert MODEL_DEFAULTS["disk"] == {"hold_steps": 4, "start_side": "near"}
+    for n in (9, 199, 200, 1000):
         env = gym.make("dpr/Navigation-v0", robot_model="disk", n_robots=n, obs_last_action=True)
         for cls in (WavePolicy, MarkovWavePolicy):
             policy = cls.from_env(env)
-            assert (policy.n_robots, policy.start_side, policy.hold_steps) == (n, side, 4), (cls, n)
-            other = "near" if side == "far" else "far"
-            assert cls.from_env(env, start_side=other).start_side == other
-            assert cls.from_env(env.unwrapped, hold_steps=10).start_side == side
+            assert (policy.n_robots, policy.start_side, policy.hold_steps) == (n, "near", 4), (cls, n)
+            assert cls.from_env(env, start_side="far").start_side == "far"
+            assert cls.from_env(env.unwrapped, hold_steps=10).hold_steps == 10
         env.close()
-    env = gym.make("dpr/Navigation-v0", robot_model="paddle", n_robots=DISK_NEAR_SIDE_FROM)
-    policy = WavePolicy.from_env(env)
-    assert (policy.start_side, policy.hold_steps) == ("near", 10)
-    env.close()
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ from wave_sweep import projected_displacement
 
 from dpr.cli import parse_seeds
 from dpr.envs import MAX_EPISODE_STEPS
-from dpr.policies.wave import MODEL_DEFAULTS, START_SIDES, default_start_side
+from dpr.policies.wave import MODEL_DEFAULTS, START_SIDES
 
 ENV_ID = "dpr/Navigation-v0"
 MODELS = ("paddle", "disk")
@@ -81,7 +81,7 @@ def agreement_table(results: dict[str, float], sizes, seeds, steps: int, models)
         row: dict = {"n_robots": n}
         for model in models:
             hold = MODEL_DEFAULTS[model]["hold_steps"]
-            row[f"{model}_default_side"] = default_start_side(model, n)
+            row[f"{model}_default_side"] = MODEL_DEFAULTS[model]["start_side"]
             for side in START_SIDES:
                 values = [results[cell_key(model, n, side, hold, steps, s)] for s in seeds]
                 row[f"{model}_{side}"] = float(np.median(values))

@@ -34,6 +34,7 @@ from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.metrics import EpisodeMetrics
+from dpr.sim import swarm_class
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.rollout import roll_out
 from dpr.sim.constants import FPS
@@ -382,6 +383,9 @@ def collect(
     info_extra = {"dpr": {F.ENV_ID: spec.env_id, F.POLICY: spec.policy, F.ENV_KWARGS: spec.make_kwargs(), "mcap": mcap}}
     if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
         info_extra["dpr"][F.LABEL_POLICY] = spec.label_policy
+    revision = swarm_class(spec.robot_model).revision
+    if revision > 1:  # a dataset of earlier physics is not resumed with these (first revisions record none)
+        info_extra["dpr"][F.ROBOT_MODEL_REVISION] = revision
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
     started = time.perf_counter()

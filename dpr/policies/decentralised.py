@@ -31,19 +31,12 @@ import numpy as np
 from dpr.checks import ParameterError, check_choice, check_int, check_number
 from dpr.envs.local_obs import MAX_NEIGHBOURS, LocalObservation
 from dpr.envs.particle_env import LENGTH_SCALE, ParticleSwarmEnv
-from dpr.policies.wave import BIN_WIDTH, START_SIDES, encode_action
+from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS, START_SIDES, encode_action
 
-# Per robot model: the hold of each phase and the wave's direction (as WavePolicy's defaults for N < 200; the
-# decentralised wave keeps them at every N, since a robot does not know N).
-MODEL_DEFAULTS = {
-    "paddle": {"hold_steps": 10, "start_side": "near"},
-    "disk": {"hold_steps": 4, "start_side": "far"},
-}
 # Phases of one cycle: the wave's length is n_phases x bin_width. Measured with tools/decentralised_sweep.py on
-# Navigation (median projected displacement, seeds 0-4, 500 steps): 4 phases move every swarm toward the goal,
-# paddle N=9/25/49 by 6.7/8.0/6.3 (centralised wave 5.3/5.8/4.3), disk N=9/100/400 by 41/31/37 (38/17/22); 3, 5
-# and 6 phases move paddle N=9 and disk N=9 less. Over 2500 steps (seeds 0-2) 4 phases move disk N=9/100/400 by
-# 257/109/178 (centralised 161/193/125) and 6 phases by 42/261/270: large disk swarms do better with 6.
+# Navigation (median projected displacement, seeds 0-4, 500 steps): 4 phases move paddle swarms of N=9/25/49
+# toward the goal by 6.7/8.0/6.3 (centralised wave 5.3/5.8/4.3); 3, 5 and 6 phases move paddle N=9 less. The
+# robot models' hold and wave side are WavePolicy's (MODEL_DEFAULTS), kept at every N: a robot does not know N.
 DEFAULT_N_PHASES = 4
 # A robot reads the step inside the cycle back from the clock's angle; float32 sin/cos are good to ~1e-7 rad,
 # far inside half a step even for long cycles.
@@ -66,8 +59,8 @@ class DecentralisedWavePolicy:
     wave's bin) and numbers them ``band mod n_phases``. The shared clock (period T = one cycle) is split into
     ``n_phases`` equal phases of ``T / n_phases`` steps (the hold); in phase p the robots whose band number
     is p expand and all others contract. With ``start_side="near"`` the wave runs away from the goal (the
-    next phase expands the band one step farther out), as the centralised wave does on the paddle model;
-    ``"far"`` runs it toward the goal (the disk model's). Across a large swarm several waves, ``n_phases``
+    next phase expands the band one step farther out), as the centralised wave does on both robot models;
+    ``"far"`` runs it toward the goal. Across a large swarm several waves, ``n_phases``
     bands apart, travel at once.
 
     A robot uses its own observation only: no swarm centre, no N, no other robot's goal signal; its

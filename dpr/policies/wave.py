@@ -10,26 +10,12 @@ from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES, ParticleSwarmE
 BIN_WIDTH = 60.0  # the 2021 code's "robot diameter"
 START_SIDES = ("near", "far")
 
-# Per robot model: the hold and wave direction that move the swarm toward the goal (tools/wave_sweep.py, N=9).
+# Per robot model: the hold and wave direction that move the swarm toward the goal (tools/wave_sweep.py, N=9;
+# tools/model_agreement.py checks them at N = 9 to 225: the near side leads on both models at every size).
 MODEL_DEFAULTS = {
     "paddle": {"hold_steps": 10, "start_side": "near"},
-    "disk": {"hold_steps": 4, "start_side": "far"},
+    "disk": {"hold_steps": 4, "start_side": "near"},
 }
-# The disk model's better wave side depends on the swarm's size. With hold 4, 2500 steps and the goal outside
-# the swarm (start radius max(500, 3 x the start grid's half-width); seeds 0-4, 0-2 at N=210 and 400, 0-1 at
-# N=1000), the far-side wave moves it toward the goal up to N=196 (median projected displacement +186 at
-# N=100, +26 at N=196; near side -248, -49), neither side does much at N=210 (far -31, near -9), and from
-# N=225 on the far side moves it away (-33 at N=225, -130 at N=400, -78 at N=1000) and the near side toward
-# the goal (+26, +126, +65). N=196 and 225 compare the same way at start radii 1000 and 3000. From this many
-# robots on, ``from_env`` starts the disk model's wave on the near side.
-DISK_NEAR_SIDE_FROM = 200
-
-
-def default_start_side(robot_model: str, n_robots: int) -> str:
-    """The wave side that moves a swarm of ``n_robots`` of ``robot_model`` toward the goal."""
-    if robot_model == "disk" and n_robots >= DISK_NEAR_SIDE_FROM:
-        return "near"
-    return MODEL_DEFAULTS[robot_model]["start_side"]
 
 
 class WavePolicy:
@@ -73,13 +59,12 @@ class WavePolicy:
     @classmethod
     def from_env(cls, env, **overrides) -> WavePolicy:
         """A wave policy for ``env`` (wrapped or not), with its robot model's defaults (:data:`MODEL_DEFAULTS`:
-        paddle hold 10 from the near side; disk hold 4 from the far side, from the near side for
-        ``DISK_NEAR_SIDE_FROM`` robots or more). ``overrides`` (``hold_steps=``, ``start_side=``, ...) win."""
+        paddle hold 10, disk hold 4, both from the near side). ``overrides`` (``hold_steps=``,
+        ``start_side=``, ...) win."""
         base: ParticleSwarmEnv = env.unwrapped
         if base.obs_type == "pixels":
             raise ValueError("the wave policy reads robot positions: use obs_type 'state' or 'pixels_state'")
         kwargs = dict(MODEL_DEFAULTS[base.robot_model])
-        kwargs["start_side"] = default_start_side(base.robot_model, base.n_robots)
         kwargs.update(overrides)
         return cls(base.n_robots, base.action_type, **kwargs)
 

@@ -1,6 +1,6 @@
 """Bulk setters (and the transient magnet rods) that call chipmunk directly.
 
-They do exactly what pymunk's public property setters do (``SimpleMotor.rate``, ``PinJoint.distance``,
+They do exactly what pymunk's public property setters do (``SimpleMotor.rate``, ``PinJoint.distance``, ``Constraint.max_force``,
 ``Circle.unsafe_set_radius``) without pymunk's per-attribute Python wrapper, which for a small swarm costs
 more than the physics step itself. pymunk is pinned below 8 for these private handles.
 """
@@ -26,6 +26,13 @@ def set_pin_distances(handles, distances) -> None:
     set_distance = lib.cpPinJointSetDist
     for handle, distance in zip(handles, distances):
         set_distance(handle, distance)
+
+
+def set_max_forces(handles, forces) -> None:
+    """``handles``: chipmunk handles of constraints (``joint._constraint``)."""
+    set_force = lib.cpConstraintSetMaxForce
+    for handle, force in zip(handles, forces):
+        set_force(handle, force)
 
 
 def set_circle_radii(handles, radii) -> None:

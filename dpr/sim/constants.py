@@ -39,13 +39,24 @@ GROUND_ANGULAR_FRICTION = 500.0
 # Start grid pitch: one expanded diameter of the paddle robot.
 GRID_PITCH = 2 * BODY_RADIUS + PADDLE_WIDTH + PADDLE_LENGTH  # 77.5
 
-# Disk robot (robot_model="disk"): one body per robot, its radius moves between these sizes at the speed a
-# paddle takes for a full stroke; same total mass as a paddle robot.
+# The paddle robot's outline: paddle1 and paddle2 lie end to end along the tangent when contracted (paddle1 turns
+# about its centre, pinned to the rim); expanded, paddle2 sits half a paddle1 out from the rim, one grid pitch wide.
+PADDLE_CONTRACTED_RADIUS = math.hypot(BODY_RADIUS + PADDLE_WIDTH / 2, PADDLE_LENGTH / 2 + PADDLE_LENGTH / 4)  # 32.3
+PADDLE_EXPANDED_RADIUS = GRID_PITCH / 2  # 38.75
+
+# Disk robot (robot_model="disk"): one body per robot whose radius follows the paddle robot's outline, between
+# the same two sizes at the speed of a full paddle stroke, with the same total mass and magnet range.
 DISK_MASS = BODY_MASS + N_PADDLES * 1.5 * PADDLE_MASS
-DISK_CONTRACTED_RADIUS = BODY_RADIUS + PADDLE_WIDTH  # 27.5
-DISK_EXPANDED_RADIUS = BODY_RADIUS + PADDLE_LENGTH + PADDLE_WIDTH  # 52.5
-DISK_RADIUS_SPEED = (DISK_EXPANDED_RADIUS - DISK_CONTRACTED_RADIUS) * PADDLE_SPEED / STROKE
-DISK_MAGNET_RANGE = 4 * DISK_CONTRACTED_RADIUS  # 110: pairs stay linked when both are expanded (105)
+DISK_CONTRACTED_RADIUS = PADDLE_CONTRACTED_RADIUS
+DISK_EXPANDED_RADIUS = PADDLE_EXPANDED_RADIUS
+DISK_RADIUS_SPEED = (DISK_EXPANDED_RADIUS - DISK_CONTRACTED_RADIUS) * PADDLE_SPEED / STROKE  # 20.5 units/s
+DISK_MAGNET_RANGE = MAGNET_RANGE
+# Growth is limited by a force, as the paddle's by its motors: a growing disk presses at most this far into a
+# neighbour, and its magnets push the pair apart by the growth commanded with at most DISK_PUSH_FORCE each:
+# what the five paddles facing a neighbour (within 45 degrees of the line between the centres) exert at
+# MOTOR_MAX_FORCE on paddle1's half length. Magnets pull (contraction, cohesion) with MAGNET_MAX_FORCE.
+DISK_GROWTH_OVERLAP = 1.0
+DISK_PUSH_FORCE = 5 * MOTOR_MAX_FORCE / (PADDLE_LENGTH / 2)  # 400
 
 # Objects and walls.
 OBJECT_ELASTICITY = 0.0

@@ -6,25 +6,36 @@ import numpy as np
 import pymunk
 
 from dpr.sim import constants as C
-from dpr.sim._setters import set_circle_radii, set_pin_distances
-from dpr.sim.neighbours import pairs_within
+from dpr.sim._setters import set_circle_radii, set_max_forces, set_pin_distances
+from dpr.sim.neighbours import pairs_and_distances
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
 
-_SET_DIFF_LIMIT = 256  # pairs (old + new) above which numpy diffs magnet sets faster than Python sets
+_SET_DIFF_LIMIT = 256
+_PER_UNIT_RADIUS = 1.0 / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)  # expansion per unit of radius  # pairs (old + new) above which numpy diffs magnet sets faster than Python sets
 
 
 class DiskSwarm(Swarm):
-    """One body and one circle per robot, radius between 27.5 (contracted) and 52.5 (expanded), moving at
-    the speed of a full paddle stroke (90 degrees at 5 rad/s, about 0.31 s).
+    """One body and one circle per robot whose radius follows the paddle robot's outline: 32.3 contracted,
+    38.75 expanded, moving at the speed of a full paddle stroke (90 degrees at 5 rad/s, about 0.31 s).
 
-    Magnets are force-limited rods (max force 750) between the centres of robots closer than
-    ``DISK_MAGNET_RANGE``, whose length follows the sum of the two radii: expanding pushes the pair apart,
-    contracting pulls it back together. Same ground friction, mass, command rule and dead-robot convention
-    as the paddle model. About 33x fewer bodies and 100x fewer joints than the paddle model.
+    Magnets are rods between the centres of robots closer than ``DISK_MAGNET_RANGE`` (100, the paddle
+    model's). As the paddle model's rods between paddle tips, each step they hold the pair's current
+    distance, changed by the two robots' commanded growth: expanding pushes the pair apart, contracting
+    pulls it back together, and a pair that drifts apart is not pulled back into contact.
+
+    Growth is limited by a force, as the paddle's by its motors. A robot's radius grows only into free room
+    (at most ``DISK_GROWTH_OVERLAP`` into a neighbour, measured at the start of each step); the room is made
+    by its rods, which push with at most ``DISK_PUSH_FORCE`` (400) and pull with at most ``MAGNET_MAX_FORCE``
+    (750). A robot that its neighbours hold back keeps pushing, as a stalled motor does, and its expansion
+    (the observed state) lags its command. Same ground friction, mass, command rule and dead-robot
+    convention as the paddle model. About 33x fewer bodies and 100x fewer joints than the paddle model.
     """
 
     model = "disk"
+    # 2: the paddle robot's outline, force-limited growth, rods that keep the pair's distance (1: radii 27.5 to
+    # 52.5, rods pulling each pair into contact)
+    revision = 2
     contracted_radius = C.DISK_CONTRACTED_RADIUS
     expanded_radius = C.DISK_EXPANDED_RADIUS
     magnet_range = C.DISK_MAGNET_RANGE
@@ -46,11 +57,15 @@ class DiskSwarm(Swarm):
             add_ground_friction(space, body)
         self.robot_bodies = self.bodies = bodies
         self._shapes = shapes
-        self.radius = np.full(self.n, C.DISK_CONTRACTED_RADIUS)
+        self.radius = np.full(self.n, C.DISK_CONTRACTED_RADIUS)  # of the collision shapes
+        self.commanded_radius = self.radius.copy()  # where the actuator drives: the radius with no load
         self._radius_target = self.radius.copy()
         self._magnets: dict[int, pymunk.PinJoint] = {}  # every rod made so far, by pair key i * N + j
         self._active = np.empty((0, 2), dtype=np.int64)
+        self._first = self._second = np.empty(0, dtype=np.int64)
+        self._distance = np.empty(0)  # of each active pair, at the start of this step
         self._active_joints: list[pymunk.PinJoint] = []  # the rods of ``_active``, row by row
+        self._rod_pushing = np.zeros(0, dtype=bool)  # per active rod: its force limit is the push limit
         # chipmunk handles of the shapes and of the active rods, made on first use (cffi pointers do not pickle)
         self._shape_handles = None
         self._rod_handles = None
@@ -62,28 +77,59 @@ class DiskSwarm(Swarm):
         )
 
     def before_physics(self) -> None:
-        """Grow or shrink each moving robot by one control period's worth (the shapes and the rods change
-        once per control step: per-substep updates cost more Python than the physics itself)."""
+        """Move each robot's commanded radius by one control period's worth, grow the shapes into the room
+        their neighbours leave, and set the rods' lengths and force limits (once per control step:
+        per-substep updates cost more Python than the physics itself)."""
         reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
-        step = np.minimum(np.maximum(self._radius_target - self.radius, -reach), reach)  # np.clip costs 2x
-        changing = np.flatnonzero(step).tolist()
+        radius = self.radius
+        step = np.minimum(np.maximum(self._radius_target - self.commanded_radius, -reach), reach)  # np.clip: 2x
+        commanded = self.commanded_radius = self.commanded_radius + step
+        new_radius = commanded
+        if len(self._active):
+            first, second, distance = self._first, self._second, self._distance
+            lag = commanded - radius  # what each robot still has to grow (or, below 0, to shrink)
+            growing = lag > 0.0
+            if growing.any():
+                room = np.full(self.n, np.inf)  # the largest radius that keeps clear of every neighbour
+                np.minimum.at(room, first, distance - radius[second])
+                np.minimum.at(room, second, distance - radius[first])
+                allowed = np.maximum(radius, room + C.DISK_GROWTH_OVERLAP)
+                new_radius = np.where(growing, np.minimum(commanded, allowed), commanded)
+            # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink)
+            lengths = distance + lag[first] + lag[second]
+            self._set_rods(lengths, lengths > distance)
+        changing = np.flatnonzero(new_radius != radius).tolist()
         if not changing:
             return
-        self.radius += step
+        self.radius = new_radius
         # the radius is the expansion state: it changes here only, so expansion is set here, not per read
-        self.expansion = (self.radius - C.DISK_CONTRACTED_RADIUS) / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
-        radius = self.radius.tolist()
+        self.expansion = (new_radius - C.DISK_CONTRACTED_RADIUS) * _PER_UNIT_RADIUS
         if self._shape_handles is None:
             self._shape_handles = [shape._shape for shape in self._shapes]
-        set_circle_radii([self._shape_handles[r] for r in changing], [radius[r] for r in changing])
-        self._set_magnet_lengths()
+        radii = new_radius.tolist()
+        set_circle_radii([self._shape_handles[r] for r in changing], [radii[r] for r in changing])
+
+    def _set_rods(self, lengths: np.ndarray, pushing: np.ndarray) -> None:
+        """Set every active rod's length, and the force limit of those that turned from pulling to pushing
+        or back."""
+        if self._rod_handles is None:
+            self._rod_handles = [joint._constraint for joint in self._active_joints]
+        set_pin_distances(self._rod_handles, lengths.tolist())
+        flipped = np.flatnonzero(pushing != self._rod_pushing).tolist()
+        if flipped:
+            handles = self._rod_handles
+            set_max_forces(
+                [handles[k] for k in flipped],
+                np.where(pushing[flipped], C.DISK_PUSH_FORCE, C.MAGNET_MAX_FORCE).tolist(),
+            )
+            self._rod_pushing = pushing
 
     def update_magnets(self) -> None:
         """Rods between the centres of every pair closer than the magnet range; kept between steps.
 
         A pair ``(i, j)`` is keyed by the integer ``i * N + j``; only the rods of pairs that appeared or went
         away are added to or removed from the space."""
-        pairs = pairs_within(self.position, self.magnet_range)
+        pairs, self._distance = pairs_and_distances(self.position, self.magnet_range)
         if pairs.tobytes() == self._active.tobytes():  # both (P, 2) int64: equal bytes, equal pairs
             return
         keys = pairs[:, 0] * self.n + pairs[:, 1]
@@ -108,17 +154,11 @@ class DiskSwarm(Swarm):
         if fresh:
             self.space.add(*fresh)
         self._active = pairs
+        self._first, self._second = pairs[:, 0].copy(), pairs[:, 1].copy()  # contiguous: faster to index with
         self._active_joints = [self._magnets[key] for key in keys.tolist()]
         self._rod_handles = None
-        self._set_magnet_lengths()
-
-    def _set_magnet_lengths(self) -> None:
-        """Rod length = sum of the two radii (all rods: cheaper than picking those of the robots that moved)."""
-        pairs = self._active
-        if len(pairs):
-            if self._rod_handles is None:
-                self._rod_handles = [joint._constraint for joint in self._active_joints]
-            set_pin_distances(self._rod_handles, (self.radius[pairs[:, 0]] + self.radius[pairs[:, 1]]).tolist())
+        # a rod taken out and added again keeps its old limit: mark every limit unknown, so all are set
+        self._rod_pushing = np.full(len(pairs), -1, dtype=np.int8)
 
     def magnet_segments(self) -> np.ndarray:
         if len(self._active) == 0:

@@ -25,13 +25,20 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
 
     Pairs come sorted by ``i`` then ``j`` as an int64 array of shape (P, 2).
     """
+    return pairs_and_distances(points, radius)[0]
+
+
+def pairs_and_distances(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pairs_within`'s pairs and, row by row, the distance between the two points of each."""
     n = len(points)
     if n < 2:
-        return np.empty((0, 2), dtype=np.int64)
+        return np.empty((0, 2), dtype=np.int64), np.empty(0)
     if n <= _DENSE_LIMIT:
         first, second, table = _upper_triangle(n)
         delta = points[first] - points[second]
-        return table[np.einsum("ij,ij->i", delta, delta) < radius * radius]
+        squared = np.einsum("ij,ij->i", delta, delta)
+        close = squared < radius * radius
+        return table[close], np.sqrt(squared[close])
     cells = np.floor((points - points.min(axis=0)) / radius).astype(np.int64)
     width = int(cells[:, 1].max()) + 3  # +3 leaves room for the -1/+1 stencil offsets
     keys = cells[:, 0] * width + cells[:, 1] + 1
@@ -58,6 +65,8 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
     i, j = i[keep], j[keep]
     i, j = np.minimum(i, j), np.maximum(i, j)
     d = points[i] - points[j]
-    close = np.einsum("ij,ij->i", d, d) < radius * radius
-    pairs = np.unique(np.stack([i[close], j[close]], axis=1), axis=0)
-    return pairs
+    squared = np.einsum("ij,ij->i", d, d)
+    close = squared < radius * radius
+    # pairs of points in one cell come in both orders: one key per pair, sorted by i then j
+    keys, index = np.unique(i[close] * n + j[close], return_index=True)
+    return np.stack([keys // n, keys % n], axis=1), np.sqrt(squared[close][index])

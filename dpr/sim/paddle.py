@@ -32,9 +32,8 @@ class PaddleSwarm(Swarm):
     """
 
     model = "paddle"
-    # paddle1 and paddle2 lie end to end along the tangent when contracted
-    contracted_radius = math.hypot(C.BODY_RADIUS + C.PADDLE_WIDTH / 2, _TIP_OFFSET + C.PADDLE_LENGTH / 4)  # 32.3
-    expanded_radius = C.GRID_PITCH / 2  # 38.75
+    contracted_radius = C.PADDLE_CONTRACTED_RADIUS
+    expanded_radius = C.PADDLE_EXPANDED_RADIUS
     magnet_range = C.MAGNET_RANGE
 
     def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):

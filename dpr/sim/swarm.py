@@ -29,6 +29,7 @@ class Swarm:
     expanded_radius: float = 0.0  # outer radius of an expanded robot
     magnet_range: float = C.MAGNET_RANGE
     substeps: int = C.SUBSTEPS  # pymunk steps per control step, of CONTROL_PERIOD / substeps each
+    revision: int = 1  # raised whenever the model's physics change: datasets record it
 
     def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
         self.space = space
