@@ -34,9 +34,9 @@ from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.metrics import EpisodeMetrics
-from dpr.sim import swarm_class
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.rollout import roll_out
+from dpr.sim import swarm_class
 from dpr.sim.constants import FPS
 
 MCAP_FOLDER = "mcap"

@@ -1,8 +1,8 @@
 """Bulk setters (and the transient magnet rods) that call chipmunk directly.
 
-They do exactly what pymunk's public property setters do (``SimpleMotor.rate``, ``PinJoint.distance``, ``Constraint.max_force``,
-``Circle.unsafe_set_radius``) without pymunk's per-attribute Python wrapper, which for a small swarm costs
-more than the physics step itself. pymunk is pinned below 8 for these private handles.
+They do exactly what pymunk's public property setters do (``SimpleMotor.rate``, ``PinJoint.distance``,
+``Constraint.max_force``, ``Circle.unsafe_set_radius``) without pymunk's per-attribute Python wrapper, which
+for a small swarm costs more than the physics step itself. pymunk is pinned below 8 for these private handles.
 """
 
 from pymunk._chipmunk import lib

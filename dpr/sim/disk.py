@@ -11,8 +11,8 @@ from dpr.sim.neighbours import pairs_and_distances
 from dpr.sim.objects import add_ground_friction
 from dpr.sim.swarm import Swarm
 
-_SET_DIFF_LIMIT = 256
-_PER_UNIT_RADIUS = 1.0 / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)  # expansion per unit of radius  # pairs (old + new) above which numpy diffs magnet sets faster than Python sets
+_SET_DIFF_LIMIT = 256  # pairs (old + new) above which numpy diffs magnet sets faster than Python sets
+_PER_UNIT_RADIUS = 1.0 / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)  # expansion per unit of radius
 
 
 class DiskSwarm(Swarm):
