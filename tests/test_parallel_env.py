@@ -390,7 +390,8 @@ def test_bench_scale_runs_small_and_writes_json(tmp_path, capsys):
     assert episode["min_centre_distance"] > 0
     # tunnelling: a centre inside another robot's contracted disk; touching-contact overlap is reported apart
     contracted = C.DISK_CONTRACTED_RADIUS
-    assert episode["tunnelling_below"] == contracted and episode["min_allowed_distance"] == 2 * contracted - 5.0
+    assert episode["tunnelling_below"] == round(contracted, 3)
+    assert episode["min_allowed_distance"] == round(2 * contracted - 5.0, 3)
     assert episode["checks"]["no_tunnelling"] == (episode["min_centre_distance"] >= contracted)
     assert episode["checks"]["contact_within_tolerance"] == (episode["min_centre_distance"] >= 2 * contracted - 5.0)
     assert "| wave | 16 |" in capsys.readouterr().out

@@ -35,8 +35,10 @@ from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS, START_SIDES, encode_act
 
 # Phases of one cycle: the wave's length is n_phases x bin_width. Measured with tools/decentralised_sweep.py on
 # Navigation (median projected displacement, seeds 0-4, 500 steps): 4 phases move paddle swarms of N=9/25/49
-# toward the goal by 6.7/8.0/6.3 (centralised wave 5.3/5.8/4.3); 3, 5 and 6 phases move paddle N=9 less. The
-# robot models' hold and wave side are WavePolicy's (MODEL_DEFAULTS), kept at every N: a robot does not know N.
+# toward the goal by 6.7/8.0/6.3 (centralised wave 5.3/5.8/4.3); 3, 5 and 6 phases move paddle N=9 less. On
+# the disk model (revision 2; 2500 steps, seeds 0-2) 4 phases move N=9/100 by 30/18 (centralised 37/24) and 6
+# phases by 45/80: there ``n_phases=6`` beats the centralised wave. The robot models' hold and wave side are
+# WavePolicy's (MODEL_DEFAULTS), kept at every N: a robot does not know N.
 DEFAULT_N_PHASES = 4
 # A robot reads the step inside the cycle back from the clock's angle; float32 sin/cos are good to ~1e-7 rad,
 # far inside half a step even for long cycles.

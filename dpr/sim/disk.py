@@ -62,10 +62,10 @@ class DiskSwarm(Swarm):
         self._radius_target = self.radius.copy()
         self._magnets: dict[int, pymunk.PinJoint] = {}  # every rod made so far, by pair key i * N + j
         self._active = np.empty((0, 2), dtype=np.int64)
-        self._first = self._second = np.empty(0, dtype=np.int64)
+        self._both = np.empty(0, dtype=np.int64)
         self._distance = np.empty(0)  # of each active pair, at the start of this step
         self._active_joints: list[pymunk.PinJoint] = []  # the rods of ``_active``, row by row
-        self._rod_pushing = np.zeros(0, dtype=bool)  # per active rod: its force limit is the push limit
+        self._rod_pushing: list = []  # per active rod: True while its force limit is the push limit
         # chipmunk handles of the shapes and of the active rods, made on first use (cffi pointers do not pickle)
         self._shape_handles = None
         self._rod_handles = None
@@ -86,19 +86,21 @@ class DiskSwarm(Swarm):
         commanded = self.commanded_radius = self.commanded_radius + step
         new_radius = commanded
         if len(self._active):
-            first, second, distance = self._first, self._second, self._distance
+            pairs, distance = self._active, self._distance
             lag = commanded - radius  # what each robot still has to grow (or, below 0, to shrink)
             growing = lag > 0.0
             if growing.any():
-                room = np.full(self.n, np.inf)  # the largest radius that keeps clear of every neighbour
-                np.minimum.at(room, first, distance - radius[second])
-                np.minimum.at(room, second, distance - radius[first])
-                allowed = np.maximum(radius, room + C.DISK_GROWTH_OVERLAP)
+                pair_radii = radius[pairs]
+                gap = distance - pair_radii[:, 0] - pair_radii[:, 1]  # free room between the two surfaces
+                room = np.full(self.n, np.inf)  # the most a robot may grow and keep clear of every neighbour
+                np.minimum.at(room, self._both, np.concatenate((gap, gap)))
+                allowed = radius + np.maximum(room + C.DISK_GROWTH_OVERLAP, 0.0)
                 new_radius = np.where(growing, np.minimum(commanded, allowed), commanded)
             # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink)
-            lengths = distance + lag[first] + lag[second]
+            pair_lag = lag[pairs]
+            lengths = distance + pair_lag[:, 0] + pair_lag[:, 1]
             self._set_rods(lengths, lengths > distance)
-        changing = np.flatnonzero(new_radius != radius).tolist()
+        changing = (new_radius != radius).nonzero()[0].tolist()
         if not changing:
             return
         self.radius = new_radius
@@ -115,14 +117,14 @@ class DiskSwarm(Swarm):
         if self._rod_handles is None:
             self._rod_handles = [joint._constraint for joint in self._active_joints]
         set_pin_distances(self._rod_handles, lengths.tolist())
-        flipped = np.flatnonzero(pushing != self._rod_pushing).tolist()
-        if flipped:
-            handles = self._rod_handles
+        pushing_now = pushing.tolist()
+        if pushing_now != self._rod_pushing:
+            flipped = [k for k, (now, before) in enumerate(zip(pushing_now, self._rod_pushing)) if now is not before]
             set_max_forces(
-                [handles[k] for k in flipped],
-                np.where(pushing[flipped], C.DISK_PUSH_FORCE, C.MAGNET_MAX_FORCE).tolist(),
+                [self._rod_handles[k] for k in flipped],
+                [C.DISK_PUSH_FORCE if pushing_now[k] else C.MAGNET_MAX_FORCE for k in flipped],
             )
-            self._rod_pushing = pushing
+            self._rod_pushing = pushing_now
 
     def update_magnets(self) -> None:
         """Rods between the centres of every pair closer than the magnet range; kept between steps.
@@ -154,11 +156,11 @@ class DiskSwarm(Swarm):
         if fresh:
             self.space.add(*fresh)
         self._active = pairs
-        self._first, self._second = pairs[:, 0].copy(), pairs[:, 1].copy()  # contiguous: faster to index with
+        self._both = np.concatenate((pairs[:, 0], pairs[:, 1]))  # each pair's robots, first ones then second
         self._active_joints = [self._magnets[key] for key in keys.tolist()]
         self._rod_handles = None
         # a rod taken out and added again keeps its old limit: mark every limit unknown, so all are set
-        self._rod_pushing = np.full(len(pairs), -1, dtype=np.int8)
+        self._rod_pushing = [None] * len(pairs)
 
     def magnet_segments(self) -> np.ndarray:
         if len(self._active) == 0:
