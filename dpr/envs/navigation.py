@@ -56,7 +56,9 @@ class NavigationEnv(ParticleSwarmEnv):
     ``gymnasium.make("dpr/Navigation-v0", n_robots=9, robot_model="paddle", action_type="multibinary",
     obs_type="state", reward="piecewise", reward_threshold_d=450.0, start_radius=(450, 550),
     obs_last_action=False, image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"``
-    (the paper's robot, 16 motor-driven paddles) or ``"disk"`` (one body whose radius changes; tens of times faster).
+    (the paper's robot, 16 motor-driven paddles) or ``"disk"`` (one body whose radius follows the paddle
+    robot's outline; 15-20x faster, and the wave moves it as it moves the paddle model:
+    ``tools/model_agreement.py``).
     ``reward_threshold_d`` and both ends of ``start_radius`` must be finite, > 0 and <= 1e5.
     ``render_mode="rgb_array"`` draws robots, paddles, magnets, walls, object and goal, headless.
     ``env.unwrapped.world.space`` is the pymunk Space.
@@ -67,7 +69,9 @@ class NavigationEnv(ParticleSwarmEnv):
       collides with nothing; every random choice goes through the env's seeded generator; ``Discrete``
       covers all 2^N actions; walls collide with every robot. Large swarms start shifted outward so that
       no robot starts inside a wall or the object and the goal stays ahead of the swarm (every start of
-      16 robots or fewer is unchanged).
+      16 robots or fewer is unchanged). ``robot_model="disk"`` is at revision 2 (the paddle robot's outline,
+      force-limited growth; ``dpr.sim.disk.DiskSwarm``), which datasets record: disk episodes of revision 1
+      differ, paddle episodes do not.
     """
 
     task = "navigation"
