@@ -473,3 +473,100 @@ def test_world_is_sane_flags_blow_up(robot_model):
     world.swarm.robot_bodies[1].velocity = (float("nan"), 0.0)
     world.step(np.ones(2))
     assert not world.is_sane()
+
+
+# -- the disk model's force-limited growth and distance-keeping magnets ------------------------------------------
+def _disk_world_at(centres) -> World:
+    """A disk world whose robots stand at ``centres`` (moved there from the start grid)."""
+    centres = np.asarray(centres, dtype=float)
+    world = World(len(centres), "disk")
+    for body, centre in zip(world.swarm.robot_bodies, centres):
+        body.position = tuple(centre)
+    world.space.reindex_shapes_for_body  # noqa: B018  (pymunk reindexes moved static shapes only)
+    world.read_state()
+    return world
+
+
+def _closest_overlap(swarm) -> float:
+    """The deepest overlap of two robots' actual disks (radius sum minus centre distance), 0 if none touch."""
+    pairs = pairs_within(swarm.position, 2 * swarm.expanded_radius)
+    delta = swarm.position[pairs[:, 0]] - swarm.position[pairs[:, 1]]
+    distance = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+    return float(max(0.0, (swarm.radius[pairs[:, 0]] + swarm.radius[pairs[:, 1]] - distance).max()))
+
+
+def test_disk_constants_follow_the_paddle_robot():
+    assert C.DISK_CONTRACTED_RADIUS == pytest.approx(PaddleSwarm.contracted_radius) == pytest.approx(32.26, abs=0.01)
+    assert C.DISK_EXPANDED_RADIUS == PaddleSwarm.expanded_radius == C.GRID_PITCH / 2
+    assert C.DISK_MAGNET_RANGE == C.MAGNET_RANGE
+    # a full stroke takes as long as a paddle's: 90 degrees at 5 rad/s
+    stroke_time = (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS) / C.DISK_RADIUS_SPEED
+    assert stroke_time == pytest.approx(C.STROKE / C.PADDLE_SPEED)
+    assert C.DISK_PUSH_FORCE == pytest.approx(400.0) and C.DISK_PUSH_FORCE < C.MAGNET_MAX_FORCE
+    assert DiskSwarm.revision == 2 and PaddleSwarm.revision == 1
+
+
+def test_disk_growth_held_back_by_its_neighbours_lags_and_never_digs_in():
+    """The centre of a packed 3x3 block expands: its eight neighbours, each held by ground friction (500),
+    are pushed with at most 400 per rod, so the centre grows only as far as they give way, and no pair of
+    robots ever presses deeper than the growth allowance into each other."""
+    pitch = 2 * C.DISK_CONTRACTED_RADIUS + 0.25
+    world = _disk_world_at(grid_centres(9, (0.0, 0.0), pitch))
+    command = np.zeros(9)
+    command[4] = 1.0
+    deepest = 0.0
+    for _ in range(10):
+        world.step(command)
+        deepest = max(deepest, _closest_overlap(world.swarm))
+    swarm = world.swarm
+    assert swarm.commanded_radius[4] == pytest.approx(C.DISK_EXPANDED_RADIUS)
+    assert swarm.expansion[4] < 0.8, "the block should hold the centre back"
+    assert swarm.radius[4] < swarm.commanded_radius[4]
+    assert deepest <= 2 * C.DISK_GROWTH_OVERLAP + 0.5
+    # alone, the same robot reaches its full size within the same ten steps
+    alone = World(1, "disk")
+    for _ in range(10):
+        alone.step(np.ones(1))
+    assert alone.swarm.expansion[0] == pytest.approx(1.0)
+
+
+def test_disk_magnets_keep_a_pair_apart_instead_of_pulling_it_into_contact():
+    """Two contracted robots 90 apart (inside the magnet range, not touching) stay 90 apart: the rod holds
+    their distance, as the paddle model's rods between paddle tips do."""
+    world = _disk_world_at([(0.0, 0.0), (90.0, 0.0)])
+    for _ in range(30):
+        world.step(np.zeros(2))
+    assert len(world.swarm.magnet_segments()) == 1
+    distance = np.linalg.norm(world.swarm.position[1] - world.swarm.position[0])
+    assert distance == pytest.approx(90.0, abs=0.5)
+
+
+def test_disk_rods_push_with_less_force_than_ground_friction():
+    """Two linked robots 80 apart (not touching) both expand: their rod pushes with at most 400, less than the
+    500 of ground friction that holds each, so they stay put while they grow."""
+    world = _disk_world_at([(0.0, 0.0), (80.0, 0.0)])
+    for _ in range(8):
+        world.step(np.ones(2))
+    assert world.swarm.expansion == pytest.approx([1.0, 1.0])
+    assert np.linalg.norm(world.swarm.position[1] - world.swarm.position[0]) == pytest.approx(80.0, abs=0.5)
+
+
+def test_disk_grows_into_a_neighbour_a_bounded_step_at_a_time():
+    """Two touching robots both expand: each grows at most DISK_GROWTH_OVERLAP beyond the free room per step
+    (slower than alone), never presses deeper than that into the other, and both end fully expanded."""
+    touching = 2 * C.DISK_CONTRACTED_RADIUS + 0.1
+    world = _disk_world_at([(0.0, 0.0), (touching, 0.0)])
+    free_step = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
+    previous = world.swarm.radius.copy()
+    deepest = 0.0
+    for step in range(30):
+        world.step(np.ones(2))
+        if step < 3:
+            growth = world.swarm.radius - previous
+            assert np.all(growth <= C.DISK_GROWTH_OVERLAP + 0.1 + 1e-9) and np.all(growth < free_step)
+            previous = world.swarm.radius.copy()
+        deepest = max(deepest, _closest_overlap(world.swarm))
+    assert world.swarm.expansion == pytest.approx([1.0, 1.0])
+    distance = np.linalg.norm(world.swarm.position[1] - world.swarm.position[0])
+    assert distance == pytest.approx(2 * C.DISK_EXPANDED_RADIUS, abs=1.5)
+    assert deepest <= 2 * C.DISK_GROWTH_OVERLAP + 0.5

@@ -51,10 +51,14 @@ DISK_CONTRACTED_RADIUS = PADDLE_CONTRACTED_RADIUS
 DISK_EXPANDED_RADIUS = PADDLE_EXPANDED_RADIUS
 DISK_RADIUS_SPEED = (DISK_EXPANDED_RADIUS - DISK_CONTRACTED_RADIUS) * PADDLE_SPEED / STROKE  # 20.5 units/s
 DISK_MAGNET_RANGE = MAGNET_RANGE
-# Growth is limited by a force, as the paddle's by its motors: a growing disk presses at most this far into a
-# neighbour, and its magnets push the pair apart by the growth commanded with at most DISK_PUSH_FORCE each:
-# what the five paddles facing a neighbour (within 45 degrees of the line between the centres) exert at
-# MOTOR_MAX_FORCE on paddle1's half length. Magnets pull (contraction, cohesion) with MAGNET_MAX_FORCE.
+# Growth is bounded, as the paddle's is by its motors. A growing disk presses at most DISK_GROWTH_OVERLAP into
+# a neighbour per control step (the contact then pushes the neighbour out: growth against a neighbour runs at
+# about half the free speed, and no overlap runs deep), and its magnets push the pair apart by the growth
+# commanded with at most DISK_PUSH_FORCE each: what the five paddles facing a neighbour (within 45 degrees of the
+# line between the centres) exert at MOTOR_MAX_FORCE on paddle1's half length, less than the ground friction
+# that holds a robot. Magnets pull (contraction, cohesion) with MAGNET_MAX_FORCE. With an allowance of 0.1
+# (below chipmunk's collision slop: contacts push nothing) the wave moves the disk model 0.1-0.4x as far as the
+# paddle model (tools/model_agreement.py): the paddle robot does push its neighbours through contact.
 DISK_GROWTH_OVERLAP = 1.0
 DISK_PUSH_FORCE = 5 * MOTOR_MAX_FORCE / (PADDLE_LENGTH / 2)  # 400
 

@@ -24,11 +24,11 @@ class DiskSwarm(Swarm):
     distance, changed by the two robots' commanded growth: expanding pushes the pair apart, contracting
     pulls it back together, and a pair that drifts apart is not pulled back into contact.
 
-    Growth is limited by a force, as the paddle's by its motors. A robot's radius grows only into free room
-    (at most ``DISK_GROWTH_OVERLAP`` into a neighbour, measured at the start of each step); the room is made
-    by its rods, which push with at most ``DISK_PUSH_FORCE`` (400) and pull with at most ``MAGNET_MAX_FORCE``
-    (750). A robot that its neighbours hold back keeps pushing, as a stalled motor does, and its expansion
-    (the observed state) lags its command. Same ground friction, mass, command rule and dead-robot
+    Growth is bounded, as the paddle's is by its motors. A robot's radius grows into free room and at most
+    ``DISK_GROWTH_OVERLAP`` (1 unit) per step into a neighbour (measured at the start of each step), which the
+    contact then pushes out; its rods push with at most ``DISK_PUSH_FORCE`` (400, less than the ground
+    friction holding a robot) and pull with at most ``MAGNET_MAX_FORCE`` (750). A robot that its neighbours
+    hold back keeps pushing, as a stalled motor does, and its expansion (the observed state) lags its command. Same ground friction, mass, command rule and dead-robot
     convention as the paddle model. About 33x fewer bodies and 100x fewer joints than the paddle model.
     """
 
