@@ -29,7 +29,8 @@ class DiskSwarm(Swarm):
     contact then pushes out; its rods push with at most ``DISK_PUSH_FORCE`` (400, less than the ground
     friction holding a robot) and pull with at most ``MAGNET_MAX_FORCE`` (750). A robot that its neighbours
     hold back keeps pushing, as a stalled motor does, and its expansion (the observed state) lags its command.
-    Same ground friction, mass, command rule and dead-robot convention as the paddle model. About 33x fewer bodies and 100x fewer joints than the paddle model.
+    Same ground friction, mass, command rule and dead-robot convention as the paddle model. About 33x fewer
+    bodies and 100x fewer joints than the paddle model.
     """
 
     model = "disk"
