@@ -63,7 +63,7 @@ class DiskSwarm(Swarm):
         self._radius_target = self.radius.copy()
         self._magnets: dict[int, pymunk.PinJoint] = {}  # every rod made so far, by pair key i * N + j
         self._active = np.empty((0, 2), dtype=np.int64)
-        self._both = np.empty(0, dtype=np.int64)
+        self._first = self._second = self._both = np.empty(0, dtype=np.int64)
         self._distance = np.empty(0)  # of each active pair, at the start of this step
         self._active_joints: list[pymunk.PinJoint] = []  # the rods of ``_active``, row by row
         self._rod_pushing: list = []  # per active rod: True while its force limit is the push limit
@@ -82,25 +82,24 @@ class DiskSwarm(Swarm):
         their neighbours leave, and set the rods' lengths and force limits (once per control step:
         per-substep updates cost more Python than the physics itself)."""
         reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
-        radius = self.radius
-        step = np.minimum(np.maximum(self._radius_target - self.commanded_radius, -reach), reach)  # np.clip: 2x
-        commanded = self.commanded_radius = self.commanded_radius + step
+        radius, commanded = self.radius, self.commanded_radius
+        commanded = self.commanded_radius = np.minimum(
+            np.maximum(self._radius_target, commanded - reach), commanded + reach
+        )
         new_radius = commanded
         if len(self._active):
-            pairs, distance = self._active, self._distance
-            lag = commanded - radius  # what each robot still has to grow (or, below 0, to shrink)
-            growing = lag > 0.0
-            if growing.any():
-                pair_radii = radius[pairs]
-                gap = distance - pair_radii[:, 0] - pair_radii[:, 1]  # free room between the two surfaces
+            first, second = self._first, self._second
+            radius_sum = radius.take(first) + radius.take(second)
+            commanded_sum = commanded.take(first) + commanded.take(second)
+            gap = self._distance - radius_sum  # free room between the two surfaces of each linked pair
+            if (commanded > radius).any():
                 room = np.full(self.n, np.inf)  # the most a robot may grow and keep clear of every neighbour
                 np.minimum.at(room, self._both, np.concatenate((gap, gap)))
-                allowed = radius + np.maximum(room + C.DISK_GROWTH_OVERLAP, 0.0)
-                new_radius = np.where(growing, np.minimum(commanded, allowed), commanded)
-            # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink)
-            pair_lag = lag[pairs]
-            lengths = distance + pair_lag[:, 0] + pair_lag[:, 1]
-            self._set_rods(lengths, lengths > distance)
+                # (a robot that shrinks or holds is below its allowance anyway)
+                new_radius = np.minimum(commanded, radius + np.maximum(room + C.DISK_GROWTH_OVERLAP, 0.0))
+            # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink):
+            # length = distance + (commanded - radius) of both = gap + both commanded radii
+            self._set_rods(gap + commanded_sum, commanded_sum > radius_sum)
         changing = (new_radius != radius).nonzero()[0].tolist()
         if not changing:
             return
@@ -110,7 +109,10 @@ class DiskSwarm(Swarm):
         if self._shape_handles is None:
             self._shape_handles = [shape._shape for shape in self._shapes]
         radii = new_radius.tolist()
-        set_circle_radii([self._shape_handles[r] for r in changing], [radii[r] for r in changing])
+        if len(changing) == self.n:
+            set_circle_radii(self._shape_handles, radii)
+        else:
+            set_circle_radii([self._shape_handles[r] for r in changing], [radii[r] for r in changing])
 
     def _set_rods(self, lengths: np.ndarray, pushing: np.ndarray) -> None:
         """Set every active rod's length, and the force limit of those that turned from pulling to pushing
@@ -157,7 +159,8 @@ class DiskSwarm(Swarm):
         if fresh:
             self.space.add(*fresh)
         self._active = pairs
-        self._both = np.concatenate((pairs[:, 0], pairs[:, 1]))  # each pair's robots, first ones then second
+        self._first, self._second = pairs[:, 0].copy(), pairs[:, 1].copy()  # contiguous: faster to take from
+        self._both = np.concatenate((self._first, self._second))
         self._active_joints = [self._magnets[key] for key in keys.tolist()]
         self._rod_handles = None
         # a rod taken out and added again keeps its old limit: mark every limit unknown, so all are set

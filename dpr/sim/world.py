@@ -107,11 +107,14 @@ class World:
         """The pymunk part of a control step: ``substeps`` calls of ``space.step`` (what benchmarks time as
         the physics-only rate)."""
         dt = C.CONTROL_PERIOD / self.swarm.substeps
-        self.space.step(dt)  # pymunk's step: checks new bodies, then runs what was queued during the step
-        # Nothing is added, removed or called back inside a control step (no collision handlers), so the
-        # other substeps call chipmunk directly, without pymunk's per-call bookkeeping.
+        substeps = self.swarm.substeps
+        if self.space._bodies_to_check:  # bodies added since the last step: pymunk's own step validates them
+            self.space.step(dt)
+            substeps -= 1
+        # Nothing is added, removed or called back inside a step (the world has no collision handlers), so the
+        # substeps call chipmunk directly, without pymunk's per-call bookkeeping.
         space_step, space = lib.cpSpaceStep, self.space._space
-        for _ in range(self.swarm.substeps - 1):
+        for _ in range(substeps):
             space_step(space, dt)
 
     def read_state(self) -> None:
