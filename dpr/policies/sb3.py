@@ -201,7 +201,13 @@ def load_model(path: str | Path, env=None, *, for_training: bool = False, parame
         mismatch = None if per_robot_parallel else _space_mismatch(path, info, model, env)
         if mismatch:
             raise ValueError(mismatch)
-        if for_training:
+        if for_training and per_robot_parallel:
+            raise ValueError(f"per-robot model {path} trains on the agents' VecEnv: AgentsAsVecEnv(env)")
+        if for_training and info.per_robot is not None and env.num_envs != model.n_envs:
+            # One VecEnv entry per robot: another swarm size is another n_envs, which set_env refuses and SB3's
+            # load rebuilds the rollout buffer for.
+            model = algo_class(info.algo).load(path, env=env, device="cpu", custom_objects=custom)
+        elif for_training:
             model.set_env(env)
     return model, info
 
