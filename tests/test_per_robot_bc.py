@@ -19,7 +19,8 @@ from dpr.envs.parallel import AgentsAsVecEnv
 from dpr.imitation import behaviour_clone
 from dpr.imitation.per_robot import behaviour_clone_per_robot, relabel_dataset, robot_actions
 from dpr.policies.decentralised import DecentralisedWavePolicy, PerRobotPolicyAdapter
-from dpr.policies.per_robot_model import RobotModelPolicy, RobotModelSpec
+from dpr.policies.per_robot_model import RobotModelPolicy
+from dpr.policies.per_robot_spec import RobotModelSpec
 from dpr.policies.registry import make_policy
 from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
 from dpr.rollout import roll_out

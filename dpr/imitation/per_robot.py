@@ -50,7 +50,7 @@ from dpr.imitation.bc import AccuracyMeter, BCResult, check_bc_arguments, datase
 from dpr.imitation.loss import batch_stats, check_features
 from dpr.policies.decentralised import DEFAULT_N_PHASES, MODEL_DEFAULTS, wave_env_kwargs
 from dpr.policies.hyperparams import load_hyperparams
-from dpr.policies.per_robot_model import RobotModelSpec
+from dpr.policies.per_robot_spec import RobotModelSpec
 from dpr.policies.sb3 import DEFAULT_ALGO, FINETUNE_ALGOS, ModelInfo, trained_parameters, write_model_info
 from dpr.sim.models import swarm_class
 

@@ -8,7 +8,7 @@ policy in, and the model files.
 A model file is SB3's own zip plus one small JSON member, :data:`METADATA_MEMBER`, that names the algorithm,
 the env id and the env kwargs the model was trained with, so that a model can be evaluated or rolled out
 without restating them. A per-robot model (one robot's local observation in, that robot's action out, for any
-swarm size; :mod:`dpr.policies.per_robot_model`) also carries its local-observation layout there.
+swarm size; :mod:`dpr.policies.per_robot_spec`) also carries its local-observation layout there.
 stable-baselines3 and torch are imported inside functions only: the scripted policies (and everything that
 imports this package) must not pay for them.
 """
@@ -55,7 +55,7 @@ class ModelInfo:
     env_id: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     max_episode_steps: int | None = None
-    # A per-robot model's layout and training swarm (dpr.policies.per_robot_model.RobotModelSpec as data);
+    # A per-robot model's layout and training swarm (dpr.policies.per_robot_spec.RobotModelSpec as data);
     # None for a model of the centralised env, whose observation is the whole swarm's state.
     per_robot: dict[str, Any] | None = None
 
@@ -193,7 +193,7 @@ def load_model(path: str | Path, env=None, *, for_training: bool = False, parame
     if env is not None:
         per_robot_parallel = False
         if info.per_robot is not None:  # its spaces are one robot's: the env must give local observations
-            from dpr.policies.per_robot_model import check_per_robot_env
+            from dpr.policies.per_robot_spec import check_per_robot_env
 
             check_per_robot_env(path, info, env, centralised=False)
             per_robot_parallel = not hasattr(env, "parallel_env")  # a PettingZoo env: spaces per agent
@@ -238,15 +238,12 @@ def single_thread_torch() -> None:
     torch.set_num_threads(1)
 
 
-def load_model_policy(path: str | Path, env):
+def load_model_policy(path: str | Path, env) -> ModelPolicy:
     """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env),
-    predicting on one torch thread (:func:`single_thread_torch`). A per-robot model acts in a centralised env of
-    any swarm size through :class:`dpr.policies.decentralised.PerRobotPolicyAdapter`."""
+    predicting on one torch thread (:func:`single_thread_torch`). A per-robot model is refused here: it acts in
+    a centralised env through :func:`dpr.policies.per_robot_model.per_robot_model_policy` (what
+    :func:`dpr.policies.registry.make_policy` returns for it)."""
     single_thread_torch()
-    if read_model_info(path).per_robot is not None:
-        from dpr.policies.per_robot_model import per_robot_model_policy
-
-        return per_robot_model_policy(path, env)
     model, info = load_model(path, env)
     return ModelPolicy(model, info, Path(path))
 
