@@ -237,3 +237,9 @@ def test_datasets_that_differ_in_more_than_n_are_refused(dataset, tmp_path):
     with pytest.raises(ParameterError, match="algo"):
         behaviour_clone_per_robot(dataset, ENV, algo="dqn", out=tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def test_finetune_of_the_centralised_env_refuses_a_per_robot_model(cloned, tmp_path, capsys):
+    argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--timesteps", "64", "--n-envs", "1"]
+    assert run([*argv, "--out", str(tmp_path / "ft")]) == 2
+    assert "--from" in capsys.readouterr().err and not (tmp_path / "ft").exists()
