@@ -144,7 +144,7 @@ def check_per_robot_env(path: str | Path, info, env, centralised: bool = True) -
                 f"(parallel_env(task, {spec.parallel_env_kwargs()})) or its AgentsAsVecEnv"
             )
         if base.obs_type == "pixels":
-            raise ValueError(f"per-robot model {path} reads robot states: make the env with obs_type 'state'")
+            raise ValueError(f"per-robot model {path} reads robot states: use obs_type 'state' or 'pixels_state'")
         # In the centralised env the adapter keeps the clock and the neighbour slots: only the task's parts count.
         layout = LocalObservation.for_env(base, spec.max_neighbours, spec.clock_period)
     env_id = ENV_IDS[base.task]
