@@ -97,6 +97,10 @@ LIBRARY_PARAMETERS = {
         *("dataset_dirs", "env_id", "algo", "epochs", "batch_size", "lr", "val_fraction", "patience", "seed", "out"),
         *("rounds", "episodes_per_round", "first_seed"),
     },
+    "bc-decentralised": {
+        *("dataset_dirs", "env_id", "algo", "epochs", "batch_size", "lr", "val_fraction", "patience", "seed", "out"),
+        *("max_neighbours", "hold_steps", "n_phases"),
+    },
     "collect": {
         *("env_id", "policy", "n_robots", "robot_model", "steps", "image_size", "env_kwargs"),
         *("episodes", "seed", "backend", "address"),

@@ -1,4 +1,5 @@
-"""`dpr bc`: behaviour cloning of recorded demonstrations into an SB3 model, optionally followed by DAgger rounds."""
+"""`dpr bc`: behaviour cloning of recorded demonstrations into an SB3 model, optionally followed by DAgger rounds;
+`dpr bc-decentralised`: the same demonstrations cloned into one per-robot model that runs any swarm size."""
 
 from __future__ import annotations
 
@@ -144,6 +145,95 @@ def cmd_bc(args, parser) -> int:
     return 0
 
 
+def bc_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.imitation.per_robot import behaviour_clone_per_robot
+    from dpr.policies.decentralised import MODEL_DEFAULTS
+    from dpr.policies.sb3 import FINETUNE_ALGOS
+
+    clone = defaults(behaviour_clone_per_robot)
+    holds = ", ".join(f"{model} {values['hold_steps']}" for model, values in MODEL_DEFAULTS.items())
+    parser.add_argument(
+        "--dataset",
+        required=True,
+        nargs="+",
+        help="dataset folder(s) written by `dpr collect` on the same env, of any swarm sizes (e.g. one of N=9 and "
+        "one of N=25); every dataset of 2 or more episodes gives validation episodes",
+    )
+    parser.add_argument("--env", required=True, help=f"env id the datasets were recorded on, e.g. {EXAMPLE_ENV_ID}")
+    parser.add_argument(
+        "--algo",
+        choices=FINETUNE_ALGOS,
+        default=clone["algo"],
+        help=f"model to clone into, which PPO/A2C can fine-tune on the PettingZoo env (default {clone['algo']})",
+    )
+    parser.add_argument("--robot-model", choices=ROBOT_MODELS, help="only checked: it must be the datasets'")
+    default_argument(parser, "--max-neighbours", clone["max_neighbours"], "neighbour slots K of the local observation")
+    parser.add_argument(
+        "--hold-steps",
+        type=positive_int,
+        help=f"steps of one wave phase: the clock's period is --hold-steps x --n-phases; with the decentralised "
+        f"wave as teacher, the hold it ran with (default the robot model's: {holds})",
+    )
+    default_argument(parser, "--n-phases", clone["n_phases"], "phases of one wave cycle (the clock's period)")
+    default_argument(parser, "--epochs", clone["epochs"], "maximum epochs")
+    default_argument(parser, "--batch-size", clone["batch_size"], "robot-frames per gradient step")
+    default_argument(parser, "--lr", clone["lr"], "Adam learning rate", type=float)
+    default_argument(
+        parser, "--val-fraction", clone["val_fraction"], "fraction of each dataset's episodes held out", type=float
+    )
+    default_argument(
+        parser,
+        "--patience",
+        clone["patience"],
+        "stop after this many epochs without a better validation log-likelihood",
+    )
+    default_argument(parser, "--seed", clone["seed"], "seed of the model, the split and the shuffling", type=int)
+    parser.add_argument(
+        "--out", help="new run folder (default runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>)"
+    )
+
+
+def cmd_bc_decentralised(args, parser) -> int:
+    from dpr.imitation.per_robot import behaviour_clone_per_robot
+
+    check_seed(args, parser)
+    if not args.lr > 0:
+        parser.error(f"--lr must be > 0, got {args.lr}")
+    try:
+        result = behaviour_clone_per_robot(
+            args.dataset,
+            args.env,
+            algo=args.algo,
+            max_neighbours=args.max_neighbours,
+            hold_steps=args.hold_steps,
+            n_phases=args.n_phases,
+            epochs=args.epochs,
+            batch_size=args.batch_size,
+            lr=args.lr,
+            val_fraction=args.val_fraction,
+            patience=args.patience,
+            seed=args.seed,
+            out=args.out,
+            env_kwargs={} if args.robot_model is None else {"robot_model": args.robot_model},
+            show_progress=True,
+        )
+    except (TypeError, ValueError) as error:
+        parser.error(flag_message(error, BC_DECENTRALISED_FLAGS))
+    model = result.model_path
+    print(f"model: {model}")
+    print(f"log: {result.log_path}")
+    print(f"config: {result.config_path}")
+    print(f"evaluate it at any N: dpr evaluate --policy {model} --env {args.env} --n-robots 49")
+    print(
+        f"best validation accuracy {result.best_val_accuracy:.4f} (epoch {result.best_epoch} of "
+        f"{result.epochs_run}, validation NLL {result.best_val_nll:.4f})"
+    )
+    return 0
+
+
+# dpr.imitation.per_robot parameters, said as the flags that set them.
+BC_DECENTRALISED_FLAGS = {"dataset_dirs": "--dataset"}
+
 COMMANDS = (
     Command(
         "bc",
@@ -156,5 +246,22 @@ COMMANDS = (
         arguments=bc_arguments,
         run=cmd_bc,
         flags=BC_FLAGS,
+    ),
+    Command(
+        "bc-decentralised",
+        help="behaviour-clone recorded datasets into one per-robot model that runs any swarm size",
+        description="Relabel every frame of the datasets (recorded by `dpr collect`, e.g. with --policy "
+        "decentralised-wave, of one or several swarm sizes) into per-robot samples: each robot's local observation "
+        "(its own state, its K nearest magnet neighbours with a mask, its goal direction and distance, a clock of "
+        "one wave cycle, its dead flag and the object where the task has them), computed from the recorded state, "
+        "and the action that robot took. Train one PPO/A2C model on them whose observation is one robot's and "
+        "whose action is Discrete(2), as on the PettingZoo env parallel_env(..., local_obs=True); whole episodes "
+        "are held out for validation, training stops early on the validation log-likelihood and the best weights "
+        "are kept. Saves model.zip (marked as a per-robot model, with its layout), bc_log.json and config.yaml "
+        "into a new run folder; `dpr evaluate --policy RUN/model.zip --env ID --n-robots N` runs it at any N, "
+        "as do `dpr collect` and `dpr view`.",
+        arguments=bc_decentralised_arguments,
+        run=cmd_bc_decentralised,
+        flags=BC_DECENTRALISED_FLAGS,
     ),
 )

@@ -1,5 +1,7 @@
-"""Imitation learning: behaviour cloning of recorded demonstrations into the SB3 policy that RL fine-tunes."""
+"""Imitation learning: behaviour cloning of recorded demonstrations into the SB3 policy that RL fine-tunes, and
+per-robot cloning into one policy that every robot of any swarm size runs (:mod:`dpr.imitation.per_robot`)."""
 
 from dpr.imitation.bc import BCResult, behaviour_clone
+from dpr.imitation.per_robot import behaviour_clone_per_robot
 
-__all__ = ["BCResult", "behaviour_clone"]
+__all__ = ["BCResult", "behaviour_clone", "behaviour_clone_per_robot"]

@@ -92,7 +92,7 @@ class BCResult:
 # ------------------------------------------------------------------------------------------------ arguments
 
 
-def _check_arguments(
+def check_bc_arguments(
     env_id: str, algo: str, epochs: int, batch_size: int, lr: float, val_fraction: float, patience: int, seed: int
 ) -> None:
     if env_id not in ENV_IDS.values():
@@ -174,7 +174,7 @@ def split_episodes(num_episodes: int, val_fraction: float, seed: int) -> tuple[l
 # ------------------------------------------------------------------------------------------------ training
 
 
-class _Meter:
+class AccuracyMeter:
     """Running sums of NLL and correctness over an epoch. Per-robot accuracy alone flatters a policy that never
     expands (the wave contracts most robots most of the time), so the whole-action match rate and the recall of
     recorded expansions are kept too."""
@@ -217,7 +217,7 @@ def _loader(dataset: FrameDataset, batch_size: int, sampler: EpisodeBlockSampler
 def measure(policy, dataset: FrameDataset, batch_size: int, prefix: str) -> dict[str, Any]:
     """NLL and accuracy of ``policy`` on every frame of ``dataset`` (eval mode, no gradients)."""
     policy.set_training_mode(False)
-    meter = _Meter(dataset.action_dim)
+    meter = AccuracyMeter(dataset.action_dim)
     for batch in _loader(dataset, batch_size, EpisodeBlockSampler(dataset, shuffle=False)):
         meter.add(*batch_stats(policy, batch["observation"], batch["action"]), batch["action"])
     return meter.result(prefix)
@@ -233,7 +233,7 @@ def _train_epoch(
     change_weight: float = 1.0,
 ) -> dict[str, Any]:
     policy.set_training_mode(True)
-    meter = _Meter(n_actions)
+    meter = AccuracyMeter(n_actions)
     for batch in loader:
         nll, correct = batch_stats(policy, batch["observation"], batch["action"])
         if previous_action is not None and change_weight != 1.0:
@@ -286,7 +286,7 @@ def behaviour_clone(
     Bad input raises ValueError (DatasetError for an unreadable dataset) before anything is written."""
     from dpr.policies.sb3 import build_model, make_vec_env
 
-    _check_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
+    check_bc_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
     runs.check_new_folder(out)
     dataset_dirs = [dataset_dirs] if isinstance(dataset_dirs, (str, Path)) else list(dataset_dirs)
     if not dataset_dirs:

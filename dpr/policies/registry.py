@@ -60,11 +60,15 @@ def make_policy(name: str, env):
     number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
     can reproduce), "random", "decentralised-wave" (every robot decides from its own local observation and a
     shared clock, :mod:`dpr.policies.decentralised`), or a ``.zip`` model file trained on ``env``'s id and
-    spaces."""
+    spaces; a per-robot model file (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
     check_policy_name(name)
-    from dpr.policies.sb3 import is_model_path, load_model_policy
+    from dpr.policies.sb3 import is_model_path, load_model_policy, read_model_info
 
     if is_model_path(name):
+        if read_model_info(name).per_robot is not None:  # one robot's model: every robot of any N runs it
+            from dpr.policies.per_robot_model import per_robot_model_policy
+
+            return per_robot_model_policy(name, env)
         return load_model_policy(name, env)
     if name == WAVE:
         from dpr.policies.wave import WavePolicy

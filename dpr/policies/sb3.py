@@ -7,8 +7,10 @@ policy in, and the model files.
 
 A model file is SB3's own zip plus one small JSON member, :data:`METADATA_MEMBER`, that names the algorithm,
 the env id and the env kwargs the model was trained with, so that a model can be evaluated or rolled out
-without restating them. stable-baselines3 and torch are imported inside functions only: the scripted
-policies (and everything that imports this package) must not pay for them.
+without restating them. A per-robot model (one robot's local observation in, that robot's action out, for any
+swarm size; :mod:`dpr.policies.per_robot_spec`) also carries its local-observation layout there.
+stable-baselines3 and torch are imported inside functions only: the scripted policies (and everything that
+imports this package) must not pay for them.
 """
 
 from __future__ import annotations
@@ -53,9 +55,15 @@ class ModelInfo:
     env_id: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     max_episode_steps: int | None = None
+    # A per-robot model's layout and training swarm (dpr.policies.per_robot_spec.RobotModelSpec as data);
+    # None for a model of the centralised env, whose observation is the whole swarm's state.
+    per_robot: dict[str, Any] | None = None
 
     def as_json(self) -> str:
-        return json.dumps({"format": METADATA_FORMAT, **asdict(self)}, indent=2, sort_keys=True)
+        data = asdict(self)
+        if data["per_robot"] is None:  # files of centralised models stay as they were
+            del data["per_robot"]
+        return json.dumps({"format": METADATA_FORMAT, **data}, indent=2, sort_keys=True)
 
 
 def algo_class(algo: str):
@@ -104,6 +112,7 @@ def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> Mode
             env_id=data["env_id"],
             env_kwargs=dict(data["env_kwargs"]),
             max_episode_steps=data.get("max_episode_steps"),
+            per_robot=None if data.get("per_robot") is None else dict(data["per_robot"]),
         )
     except (ValueError, KeyError, TypeError) as error:
         raise ParameterError(parameter, f"{path}: {METADATA_MEMBER} is malformed ({error!r})") from None
@@ -182,11 +191,23 @@ def load_model(path: str | Path, env=None, *, for_training: bool = False, parame
     except (KeyError, ValueError, RuntimeError, zipfile.BadZipFile, EOFError) as error:
         raise ParameterError(parameter, f"cannot load {info.algo} model {path}: {error}") from None
     if env is not None:
+        per_robot_parallel = False
+        if info.per_robot is not None:  # its spaces are one robot's: the env must give local observations
+            from dpr.policies.per_robot_spec import check_per_robot_env
+
+            check_per_robot_env(path, info, env, centralised=False)
+            per_robot_parallel = not hasattr(env, "parallel_env")  # a PettingZoo env: spaces per agent
         # Spaces are compared here rather than by SB3's load(env=...), so that the error names the env kwargs.
-        mismatch = _space_mismatch(path, info, model, env)
+        mismatch = None if per_robot_parallel else _space_mismatch(path, info, model, env)
         if mismatch:
             raise ValueError(mismatch)
-        if for_training:
+        if for_training and per_robot_parallel:
+            raise ValueError(f"per-robot model {path} trains on the agents' VecEnv: AgentsAsVecEnv(env)")
+        if for_training and info.per_robot is not None and env.num_envs != model.n_envs:
+            # One VecEnv entry per robot: another swarm size is another n_envs, which set_env refuses and SB3's
+            # load rebuilds the rollout buffer for.
+            model = algo_class(info.algo).load(path, env=env, device="cpu", custom_objects=custom)
+        elif for_training:
             model.set_env(env)
     return model, info
 
@@ -219,7 +240,9 @@ def single_thread_torch() -> None:
 
 def load_model_policy(path: str | Path, env) -> ModelPolicy:
     """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env),
-    predicting on one torch thread (:func:`single_thread_torch`)."""
+    predicting on one torch thread (:func:`single_thread_torch`). A per-robot model is refused here: it acts in
+    a centralised env through :func:`dpr.policies.per_robot_model.per_robot_model_policy` (what
+    :func:`dpr.policies.registry.make_policy` returns for it)."""
     single_thread_torch()
     model, info = load_model(path, env)
     return ModelPolicy(model, info, Path(path))
@@ -299,10 +322,16 @@ def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER
     source, info = load_model(path, parameter=parameter)
     for name in ("observation_space", "action_space"):
         if getattr(source, name) != getattr(model, name):
+            kind = (
+                "; it is a per-robot model (one robot's local observation): it trains on "
+                "AgentsAsVecEnv(parallel_env(..., local_obs=True)), not on the centralised env"
+                if info.per_robot is not None
+                else ""
+            )
             raise ParameterError(
                 parameter,
                 f"{path}: its {name} {describe_space(getattr(source, name))} differs from "
-                f"this run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs})",
+                f"this run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs}){kind}",
             )
     try:
         model.policy.load_state_dict(source.policy.state_dict())

@@ -27,7 +27,7 @@ import gymnasium as gym
 import yaml
 
 from dpr import runs
-from dpr.checks import check_int
+from dpr.checks import ParameterError, check_int
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
@@ -273,8 +273,13 @@ def train(
     hyper, env_kwargs, timesteps = config.resolve()
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
     try:
-        if config.init_from is not None:
-            read_model_info(config.init_from, INIT_PARAMETER)  # so does a missing or foreign model file
+        if config.init_from is not None:  # so does a missing or foreign model file
+            if read_model_info(config.init_from, INIT_PARAMETER).per_robot is not None:
+                raise ParameterError(
+                    INIT_PARAMETER,
+                    f"{config.init_from} is a per-robot model (one robot's local observation in, its action out); "
+                    "it trains on AgentsAsVecEnv(parallel_env(..., local_obs=True)), not on the centralised env",
+                )
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
         check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
     finally:
