@@ -210,6 +210,8 @@ def test_envs_the_model_was_not_trained_for_are_refused(cloned):
         make_policy(path, gym.make("dpr/Manipulation-v0", n_robots=4, **DISK))
     with pytest.raises(ValueError, match="obs_type"):
         make_policy(path, gym.make(ENV, n_robots=4, obs_type="pixels", **DISK))
+    with pytest.raises(ValueError, match="it was trained on dpr/Navigation-v0, this env is dpr/Unresponsive-v0"):
+        load_model(path, AgentsAsVecEnv(parallel_env("unresponsive", n_robots=4, local_obs=True, **DISK)))
     other_clock = parallel_env("navigation", n_robots=4, local_obs=True, clock_period=20, **DISK)
     with pytest.raises(ValueError, match="the model reads clock_period=16, the env gives clock_period=20"):
         load_model(path, AgentsAsVecEnv(other_clock))
@@ -243,3 +245,17 @@ def test_finetune_of_the_centralised_env_refuses_a_per_robot_model(cloned, tmp_p
     argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--timesteps", "64", "--n-envs", "1"]
     assert run([*argv, "--out", str(tmp_path / "ft")]) == 2
     assert "--from" in capsys.readouterr().err and not (tmp_path / "ft").exists()
+
+
+@pytest.mark.parametrize("env_id", ["dpr/Unresponsive-v0", "dpr/Gate-v0"])
+def test_a_navigation_model_drives_swarms_of_the_other_tasks_without_an_object(cloned, env_id):
+    """Unresponsive robots ignore commands: the model acts for every robot, not told which are dead."""
+    env = gym.make(env_id, n_robots=9, **DISK)
+    policy = make_policy(str(cloned.model_path), env)
+    obs, _ = env.reset(seed=3)
+    policy.reset(3)
+    for _ in range(20):
+        action = policy(obs)
+        assert env.action_space.contains(action)
+        obs, *_ = env.step(action)
+    env.close()

@@ -121,9 +121,10 @@ def is_parallel_env(env) -> bool:
 
 def check_per_robot_env(path: str | Path, info, env, centralised: bool = True) -> RobotModelSpec:
     """The spec of the per-robot model at ``path`` (metadata ``info``) if it can act in ``env``: a PettingZoo env
-    of :mod:`dpr.envs.parallel` made with ``local_obs=True``, an ``AgentsAsVecEnv`` of one, or (``centralised``)
-    a centralised env, wrapped or not, through :class:`PerRobotPolicyAdapter`. Otherwise a ValueError (a
-    :class:`ParameterError` about ``policy`` for a centralised model) naming what differs."""
+    of :mod:`dpr.envs.parallel` made with ``local_obs=True`` for the model's task and layout, an
+    ``AgentsAsVecEnv`` of one, or (``centralised``) a centralised env of any task with the same object or none,
+    wrapped or not, through :class:`PerRobotPolicyAdapter`. Otherwise a ValueError (a :class:`ParameterError`
+    about ``policy`` for a centralised model) naming what differs."""
     spec = RobotModelSpec.from_info(info, path)
     if is_parallel_env(env):
         parallel = getattr(env, "parallel_env", env)
@@ -145,11 +146,14 @@ def check_per_robot_env(path: str | Path, info, env, centralised: bool = True) -
             )
         if base.obs_type == "pixels":
             raise ValueError(f"per-robot model {path} reads robot states: use obs_type 'state' or 'pixels_state'")
-        # In the centralised env the adapter keeps the clock and the neighbour slots: only the task's parts count.
-        layout = LocalObservation.for_env(base, spec.max_neighbours, spec.clock_period)
+        # In the centralised env the adapter computes every robot's observation with the model's own layout (its
+        # clock, neighbour slots and dead flag: where the task has no dead robots, every flag reads 0), so the
+        # model runs on any task whose observation has the same parts: a Navigation model drives Gate and
+        # Unresponsive swarms too, not knowing in advance which robots are dead. Only an object must match.
+        layout = LocalObservation(spec.max_neighbours, base.has_object, spec.clock_period, spec.dead_flag)
     env_id = ENV_IDS[base.task]
     problems = _layout_mismatch(spec, layout)
-    if env_id != info.env_id:
+    if env_id != info.env_id and (is_parallel_env(env) or spec.has_object != base.has_object):
         problems.insert(0, f"it was trained on {info.env_id}, this env is {env_id}")
     if base.robot_model != spec.robot_model:
         hold = f", clock period {spec.clock_period}" if spec.clock_period is not None else ""
