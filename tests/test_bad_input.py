@@ -335,3 +335,15 @@ def test_a_very_large_paddle_swarm_is_announced():
     """Building thousands of paddle robots takes seconds per reset: said up front, not left to look like a hang."""
     with pytest.warns(UserWarning, match="n_robots=1000 paddle robots: every reset builds them"):
         gym.make("dpr/Navigation-v0", n_robots=1000, robot_model="paddle").close()
+
+
+@pytest.mark.parametrize("size", [8, 100000])
+def test_collect_names_the_image_size_flag_for_a_frame_size_out_of_range(size, tmp_path, capsys):
+    from dpr.cli import main
+
+    out = tmp_path / "ds"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["collect", "--env", "dpr/Navigation-v0", "--pixels", "--image-size", str(size), "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert "--image-size: must be" in capsys.readouterr().err
+    assert not out.exists()

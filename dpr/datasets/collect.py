@@ -33,6 +33,7 @@ from dpr.datasets import features as F
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs.particle_env import IMAGE_SIZE_RANGE
 from dpr.metrics import EpisodeMetrics
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.rollout import roll_out
@@ -64,8 +65,9 @@ class CollectSpec:
         check_policy_name(self.policy)
         if self.label_policy is not None:
             check_policy_name(self.label_policy)
-        for name in ("n_robots", "steps", "image_size"):
+        for name in ("n_robots", "steps"):
             check_int(name, getattr(self, name), 1)
+        check_int("image_size", self.image_size, *IMAGE_SIZE_RANGE)  # the frames are renders of this size
         reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
             raise ParameterError("env_kwargs", f"must not set {reserved}: they are CollectSpec fields")
