@@ -243,16 +243,42 @@ def test_bad_policy_arguments():
         DecentralisedWavePolicy(LocalObservation(clock_period=3), n_phases=4)
 
 
-def test_decentralised_sweep_tool_prints_its_table(capsys):
+@pytest.fixture(scope="module")
+def sweep_tool():
     import importlib.util
+    import sys
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "tools" / "decentralised_sweep.py"
-    spec = importlib.util.spec_from_file_location("decentralised_sweep", path)
-    sweep = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(sweep)
+    tools = Path(__file__).resolve().parents[1] / "tools"
+    sys.path.insert(0, str(tools))  # the tool imports episode_cache from beside it
+    try:
+        spec = importlib.util.spec_from_file_location("decentralised_sweep", tools / "decentralised_sweep.py")
+        sweep = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sweep)
+        yield sweep
+    finally:
+        sys.path.remove(str(tools))
+
+
+def test_decentralised_sweep_tool_prints_its_table_caches_and_plots(sweep_tool, tmp_path, capsys):
+    import json
+
+    cache, rows_file, plot = tmp_path / "episodes.jsonl", tmp_path / "rows.json", tmp_path / "sweep.png"
     argv = ["--models", "disk", "--sizes", "4", "--seeds", "0-1", "--steps", "20", "--workers", "1"]
-    assert sweep.main(argv) == 0
-    out = capsys.readouterr().out
-    assert "20 steps, seeds 0-1" in out
-    assert "| disk | 4 | centralised |" in out and "| disk | 4 | decentralised | 4 | default |" in out
+    argv += ["--cache", str(cache), "--json", str(rows_file), "--plot", str(plot)]
+    assert sweep_tool.main(argv) == 0
+    out = capsys.readouterr()
+    assert "20 steps, seeds 0-1 (2)" in out.out and "0 episodes cached, 4 to run" in out.err
+    assert "| disk | 4 | centralised wave |" in out.out and "| disk | 4 | decentralised wave (4 phases) |" in out.out
+    rows = json.loads(rows_file.read_text())
+    assert [row["policy"] for row in rows] == ["centralised wave", "decentralised wave (4 phases)"]
+    assert rows[0]["of_centralised"] == 1.0 and all(row["us_per_robot_step"] > 0 for row in rows)
+    assert plot.stat().st_size > 1000 and len(cache.read_text().splitlines()) == 4
+    assert sweep_tool.main(argv) == 0  # a rerun takes every episode from the cache
+    assert "4 episodes cached, 0 to run" in capsys.readouterr().err
+
+
+def test_decentralised_sweep_tool_refuses_a_policy_that_is_not_one(sweep_tool, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        sweep_tool.main(["--policies", "centralised", str(tmp_path / "missing.zip")])
+    assert "--policies" in capsys.readouterr().err

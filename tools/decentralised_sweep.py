@@ -1,25 +1,37 @@
-"""Centralised against decentralised wave: median projected displacement over seeds, per robot model and N.
+"""Swarm-size sweep of centralised and decentralised control: median projected displacement and cost per robot-step.
 
-The centralised wave is ``WavePolicy.from_env`` (it bins the robots along the goal direction from the swarm's
-centre); the decentralised one is ``DecentralisedWavePolicy.for_env`` (every robot decides from its own local
-observation: its distance to the goal and the shared clock). Both run in the same centralised env, so the physics
-is the same. Prints a markdown table, median (min to max) over seeds:
+Policies, each run in the same centralised env (so the physics is the same):
+
+* ``centralised``: the wave, ``WavePolicy.from_env`` (it bins the robots along the goal direction from the swarm's
+  centre, knowing every robot's position);
+* ``decentralised``: ``DecentralisedWavePolicy.for_env`` (every robot decides from its own local observation: its
+  distance to the goal and the shared clock), for each ``--n-phases`` and ``--sides``;
+* any per-robot model file given to ``--policies`` (``dpr bc-decentralised``, ``dpr finetune`` of one): one model
+  for every N, run through ``PerRobotPolicyAdapter``, on the robot model it was trained on only.
+
+Prints a markdown table per robot model and N: median (min to max) over seeds, % of the centralised wave's median,
+and microseconds of wall time per robot-step (env + policy). ``--cache`` keeps every finished episode (paddle
+episodes of 100 robots take a minute or more), ``--json`` writes the rows, ``--plot`` draws median against N:
 
     python tools/decentralised_sweep.py                                  # small default: 5 seeds x 500 steps
                                                                          # (paddle N=9, 25, 49; disk N=9, 100, 400)
-    python tools/decentralised_sweep.py --seeds 0-19 --steps 2500        # the full run
+    python tools/decentralised_sweep.py --models paddle --sizes 9 16 25 49 100 --seeds 1000-1019 --steps 2500 \\
+        --policies centralised decentralised models/decentralised-bc.zip --cache sweep.jsonl --plot sweep.png
     python tools/decentralised_sweep.py --models disk --sizes 9 100 400 --n-phases 3 4 6
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+from episode_cache import append_episode, load_episodes
 
 from dpr.cli import parse_seeds
 from dpr.policies.decentralised import DEFAULT_N_PHASES, DecentralisedWavePolicy
@@ -27,24 +39,47 @@ from dpr.policies.wave import START_SIDES, WavePolicy
 from dpr.rollout import roll_out
 
 CENTRALISED = "centralised"
+DECENTRALISED = "decentralised"
 DEFAULT_SIZES = {"paddle": [9, 25, 49], "disk": [9, 100, 400]}
 
 
-def projected_displacement(
+def model_file_robot_model(path: str) -> str:
+    """The robot model a per-robot model file was trained on (ValueError naming the file for anything else)."""
+    from dpr.policies.per_robot_spec import RobotModelSpec
+    from dpr.policies.sb3 import read_model_info
+
+    return RobotModelSpec.from_info(read_model_info(path, "--policies"), path).robot_model
+
+
+def run_episode(
     env_id: str, robot_model: str, n_robots: int, steps: int, policy: str, n_phases: int, side: str | None, seed: int
-) -> float:
+) -> dict:
+    """One episode: its projected displacement and the wall time of its steps (env + policy)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
+    from dpr.policies.registry import make_policy
 
     env = gym.make(env_id, n_robots=n_robots, robot_model=robot_model, max_episode_steps=steps)
     try:
         if policy == CENTRALISED:
             actor = WavePolicy.from_env(env)
-        else:
+        elif policy == DECENTRALISED:
             actor = DecentralisedWavePolicy.for_env(env, n_phases=n_phases, **({"start_side": side} if side else {}))
+        else:
+            actor = make_policy(policy, env)
+        started = time.perf_counter()
         result = roll_out(env, actor, seed)
+        seconds = time.perf_counter() - started
     finally:
         env.close()
-    return result.metrics.projected_displacement
+    return {"displacement": float(result.metrics.projected_displacement), "seconds": seconds}
+
+
+def label(policy: str, n_phases: int, side: str | None) -> str:
+    if policy == CENTRALISED:
+        return "centralised wave"
+    if policy == DECENTRALISED:
+        return f"decentralised wave ({n_phases} phases{', ' + side if side else ''})"
+    return Path(policy).name
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,48 +89,144 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", help="swarm sizes (default: 9 25 49 paddle, 9 100 400 disk)")
     parser.add_argument("--seeds", type=parse_seeds, default=parse_seeds("0-4"))
     parser.add_argument("--steps", type=int, default=500)
-    parser.add_argument("--n-phases", type=int, nargs="+", default=[DEFAULT_N_PHASES])
+    parser.add_argument(
+        "--policies",
+        nargs="+",
+        default=[CENTRALISED, DECENTRALISED],
+        help="centralised, decentralised, and per-robot model files (.zip)",
+    )
+    parser.add_argument("--n-phases", type=int, nargs="+", default=[DEFAULT_N_PHASES], help="of the decentralised wave")
     parser.add_argument("--sides", nargs="+", choices=START_SIDES, help="wave directions (default: the model's)")
-    parser.add_argument("--no-centralised", action="store_true", help="skip the centralised wave")
     parser.add_argument("--workers", type=int, default=2, help="processes (1: run in this one)")
+    parser.add_argument("--cache", type=Path, help="JSON-lines file of finished episodes: a rerun resumes")
+    parser.add_argument("--json", type=Path, help="write the table's rows here")
+    parser.add_argument("--plot", type=Path, help="draw median projected displacement against N into this PNG")
     args = parser.parse_args(argv)
+    if any(n < 1 for n in args.sizes or []):
+        parser.error("--sizes: every swarm needs at least 1 robot")
+    files = {}
+    for policy in args.policies:
+        if policy not in (CENTRALISED, DECENTRALISED):
+            if not policy.endswith(".zip") or not Path(policy).is_file():
+                parser.error(f"--policies: {policy!r} is neither centralised, decentralised nor a model file")
+            try:
+                files[policy] = model_file_robot_model(policy)
+            except ValueError as error:
+                parser.error(str(error))
 
-    variants = [] if args.no_centralised else [(CENTRALISED, 0, None)]
-    variants += [("decentralised", p, side) for p in args.n_phases for side in (args.sides or [None])]
+    variants = []
+    for policy in args.policies:
+        if policy == DECENTRALISED:
+            variants += [(policy, p, side) for p in args.n_phases for side in (args.sides or [None])]
+        else:
+            variants.append((policy, 0, None))
     grid = [(model, n) for model in args.models for n in (args.sizes or DEFAULT_SIZES[model])]
-    started = time.perf_counter()
     jobs = {
-        (model, n, variant, seed): (args.env, model, n, args.steps, *variant, seed)
+        f"{args.env}/{model}/{n}/{policy}/{n_phases}/{side}/{args.steps}/{seed}": (
+            args.env,
+            model,
+            n,
+            args.steps,
+            policy,
+            n_phases,
+            side,
+            seed,
+        )
         for model, n in grid
-        for variant in variants
+        for policy, n_phases, side in variants
+        if files.get(policy, model) == model  # a model file runs on the robot model it was trained on
         for seed in args.seeds
     }
+    records = load_episodes(args.cache)
+    todo = {key: job for key, job in jobs.items() if key not in records}
+    print(f"{len(jobs) - len(todo)} episodes cached, {len(todo)} to run", file=sys.stderr, flush=True)
+    started = time.perf_counter()
+
+    def finished(key: str, record: dict) -> None:
+        records[key] = {"key": key, **record}
+        append_episode(args.cache, records[key])
+
     if args.workers <= 1:
-        results = {key: projected_displacement(*job) for key, job in jobs.items()}
+        for key, job in todo.items():
+            finished(key, run_episode(*job))
     else:
         with ProcessPoolExecutor(args.workers) as pool:
-            futures = {key: pool.submit(projected_displacement, *job) for key, job in jobs.items()}
-            results = {key: future.result() for key, future in futures.items()}
+            # the largest swarms first, so that the workers end together
+            order = sorted(todo, key=lambda key: -todo[key][2] * (30 if todo[key][1] == "paddle" else 1))
+            futures = {pool.submit(run_episode, *todo[key]): key for key in order}
+            for done, future in enumerate(as_completed(futures), 1):
+                finished(futures[future], future.result())
+                print(f"[{done}/{len(todo)}] {futures[future]}", file=sys.stderr, flush=True)
     elapsed = time.perf_counter() - started
-    seeds = (
-        f"{args.seeds[0]}-{args.seeds[-1]}"
-        if args.seeds == list(range(args.seeds[0], args.seeds[-1] + 1))
-        else args.seeds
-    )
-    print(
-        f"{args.env}, {args.steps} steps, seeds {seeds}: projected displacement, median (min to max); {elapsed:.0f} s"
-    )
-    print("| model | N | policy | n_phases | side | median (min to max) |")
-    print("|---|---:|---|---:|---|---|")
+
+    rows = []
     for model, n in grid:
-        for variant in variants:
-            values = np.array([results[(model, n, variant, seed)] for seed in args.seeds])
-            policy, n_phases, side = variant
-            phases = "" if policy == CENTRALISED else str(n_phases)
-            side = side or "default"
-            summary = f"{np.median(values):.1f} ({values.min():.1f} to {values.max():.1f})"
-            print(f"| {model} | {n} | {policy} | {phases} | {side} | {summary} |")
+        centralised = None
+        for policy, n_phases, side in variants:
+            keys = [f"{args.env}/{model}/{n}/{policy}/{n_phases}/{side}/{args.steps}/{seed}" for seed in args.seeds]
+            if keys[0] not in jobs:
+                continue
+            values = np.array([records[key]["displacement"] for key in keys])
+            seconds = sum(records[key]["seconds"] for key in keys)
+            row = {
+                "robot_model": model,
+                "n_robots": n,
+                "policy": label(policy, n_phases, side),
+                "median": float(np.median(values)),
+                "min": float(values.min()),
+                "max": float(values.max()),
+                "us_per_robot_step": seconds / (len(keys) * args.steps * n) * 1e6,
+            }
+            if policy == CENTRALISED:
+                centralised = row["median"]
+            row["of_centralised"] = row["median"] / centralised if centralised else None
+            rows.append(row)
+    print(
+        f"{args.env}, {args.steps} steps, seeds {args.seeds[0]}-{args.seeds[-1]} ({len(args.seeds)}); {elapsed:.0f} s"
+    )
+    print("| model | N | policy | median (min to max) | % of centralised | µs per robot-step |")
+    print("|---|---:|---|---|---:|---:|")
+    for row in rows:
+        share = f"{row['of_centralised']:.0%}" if row["of_centralised"] is not None else ""
+        print(
+            f"| {row['robot_model']} | {row['n_robots']} | {row['policy']} | {row['median']:.1f} "
+            f"({row['min']:.1f} to {row['max']:.1f}) | {share} | {row['us_per_robot_step']:.0f} |"
+        )
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    if args.plot:
+        plot(rows, args.plot, f"{args.env}, {args.steps} steps, {len(args.seeds)} seeds")
     return 0
+
+
+def plot(rows: list[dict], path: Path, title: str) -> None:
+    """Median projected displacement against N, one panel per robot model, one line per policy."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    models = sorted({row["robot_model"] for row in rows}, key=list(DEFAULT_SIZES).index)
+    figure, axes = plt.subplots(1, len(models), figsize=(6 * len(models), 4), squeeze=False)
+    for axis, model in zip(axes[0], models):
+        for policy in dict.fromkeys(row["policy"] for row in rows if row["robot_model"] == model):
+            points = [
+                (r["n_robots"], r["median"], r["min"], r["max"])
+                for r in rows
+                if r["policy"] == policy and r["robot_model"] == model
+            ]
+            n, median, low, high = map(np.array, zip(*points))
+            axis.errorbar(n, median, yerr=[median - low, high - median], marker="o", capsize=3, label=policy)
+        axis.set_xscale("log")
+        axis.set_xlabel("robots (N)")
+        axis.set_ylabel("projected displacement (median, min-max)")
+        axis.set_title(f"{model} model")
+        axis.axhline(0.0, color="grey", linewidth=0.5)
+        axis.legend(fontsize=8)
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
+from episode_cache import append_episode, load_episodes
 from wave_sweep import projected_displacement
 
 from dpr.cli import parse_seeds
@@ -41,20 +42,9 @@ def cell_key(model: str, n_robots: int, side: str, hold: int, steps: int, seed: 
     return f"{model}/{n_robots}/{side}/{hold}/{steps}/{seed}"
 
 
-def load_cache(path: Path | None) -> dict[str, float]:
-    if path is None or not path.exists():
-        return {}
-    cache = {}
-    for line in path.read_text().splitlines():
-        if line.strip():
-            row = json.loads(line)
-            cache[row["key"]] = row["displacement"]
-    return cache
-
-
 def run_cells(cells: list[tuple], steps: int, workers: int, cache_path: Path | None) -> dict[str, float]:
     """Projected displacement of every ``(model, n, side, hold, seed)`` cell, from the cache or computed."""
-    results = load_cache(cache_path)
+    results = {key: record["displacement"] for key, record in load_episodes(cache_path).items()}
     todo = [cell for cell in cells if cell_key(*cell[:4], steps, cell[4]) not in results]
     print(f"{len(cells) - len(todo)} cached, {len(todo)} to run", file=sys.stderr, flush=True)
     # the slowest (largest paddle swarms) first, so that the pool ends together
@@ -68,9 +58,7 @@ def run_cells(cells: list[tuple], steps: int, workers: int, cache_path: Path | N
             model, n, side, hold, seed = futures[future]
             key = cell_key(model, n, side, hold, steps, seed)
             results[key] = float(future.result())
-            if cache_path is not None:
-                with cache_path.open("a") as f:
-                    f.write(json.dumps({"key": key, "displacement": results[key]}) + "\n")
+            append_episode(cache_path, {"key": key, "displacement": results[key]})
             print(f"[{done}/{len(todo)}] {key}: {results[key]:.1f}", file=sys.stderr, flush=True)
     return results
 
