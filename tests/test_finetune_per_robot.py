@@ -126,6 +126,11 @@ def test_two_swarm_sizes_train_side_by_side(cloned, tmp_path):
         assert row["mean_return"] == pytest.approx(np.mean(returns))
 
 
+def test_one_size_may_be_given_as_a_number():
+    assert PerRobotFinetuneConfig("model.zip", ENV, n_robots=9).n_robots == (9,)
+    assert PerRobotFinetuneConfig("model.zip", ENV, n_robots=[9, 25]).n_robots == (9, 25)
+
+
 def test_swarms_of_several_sizes_are_one_vec_env():
     kwargs = {"local_obs": True, "clock_period": 16, **DISK}
     venv = SwarmsAsVecEnv([parallel_env("navigation", n_robots=n, **kwargs) for n in (2, 3)])

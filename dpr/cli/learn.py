@@ -279,7 +279,8 @@ def finetune_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
         "--timesteps",
         type=positive_int,
         help="SWARM steps after the warm-up, summed over the training swarms (one step of a 9-robot swarm counts "
-        "once, not 9 times; with --n-robots 9 25, 10000 is 5000 steps of each swarm); default: the yaml's",
+        "once, not 9 times; with --n-robots 9 25, 10000 is 5000 steps of each swarm); default: the n_timesteps "
+        "of the finetune preset of dpr/rl/hyperparams/<algo>.yml",
     )
     default_argument(
         parser,

@@ -91,6 +91,9 @@ class PerRobotFinetuneConfig:
     hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml's finetune preset
     eval_episodes: int = 2  # validation episodes per training size at each evaluation
 
+    def __post_init__(self):
+        self.n_robots = (self.n_robots,) if isinstance(self.n_robots, int) else tuple(self.n_robots)
+
 
 @dataclass(frozen=True)
 class PerRobotFinetuneResult(TrainResult):
@@ -163,7 +166,7 @@ def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
         raise ParameterError("hyperparams", f"a per-robot model takes no yaml env_kwargs, got {hyper.env_kwargs}")
     if (hyper.algo_kwargs.get("policy_kwargs") or {}).get("features_extractor", "flatten") != "flatten":
         raise ParameterError("hyperparams", "a per-robot model reads one robot's vector: features_extractor flatten")
-    sizes = tuple(int(n) for n in config.n_robots) or spec.trained_n_robots or (DEFAULT_N_ROBOTS,)
+    sizes = config.n_robots or spec.trained_n_robots or (DEFAULT_N_ROBOTS,)
     trained = tuple(sorted({*spec.trained_n_robots, *sizes}))
     return _Resolved(
         info,
@@ -282,7 +285,7 @@ class _Validation:
         )
 
 
-def _periodic(validation: _Validation, run_dir: Path, resolved: _Resolved, unit: StepUnit, warmup: int):
+def _periodic(validation: _Validation, run_dir: Path, resolved: _Resolved, unit: StepUnit):
     """An SB3 callback that, at the start of each rollout (after an update), writes a checkpoint every
     ``timesteps / CHECKPOINTS`` swarm steps and evaluates every ``timesteps / EVALUATIONS``, counted from the end of
     the warm-up; checkpoints are named by swarm steps, warm-up included."""
@@ -299,7 +302,7 @@ def _periodic(validation: _Validation, run_dir: Path, resolved: _Resolved, unit:
 
         def _on_rollout_start(self) -> None:
             done = unit.from_sb3(self.model.num_timesteps - self.first)
-            total = warmup + done
+            total = unit.from_sb3(self.model.num_timesteps)  # the warm-up's steps too
             if done >= self.next_checkpoint:
                 folder.mkdir(exist_ok=True)
                 save_model(self.model, folder / f"model_{total}_steps.zip", resolved.model_info())
@@ -385,7 +388,7 @@ def finetune_per_robot(
         desc = f"finetune-decentralised {resolved.algo} {config.env_id}"
         callbacks = [
             progress_bar(desc, resolved.timesteps, show_progress, unit),
-            _periodic(validation, run_dir, resolved, unit, config.critic_warmup),
+            _periodic(validation, run_dir, resolved, unit),
         ]
         try:
             if config.critic_warmup:
