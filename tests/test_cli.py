@@ -88,6 +88,10 @@ LIBRARY_PARAMETERS = {
         *("init_from", "policy", "anchor_datasets", "anchor_weight", "anchor_decay", "critic_warmup"),
         *("timesteps", "seed", "n_envs", "eval_episodes", "out", "env_id", "env_kwargs"),
     },
+    "finetune-decentralised": {
+        *("init_from", "policy", "env_id", "algo", "n_robots", "timesteps", "critic_warmup", "seed"),
+        *("eval_episodes", "env_kwargs", "hyperparams", "out", "shared_reward"),
+    },
     "pipeline": {
         "out",
         "preset",

@@ -69,9 +69,10 @@ def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> 
     )
 
 
-def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
+def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: int | None = None) -> None:
     """Roll out every checkpoint of a training run and its final model from one evaluation start, side by side
-    in a new .rrd file (named after their step counts): how the policy changed over the run."""
+    in a new .rrd file (named after their step counts): how the policy changed over the run. ``n_robots``: the
+    swarm size of a per-robot model's rollouts (its file names none)."""
     import re
 
     from tqdm import tqdm
@@ -90,6 +91,8 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
     models = [(f"step_{step_count(m)}", m) for m in checkpoints] + [("final", result.model_path)]
     info = read_model_info(result.model_path)
     swarm, extra = split_swarm_kwargs(info.env_kwargs)
+    if n_robots is not None:
+        swarm.setdefault("n_robots", n_robots)
     steps = info.max_episode_steps or MAX_EPISODE_STEPS
     episodes = [
         rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
@@ -99,17 +102,19 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int) -> None:
     print(f"wrote {path}")
 
 
-def _training_done(result, args) -> int:
-    """Say where a `dpr train`/`dpr finetune` run's files are (and log it to rerun when asked)."""
+def _training_done(result, args, n_robots: int | None = None) -> int:
+    """Say where a `dpr train`/`dpr finetune` run's files are (and log it to rerun when asked; ``n_robots``: the
+    swarm size to evaluate and roll out a per-robot model at)."""
     from dpr.rl.train import EVAL_SEED_OFFSET
 
     print(f"model: {result.model_path}")
     if result.best_model_path:
         print(f"best model: {result.best_model_path}")
     print(f"config: {result.config_path}")
-    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}")
+    size = f" --n-robots {n_robots}" if n_robots is not None else ""
+    print(f"evaluate it: dpr evaluate --policy {result.model_path} --env {args.env}{size}")
     if args.rerun and not result.interrupted:
-        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET)
+        _log_training_to_rerun(result, args.env, args.rerun, args.seed + EVAL_SEED_OFFSET, n_robots)
     return 130 if result.interrupted else 0
 
 
@@ -215,6 +220,11 @@ def cmd_finetune(args, parser) -> int:
     check_rerun_output(args, parser)
     try:
         info = read_model_info(args.source)
+        if info.per_robot is not None:
+            raise ValueError(
+                f"--from: {args.source} is a per-robot model (one robot's local observation in, its action out); "
+                f"fine-tune it with `dpr finetune-decentralised --from {args.source} --env {info.env_id} --n-robots N`"
+            )
         if info.env_id != args.env:
             raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
         swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, dict(args.env_kwarg or [])))
@@ -242,6 +252,99 @@ def cmd_finetune(args, parser) -> int:
     return _training_done(result, args)
 
 
+# -- finetune-decentralised ----------------------------------------------------------------------------------------
+FINETUNE_DECENTRALISED_FLAGS = {"init_from": "--from", "policy": "--from", "shared_reward": "--split-reward"}
+
+
+def finetune_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.policies.sb3 import FINETUNE_ALGOS
+    from dpr.rl.finetune_per_robot import DEFAULT_N_ROBOTS, PerRobotFinetuneConfig
+
+    config = defaults(PerRobotFinetuneConfig)
+    parser.add_argument(
+        "--from", dest="source", required=True, metavar="MODEL.zip", help="the per-robot model to start from"
+    )
+    parser.add_argument("--env", required=True, help=f"env id the model was trained on, e.g. {EXAMPLE_ENV_ID}")
+    parser.add_argument(
+        "--n-robots",
+        nargs="+",
+        type=positive_int,
+        metavar="N",
+        help="training swarm sizes, one swarm per value, stepped side by side in every rollout (e.g. 9 25; repeat a "
+        "size for more swarms of it); default: the sizes the model was trained on "
+        f"(its trained_n_robots, else {DEFAULT_N_ROBOTS})",
+    )
+    parser.add_argument("--algo", choices=FINETUNE_ALGOS, help="algorithm to fine-tune with (default: the model's)")
+    parser.add_argument(
+        "--timesteps",
+        type=positive_int,
+        help="SWARM steps after the warm-up, summed over the training swarms (one step of a 9-robot swarm counts "
+        "once, not 9 times; with --n-robots 9 25, 10000 is 5000 steps of each swarm); default: the n_timesteps "
+        "of the finetune preset of dpr/rl/hyperparams/<algo>.yml",
+    )
+    default_argument(
+        parser,
+        "--critic-warmup",
+        FINETUNE_CRITIC_WARMUP,
+        "swarm steps that train only the value head first (per-robot cloning leaves it untrained); 0 to skip",
+        type=int,
+    )
+    parser.add_argument(
+        "--split-reward",
+        action="store_true",
+        help="give each robot the team reward / N (default: every robot gets the whole team reward)",
+    )
+    default_argument(
+        parser,
+        "--eval-episodes",
+        config["eval_episodes"],
+        "validation episodes per training size at each evaluation (best_model.zip)",
+    )
+    default_argument(parser, "--seed", config["seed"], "seed of the model and the swarms", type=int)
+    env_kwarg_argument(parser, "reward=projected")
+    parser.add_argument(
+        "--hyperparam",
+        action="append",
+        type=hyperparam,
+        metavar="NAME=VALUE",
+        help="override a value of the yaml's finetune preset, e.g. n_steps=256 (steps of each swarm per rollout) "
+        "or learning_rate=1e-5 (repeatable)",
+    )
+    parser.add_argument(
+        "--out", help="new run folder (default runs/finetune-decentralised/<task>-<algo>-seed<S>-<timestamp>)"
+    )
+    rerun_argument(
+        parser,
+        "after training, roll out every checkpoint and the final model at the first --n-robots size from the "
+        "first validation start side by side into this new rerun file",
+    )
+
+
+def cmd_finetune_decentralised(args, parser) -> int:
+    from dpr.rl.finetune_per_robot import PerRobotFinetuneConfig, finetune_per_robot
+
+    check_seed(args, parser)
+    check_rerun_output(args, parser)
+    try:
+        config = PerRobotFinetuneConfig(
+            args.source,
+            args.env,
+            n_robots=tuple(args.n_robots or ()),
+            algo=args.algo,
+            timesteps=args.timesteps,
+            critic_warmup=args.critic_warmup,
+            seed=args.seed,
+            shared_reward=not args.split_reward,
+            env_kwargs=dict(args.env_kwarg or []),
+            hyperparams=dict(args.hyperparam or []),
+            eval_episodes=args.eval_episodes,
+        )
+        result = finetune_per_robot(config, args.out)
+    except (TypeError, ValueError) as error:
+        parser.error(flag_message(error, FINETUNE_DECENTRALISED_FLAGS))
+    return _training_done(result, args, result.n_robots[0])
+
+
 COMMANDS = (
     Command(
         "train",
@@ -263,5 +366,20 @@ COMMANDS = (
         arguments=finetune_arguments,
         run=cmd_finetune,
         flags=FINETUNE_FLAGS,
+    ),
+    Command(
+        "finetune-decentralised",
+        help="fine-tune a per-robot model with PPO or A2C, every robot of the swarm(s) sharing it",
+        description="Start PPO or A2C from a per-robot model (written by `dpr bc-decentralised`) and train it on "
+        "the PettingZoo env of its task and layout with every robot an env of one VecEnv: one policy, the same "
+        "weights for every robot. --n-robots 9 25 trains a swarm of each size side by side, so every rollout holds "
+        "both. Each robot gets the team reward (--split-reward: reward / N). Budgets count swarm steps, not robot "
+        "steps. As `dpr finetune`: the yaml's finetune preset, a critic warm-up first, evaluations of the start "
+        "and about 5 times over the run in the centralised env of each training size on fixed validation seeds "
+        "(seed + 10000 ...), best_model.zip, checkpoints and config.yaml in a new run folder. The models written "
+        "are per-robot models again: `dpr evaluate --policy RUN/model.zip --env ID --n-robots N` runs them at any N.",
+        arguments=finetune_decentralised_arguments,
+        run=cmd_finetune_decentralised,
+        flags=FINETUNE_DECENTRALISED_FLAGS,
     ),
 )

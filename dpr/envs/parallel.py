@@ -32,6 +32,10 @@ policy network is shared by every robot::
 
     venv = AgentsAsVecEnv(parallel_env("navigation", n_robots=4, robot_model="disk"))
     PPO("MlpPolicy", venv, n_steps=32, batch_size=64).learn(10_000)
+
+``SwarmsAsVecEnv([parallel_env(..., n_robots=9), parallel_env(..., n_robots=25)])`` puts the robots of several
+swarms (of different sizes, with local observations of one size) into one VecEnv, so that every rollout holds
+all of them (``dpr finetune-decentralised``).
 """
 
 from __future__ import annotations
@@ -329,6 +333,8 @@ __all__ = [
 def __getattr__(name: str):
     if name == "AgentsAsVecEnv":
         return _agents_as_vec_env_class()
+    if name == "SwarmsAsVecEnv":
+        return _swarms_as_vec_env_class()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -432,3 +438,120 @@ def _agents_as_vec_env_class() -> type:
     AgentsAsVecEnv.__module__ = __name__
     AgentsAsVecEnv.__qualname__ = "AgentsAsVecEnv"  # pickle finds it through the module's __getattr__
     return AgentsAsVecEnv
+
+
+@functools.cache
+def _swarms_as_vec_env_class() -> type:
+    from stable_baselines3.common.vec_env import VecEnv
+
+    AgentsAsVecEnv = _agents_as_vec_env_class()
+
+    class SwarmsAsVecEnv(VecEnv):
+        """The agents of several PettingZoo ParallelEnvs (swarms, of any sizes) as one SB3 ``VecEnv``: swarm k's
+        robots are the envs ``offsets[k] .. offsets[k] + N_k - 1``, each swarm an :class:`AgentsAsVecEnv`.
+
+        One step of the vector steps every swarm once; each swarm ends and resets on its own. Every swarm must
+        have the same observation and action space (a per-robot layout whose size does not depend on N), so one
+        policy with shared parameters learns from swarms of several sizes in every rollout, which one
+        ``AgentsAsVecEnv`` (a fixed ``num_envs``) cannot give. ``seed(s)`` gives swarm k the seed
+        ``s + offsets[k]`` at its next reset. ``get_attr``/``env_method`` act once per swarm and repeat the
+        result for each of its robots' indices.
+        """
+
+        def __init__(self, parallel_envs):
+            parallel_envs = list(parallel_envs)
+            if not parallel_envs:
+                raise ValueError("SwarmsAsVecEnv needs at least one ParallelEnv")
+            self.swarms = [AgentsAsVecEnv(env) for env in parallel_envs]
+            first = self.swarms[0]
+            for k, swarm in enumerate(self.swarms[1:], start=1):
+                if swarm.observation_space != first.observation_space or swarm.action_space != first.action_space:
+                    raise ValueError(
+                        f"SwarmsAsVecEnv needs one observation space and one action space for all swarms; swarm {k} "
+                        f"has {swarm.observation_space}, {swarm.action_space}, swarm 0 "
+                        f"{first.observation_space}, {first.action_space}"
+                    )
+            self.offsets = [0]
+            for swarm in self.swarms[:-1]:
+                self.offsets.append(self.offsets[-1] + swarm.num_envs)
+            self._actions: np.ndarray | None = None
+            super().__init__(sum(s.num_envs for s in self.swarms), first.observation_space, first.action_space)
+
+        @property
+        def parallel_envs(self) -> list:
+            """The swarms' PettingZoo envs, in order."""
+            return [swarm.parallel_env for swarm in self.swarms]
+
+        def reset(self) -> np.ndarray:
+            observations, self.reset_infos = [], []
+            for swarm, offset in zip(self.swarms, self.offsets):
+                if self._seeds[offset] is not None:
+                    swarm.seed(self._seeds[offset])
+                if self._options[offset]:
+                    swarm.set_options(self._options[offset])
+                observations.append(swarm.reset())
+                self.reset_infos.extend(swarm.reset_infos)
+            self._reset_seeds()
+            self._reset_options()
+            return np.concatenate(observations)
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = np.asarray(actions)
+
+        def step_wait(self):
+            if self._actions is None:
+                raise RuntimeError("step_async() must come before step_wait()")
+            actions, self._actions = self._actions, None
+            if len(actions) != self.num_envs:
+                raise ValueError(f"actions must have one row per robot ({self.num_envs}), got shape {actions.shape}")
+            results = [
+                swarm.step(actions[offset : offset + swarm.num_envs])
+                for swarm, offset in zip(self.swarms, self.offsets)
+            ]
+            self.reset_infos = [info for swarm in self.swarms for info in swarm.reset_infos]
+            return (
+                np.concatenate([r[0] for r in results]),
+                np.concatenate([r[1] for r in results]),
+                np.concatenate([r[2] for r in results]),
+                [info for r in results for info in r[3]],
+            )
+
+        def close(self) -> None:
+            for swarm in self.swarms:
+                swarm.close()
+
+        def _by_swarm(self, indices) -> list[tuple[int, int]]:
+            """(swarm, index within it) of each vector index."""
+            located = []
+            for index in self._get_indices(indices):
+                if not 0 <= index < self.num_envs:
+                    raise IndexError(f"env index {index} out of range(0, {self.num_envs})")
+                k = max(k for k, offset in enumerate(self.offsets) if offset <= index)
+                located.append((k, index - self.offsets[k]))
+            return located
+
+        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+            values = {k: swarm.get_attr(attr_name, 0)[0] for k, swarm in enumerate(self.swarms)}
+            return [values[k] for k, _ in self._by_swarm(indices)]
+
+        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+            for k in sorted({k for k, _ in self._by_swarm(indices)}):
+                self.swarms[k].set_attr(attr_name, value)
+
+        def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+            located = self._by_swarm(indices)
+            results = {
+                k: self.swarms[k].env_method(method_name, *method_args, indices=0, **method_kwargs)[0]
+                for k in sorted({k for k, _ in located})
+            }
+            return [results[k] for k, _ in located]
+
+        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+            return [False for _ in self._get_indices(indices)]
+
+        def get_images(self):
+            return [image for swarm in self.swarms for image in swarm.get_images()]
+
+    SwarmsAsVecEnv.__module__ = __name__
+    SwarmsAsVecEnv.__qualname__ = "SwarmsAsVecEnv"
+    return SwarmsAsVecEnv

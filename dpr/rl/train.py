@@ -149,10 +149,32 @@ def tensorboard_available() -> bool:
     return importlib.util.find_spec("tensorboard") is not None
 
 
-def progress_bar(desc: str, total: int, show_progress: bool):
-    """An SB3 callback showing a tqdm bar over the ``total`` steps of one ``learn`` call (counted from where
-    the model's step count stood, so a run after a critic warm-up starts at 0), with the mean return of the
-    last episodes."""
+@dataclass(frozen=True)
+class StepUnit:
+    """The steps a run's budget counts, against SB3's ``num_timesteps`` (which grows by the VecEnv's ``num_envs``
+    at every step of the vector): one vector step is ``sb3_steps`` of SB3's and ``counted`` of the run's.
+    Centralised runs count SB3's own steps (:data:`SB3_STEPS`); a per-robot run, whose VecEnv entries are
+    robots, counts swarm steps (:mod:`dpr.rl.finetune_per_robot`)."""
+
+    sb3_steps: int = 1
+    counted: int = 1
+
+    def to_sb3(self, steps: int) -> int:
+        """SB3's ``total_timesteps`` for ``steps`` counted steps (whole vector steps, rounded up)."""
+        return -(-steps // self.counted) * self.sb3_steps
+
+    def from_sb3(self, timesteps: int) -> int:
+        """The counted steps in ``timesteps`` of SB3's."""
+        return timesteps // self.sb3_steps * self.counted
+
+
+SB3_STEPS = StepUnit()
+
+
+def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB3_STEPS):
+    """An SB3 callback showing a tqdm bar over the ``total`` steps (counted in ``unit``) of one ``learn`` call
+    (counted from where the model's step count stood, so a run after a critic warm-up starts at 0), with the mean
+    return of the last episodes."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class ProgressBar(BaseCallback):
@@ -163,7 +185,7 @@ def progress_bar(desc: str, total: int, show_progress: bool):
             self.first_step = self.model.num_timesteps
 
         def _on_step(self) -> bool:
-            self.bar.update(self.model.num_timesteps - self.first_step - self.bar.n)
+            self.bar.update(unit.from_sb3(self.model.num_timesteps - self.first_step) - self.bar.n)
             if self.model.ep_info_buffer and self.n_calls % 100 == 0:
                 mean = sum(e["r"] for e in self.model.ep_info_buffer) / len(self.model.ep_info_buffer)
                 self.bar.set_postfix(ep_rew_mean=f"{mean:.3g}", refresh=False)
@@ -245,15 +267,16 @@ def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any
     )
 
 
-def warm_up_critic(model, steps: int, show_progress: bool) -> None:
-    """``steps`` steps of ``model.learn`` with every actor parameter frozen: only the value head moves."""
+def warm_up_critic(model, steps: int, show_progress: bool, unit: StepUnit = SB3_STEPS) -> None:
+    """``steps`` steps (counted in ``unit``) of ``model.learn`` with every actor parameter frozen: only the value
+    head moves."""
     actor = actor_parameters(model.policy)
     for parameter in actor:
         parameter.requires_grad_(False)
     try:
         model.learn(
-            total_timesteps=steps,
-            callback=progress_bar("critic warm-up", steps, show_progress),
+            total_timesteps=unit.to_sb3(steps),
+            callback=progress_bar("critic warm-up", steps, show_progress, unit),
             tb_log_name="critic_warmup",
         )
     finally:
@@ -278,7 +301,8 @@ def train(
                 raise ParameterError(
                     INIT_PARAMETER,
                     f"{config.init_from} is a per-robot model (one robot's local observation in, its action out); "
-                    "it trains on AgentsAsVecEnv(parallel_env(..., local_obs=True)), not on the centralised env",
+                    "it trains on every robot of a PettingZoo swarm, not on the centralised env: fine-tune it with "
+                    "`dpr finetune-decentralised` (dpr.rl.finetune_per_robot)",
                 )
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
         check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses

@@ -1,0 +1,431 @@
+"""Fine-tune a per-robot model with PPO or A2C, every robot of one or more swarms acting with the same weights
+(``dpr finetune-decentralised``).
+
+A per-robot model (``dpr bc-decentralised``; :mod:`dpr.policies.per_robot_model`) reads one robot's local
+observation and gives that robot's action. Here every robot is one env of an SB3 VecEnv
+(:class:`~dpr.envs.parallel.SwarmsAsVecEnv` of ``parallel_env(task, **spec.parallel_env_kwargs(), n_robots=N)``,
+one swarm per entry of ``n_robots``), so one policy, shared by all of them, learns from every robot's transitions.
+Swarms of several sizes step side by side: every rollout holds all of them. Each robot's reward is the team reward
+(``shared_reward=True``) or an equal share of it.
+
+Budgets are counted in **swarm steps**, summed over the training swarms (one step of a 9-robot swarm is one step,
+not nine): with ``n_robots=(9, 25)``, 10,000 steps are 5,000 steps of each swarm. SB3's own ``num_timesteps``
+counts robot steps; :class:`~dpr.rl.train.StepUnit` converts. The yaml's ``n_steps`` (rollout length) counts the
+steps of each swarm, and a rollout holds ``n_steps x sum(n_robots)`` robot transitions.
+
+As ``dpr finetune`` does, the run starts from the model's weights in a new model with the ``finetune`` preset of
+the algorithm's yaml, first trains only the value head for ``critic_warmup`` steps (per-robot cloning leaves it
+untrained), evaluates the policy, and keeps the best one: the start and then about :data:`EVALUATIONS` times over
+the run, the policy drives the centralised env of each training size through ``make_policy`` (as ``dpr evaluate``
+runs it) from the same validation seeds (``seed + EVAL_SEED_OFFSET + i``), and ``best_model.zip`` is the one of the
+highest mean team return (the start's weights when nothing beat them). A run folder holds ``model.zip``,
+``best_model.zip``, ``checkpoints/model_<swarm steps>_steps.zip``, ``eval/evaluations.json``, ``config.yaml`` and
+``tb/`` (with tensorboard). Every model written is a per-robot model with the layout it started with and
+``trained_n_robots`` the union of the model's and this run's sizes, so it runs at any N.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from dpr import runs
+from dpr.atomic import atomic_write_json, atomic_write_text
+from dpr.checks import ParameterError, check_choice, check_int
+from dpr.envs import ENV_IDS
+from dpr.envs.particle_env import MAX_EPISODE_STEPS
+from dpr.policies.hyperparams import FINETUNE_PRESET, Hyperparams, load_hyperparams
+from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env
+from dpr.policies.sb3 import (
+    FINETUNE_ALGOS,
+    INIT_PARAMETER,
+    ModelInfo,
+    build_model,
+    load_initial_policy,
+    read_model_info,
+    save_model,
+)
+from dpr.rl.train import (
+    CHECKPOINTS,
+    EVAL_SEED_OFFSET,
+    EVALUATIONS,
+    StepUnit,
+    TrainResult,
+    progress_bar,
+    tensorboard_available,
+    warm_up_critic,
+)
+
+__all__ = ["PerRobotFinetuneConfig", "PerRobotFinetuneResult", "finetune_per_robot", "validate_per_robot_model"]
+
+RUNS_DIR = Path("runs/finetune-decentralised")
+DEFAULT_N_ROBOTS = 9  # the training size of a model that names none
+# Parallel-env kwargs the run sets itself: the swarm sizes, the model's layout, the reward sharing, the episode length.
+RESERVED_ENV_KWARGS = (
+    *("n_robots", "render_mode", "max_episode_steps", "local_obs", "max_neighbours", "clock_period"),
+    "shared_reward",
+)
+
+
+@dataclass
+class PerRobotFinetuneConfig:
+    """One fine-tuning run of a per-robot model (the ``dpr finetune-decentralised`` flags)."""
+
+    init_from: str  # the per-robot model file the run starts from
+    env_id: str  # the model's own task
+    n_robots: tuple[int, ...] = ()  # one training swarm per entry; () = the model's trained_n_robots (else 9)
+    algo: str | None = None  # None: the model's
+    timesteps: int | None = None  # swarm steps, summed over the swarms; None: the finetune preset's n_timesteps
+    critic_warmup: int = 0  # swarm steps training the value head only, before the actor moves
+    seed: int = 0
+    shared_reward: bool = True  # every robot gets the team reward; False: reward / N
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # task kwargs beside the model's own
+    hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml's finetune preset
+    eval_episodes: int = 2  # validation episodes per training size at each evaluation
+
+    def __post_init__(self):
+        self.n_robots = (self.n_robots,) if isinstance(self.n_robots, int) else tuple(self.n_robots)
+
+
+@dataclass(frozen=True)
+class PerRobotFinetuneResult(TrainResult):
+    """Where a run's files are (``timesteps`` in swarm steps) and the swarm sizes it trained on."""
+
+    n_robots: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class _Resolved:
+    """What a config resolves to, all checked before any folder is made."""
+
+    info: ModelInfo  # the starting model's
+    spec: RobotModelSpec  # the saved models' (trained_n_robots updated)
+    algo: str
+    hyper: Hyperparams
+    env_kwargs: dict[str, Any]  # task kwargs of the centralised env and the parallel env (no N, no layout)
+    sizes: tuple[int, ...]
+    timesteps: int
+    steps_per_episode: int
+
+    @property
+    def eval_sizes(self) -> list[int]:
+        return sorted(set(self.sizes))
+
+    def model_info(self) -> ModelInfo:
+        return ModelInfo(
+            self.algo, self.info.env_id, self.env_kwargs, self.steps_per_episode, per_robot=self.spec.as_dict()
+        )
+
+
+def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
+    for name in ("seed", "critic_warmup"):
+        check_int(name, getattr(config, name), 0)
+    check_int("eval_episodes", config.eval_episodes, 1)
+    if config.timesteps is not None:
+        check_int("timesteps", config.timesteps, 1)
+    if not isinstance(config.shared_reward, bool):
+        raise ParameterError("shared_reward", f"expected True or False, got {config.shared_reward!r}")
+    for n in config.n_robots:
+        check_int("n_robots", n, 1)
+    check_choice("env_id", config.env_id, ENV_IDS.values())
+    path = config.init_from
+    info = read_model_info(path, INIT_PARAMETER)  # a missing file, or one that is no dpr model
+    spec = RobotModelSpec.from_info(info, path, INIT_PARAMETER)  # a centralised model
+    if config.env_id != info.env_id:
+        raise ParameterError(
+            "env_id",
+            f"per-robot model {path} was trained on {info.env_id}; it fine-tunes on its own task's PettingZoo env",
+        )
+    algo = config.algo or info.algo
+    if algo not in FINETUNE_ALGOS:
+        raise ParameterError("algo", f"a per-robot model fine-tunes with one of {FINETUNE_ALGOS}, got {algo!r}")
+    reserved = sorted(set(RESERVED_ENV_KWARGS) & set(config.env_kwargs))
+    if reserved:
+        raise ParameterError(
+            "env_kwargs",
+            f"must not set {reserved}: the swarm sizes, the model's layout ({spec.parallel_env_kwargs()}), the reward "
+            "sharing and the episode length are the run's own",
+        )
+    env_kwargs = dict(info.env_kwargs)
+    for name, value in config.env_kwargs.items():
+        if name in env_kwargs and env_kwargs[name] != value:
+            raise ParameterError(
+                "env_kwargs", f"{path} was trained with {name}={env_kwargs[name]!r}, not {value!r} (leave it out)"
+            )
+        env_kwargs[name] = value
+    hyper = load_hyperparams(algo, config.env_id, FINETUNE_PRESET, config.hyperparams)
+    if hyper.env_kwargs:
+        raise ParameterError("hyperparams", f"a per-robot model takes no yaml env_kwargs, got {hyper.env_kwargs}")
+    if (hyper.algo_kwargs.get("policy_kwargs") or {}).get("features_extractor", "flatten") != "flatten":
+        raise ParameterError("hyperparams", "a per-robot model reads one robot's vector: features_extractor flatten")
+    sizes = config.n_robots or spec.trained_n_robots or (DEFAULT_N_ROBOTS,)
+    trained = tuple(sorted({*spec.trained_n_robots, *sizes}))
+    return _Resolved(
+        info,
+        RobotModelSpec(**{**asdict(spec), "trained_n_robots": trained}),
+        algo,
+        hyper,
+        env_kwargs,
+        sizes,
+        config.timesteps or hyper.n_timesteps,
+        info.max_episode_steps or MAX_EPISODE_STEPS,
+    )
+
+
+def _swarms(config: PerRobotFinetuneConfig, resolved: _Resolved):
+    """The training VecEnv (every robot of every swarm an entry, episode returns monitored), each swarm checked
+    against the model's layout: a ValueError naming what differs."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from dpr.envs.parallel import SwarmsAsVecEnv, parallel_env
+
+    task = next(task for task, known in ENV_IDS.items() if known == config.env_id)
+    kwargs = {
+        **resolved.spec.parallel_env_kwargs(),
+        **resolved.env_kwargs,
+        "max_episode_steps": resolved.steps_per_episode,
+        "shared_reward": config.shared_reward,
+    }
+    envs = []
+    try:
+        for n in resolved.sizes:
+            envs.append(parallel_env(task, n_robots=n, **kwargs))
+            check_per_robot_env(config.init_from, resolved.info, envs[-1], centralised=False)
+        return VecMonitor(SwarmsAsVecEnv(envs))
+    except BaseException:
+        for env in envs:
+            env.close()
+        raise
+
+
+def validate_per_robot_model(
+    path: str | Path, env_id: str, sizes: list[int], seeds: list[int], steps: int, env_kwargs: dict[str, Any]
+) -> dict[str, Any]:
+    """Score the per-robot model file at ``path`` in the centralised env ``env_id`` (``env_kwargs``, at most
+    ``steps`` steps an episode) of each swarm size in ``sizes``, from each of ``seeds``, as ``dpr evaluate`` runs
+    it (:func:`dpr.policies.registry.make_policy`): the mean team return over every episode, and per size each
+    episode's return and projected displacement."""
+    import gymnasium as gym
+
+    from dpr.policies.registry import make_policy
+    from dpr.rollout import roll_out
+
+    by_n, returns = {}, []
+    for n in sizes:
+        env = gym.make(env_id, n_robots=n, max_episode_steps=steps, **env_kwargs)
+        try:
+            policy = make_policy(str(path), env)
+            results = [roll_out(env, policy, seed) for seed in seeds]
+        finally:
+            env.close()
+        episode_returns = [float(np.sum(r.rewards)) for r in results]
+        returns.extend(episode_returns)
+        by_n[n] = {
+            "returns": episode_returns,
+            "projected_displacement": [float(r.metrics.projected_displacement) for r in results],
+        }
+    return {"mean_return": float(np.mean(returns)), "by_n": by_n}
+
+
+class _Validation:
+    """Evaluations on the validation seeds, ``best_model.zip`` and ``eval/evaluations.json``."""
+
+    def __init__(self, run_dir: Path, config: PerRobotFinetuneConfig, resolved: _Resolved, log: Callable):
+        self.best_path = run_dir / "best_model.zip"
+        self.log_path = run_dir / "eval" / "evaluations.json"
+        self.log_path.parent.mkdir()
+        self.candidate = run_dir / "eval" / "candidate.zip"
+        self.config, self.resolved, self.log = config, resolved, log
+        self.seeds = [config.seed + EVAL_SEED_OFFSET + i for i in range(config.eval_episodes)]
+        self.rows: list[dict[str, Any]] = []
+        self.best: dict[str, Any] | None = None
+
+    def __call__(self, model, steps: int, label: str) -> None:
+        save_model(model, self.candidate, self.resolved.model_info())
+        resolved = self.resolved
+        row = {"swarm_steps": steps, "model": label}
+        row.update(
+            validate_per_robot_model(
+                self.candidate,
+                self.config.env_id,
+                resolved.eval_sizes,
+                self.seeds,
+                resolved.steps_per_episode,
+                resolved.env_kwargs,
+            )
+        )
+        row["best"] = self.best is None or row["mean_return"] > self.best["mean_return"]
+        if row["best"]:
+            self.best = row
+            os.replace(self.candidate, self.best_path)
+        else:
+            self.candidate.unlink()
+        self.rows.append(row)
+        atomic_write_json(
+            self.log_path,
+            {
+                "seeds": self.seeds,
+                "n_robots": resolved.eval_sizes,
+                "steps": resolved.steps_per_episode,
+                "evaluations": self.rows,
+            },
+            indent=2,
+        )
+        self.log(
+            f"dpr finetune-decentralised: validation of the {label} model ({steps} swarm steps): mean return "
+            f"{row['mean_return']:.4g}" + (" (best so far)" if row["best"] else "")
+        )
+
+
+def _periodic(validation: _Validation, run_dir: Path, resolved: _Resolved, unit: StepUnit):
+    """An SB3 callback that, at the start of each rollout (after an update), writes a checkpoint every
+    ``timesteps / CHECKPOINTS`` swarm steps and evaluates every ``timesteps / EVALUATIONS``, counted from the end of
+    the warm-up; checkpoints are named by swarm steps, warm-up included."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    every_eval = max(resolved.timesteps // EVALUATIONS, 1)
+    every_checkpoint = max(resolved.timesteps // CHECKPOINTS, 1)
+    folder = run_dir / "checkpoints"
+
+    class Periodic(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.first = self.model.num_timesteps
+            self.next_eval, self.next_checkpoint = every_eval, every_checkpoint
+
+        def _on_rollout_start(self) -> None:
+            done = unit.from_sb3(self.model.num_timesteps - self.first)
+            total = unit.from_sb3(self.model.num_timesteps)  # the warm-up's steps too
+            if done >= self.next_checkpoint:
+                folder.mkdir(exist_ok=True)
+                save_model(self.model, folder / f"model_{total}_steps.zip", resolved.model_info())
+                self.next_checkpoint = (done // every_checkpoint + 1) * every_checkpoint
+            if done >= self.next_eval and done < resolved.timesteps:  # the final model is evaluated after learn
+                validation(self.model, total, "training")
+                self.next_eval = (done // every_eval + 1) * every_eval
+
+        def _on_step(self) -> bool:
+            return True
+
+    return Periodic()
+
+
+def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
+    """``runs/finetune-decentralised/<task>-<algo>-seed<S>-<timestamp>``."""
+    return runs.default_run_dir(RUNS_DIR, env_id, algo, seed)
+
+
+def finetune_per_robot(
+    config: PerRobotFinetuneConfig,
+    out: str | Path | None = None,
+    *,
+    show_progress: bool = True,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+) -> PerRobotFinetuneResult:
+    """Fine-tune the per-robot model ``config.init_from`` (module docstring) and save the run into ``out`` (a new or
+    empty folder; default ``runs/finetune-decentralised/<task>-<algo>-seed<S>-<timestamp>``). Bad input (no such
+    file, a centralised model, another task, robot model or layout, values SB3 refuses) raises ValueError before
+    anything is written. ``TrainResult.timesteps`` counts swarm steps."""
+    runs.check_new_folder(out)
+    resolved = _resolve(config)
+    venv = _swarms(config, resolved)
+    try:
+        swarms = venv.venv
+        unit = StepUnit(swarms.num_envs, len(swarms.swarms))
+        try:
+            model = build_model(resolved.hyper, venv, config.seed, None)
+        except (AssertionError, ValueError, TypeError) as error:
+            raise ParameterError("hyperparams", f"{resolved.algo} refuses them: {error}") from None
+        load_initial_policy(model, config.init_from)  # another network than the finetune preset's
+        run_dir = Path(out) if out is not None else default_run_dir(config.env_id, resolved.algo, config.seed)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
+        model.tensorboard_log = tensorboard_log  # read by learn(); the folder did not exist when the model was built
+        if tensorboard_log is None:
+            log("dpr finetune-decentralised: tensorboard is not installed; no TensorBoard logs")
+        validation = _Validation(run_dir, config, resolved, log)
+        record: dict[str, Any] = {
+            "algo": resolved.algo,
+            "env_id": config.env_id,
+            "env_kwargs": resolved.env_kwargs,
+            "per_robot": resolved.spec.as_dict(),
+            "parallel_env_kwargs": resolved.spec.parallel_env_kwargs(),
+            "n_robots": list(resolved.sizes),
+            "shared_reward": config.shared_reward,
+            "steps_per_episode": resolved.steps_per_episode,
+            "hyperparameters": resolved.hyper.as_dict(),
+            "hyperparameter_overrides": dict(config.hyperparams),
+            "seed": config.seed,
+            "timesteps": resolved.timesteps,
+            "critic_warmup": config.critic_warmup,
+            "step_unit": "swarm steps, summed over the training swarms (SB3's num_timesteps counts robot steps)",
+            "sb3_timesteps": unit.to_sb3(resolved.timesteps),
+            "eval_episodes": config.eval_episodes,
+            "validation_seeds": validation.seeds,
+            "init_from": str(Path(config.init_from).resolve()),
+            "tensorboard_log": tensorboard_log,
+            "versions": runs.package_versions(),
+            "config": {**asdict(config), "n_robots": list(config.n_robots)},
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+        config_path = run_dir / "config.yaml"
+        atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
+        sizes = " + ".join(str(n) for n in resolved.sizes)
+        log(
+            f"dpr finetune-decentralised: per-robot {resolved.algo} on {config.env_id} swarms of {sizes} robots "
+            f"{resolved.env_kwargs}, from {config.init_from} ({config.critic_warmup} critic warm-up steps first), "
+            f"{resolved.timesteps} swarm steps, seed {config.seed} -> {run_dir}"
+        )
+        started = time.perf_counter()
+        validation(model, 0, "start")
+        desc = f"finetune-decentralised {resolved.algo} {config.env_id}"
+        callbacks = [
+            progress_bar(desc, resolved.timesteps, show_progress, unit),
+            _periodic(validation, run_dir, resolved, unit),
+        ]
+        try:
+            if config.critic_warmup:
+                warm_up_critic(model, config.critic_warmup, show_progress, unit)
+            model.learn(
+                total_timesteps=unit.to_sb3(resolved.timesteps),
+                callback=callbacks,
+                reset_num_timesteps=not config.critic_warmup,
+            )
+            interrupted = False
+        except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
+            interrupted = True
+            log("dpr finetune-decentralised: interrupted; saving the model as it is")
+        model_path = save_model(model, run_dir / "model.zip", resolved.model_info())
+        done = unit.from_sb3(model.num_timesteps)
+        if not interrupted:
+            validation(model, done, "final")
+    finally:
+        venv.close()
+    seconds = time.perf_counter() - started
+    record.update(
+        finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        seconds=round(seconds, 1),
+        timesteps_done=done,
+        interrupted=interrupted,
+        best_evaluation=validation.best,
+    )
+    atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
+    log(f"dpr finetune-decentralised: wrote {model_path} ({done} swarm steps in {seconds:.0f} s)")
+    best = validation.best_path
+    return PerRobotFinetuneResult(
+        run_dir,
+        model_path,
+        config_path,
+        best if best.is_file() else None,
+        resolved.timesteps,
+        seconds,
+        interrupted,
+        resolved.sizes,
+    )
