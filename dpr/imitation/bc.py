@@ -89,6 +89,89 @@ class BCResult:
     history: list[dict[str, Any]] = field(default_factory=list)
 
 
+@dataclass
+class EarlyStoppedFit:
+    """What :func:`fit_with_early_stopping` did: every epoch's row (epoch 0 first), the best one, whether patience
+    ran out, and the seconds spent."""
+
+    history: list[dict[str, Any]]
+    best: dict[str, Any]
+    stopped_early: bool
+    seconds: float
+
+
+def fit_with_early_stopping(
+    policy, first_row: dict[str, Any], run_epoch: Callable[[int], dict[str, Any]], epochs: int, patience: int, bar
+) -> EarlyStoppedFit:
+    """Train up to ``epochs`` epochs (``run_epoch(epoch)`` trains one and returns its metrics, ``val_nll`` among
+    them), keep the weights of the lowest validation NLL, stop after ``patience`` epochs without improving on it,
+    and restore the best weights. ``first_row`` is epoch 0, the untrained policy every later epoch is compared
+    with; ``bar`` (tqdm) shows the latest validation figures."""
+    history = [{"epoch": 0, **first_row, "seconds": 0.0}]
+    best, best_state, stale, stopped_early = history[0], copy.deepcopy(policy.state_dict()), 0, False
+    started = time.perf_counter()
+    for epoch in range(1, epochs + 1):
+        tick = time.perf_counter()
+        row = {"epoch": epoch, **run_epoch(epoch)}
+        row["seconds"] = round(time.perf_counter() - tick, 3)
+        history.append(row)
+        bar.set_postfix(val_nll=f"{row['val_nll']:.3f}", val_acc=f"{row['val_accuracy']:.3f}", refresh=False)
+        if row["val_nll"] < best["val_nll"]:
+            best, stale, best_state = row, 0, copy.deepcopy(policy.state_dict())
+        else:
+            stale += 1
+            if stale >= patience:
+                stopped_early = True
+                break
+    policy.load_state_dict(best_state)
+    policy.set_training_mode(False)
+    return EarlyStoppedFit(history, best, stopped_early, time.perf_counter() - started)
+
+
+def finish_bc_run(
+    run_dir: Path,
+    model_path: Path,
+    config_path: Path,
+    record: dict[str, Any],
+    fit: EarlyStoppedFit,
+    train_ids: list[int],
+    val_ids: list[int],
+    **extra: Any,
+) -> BCResult:
+    """Write ``bc_log.json`` (the summary and every epoch) and the finished ``config.yaml``; the run's result.
+    ``extra``: further summary figures (best-epoch metrics beside NLL and accuracy)."""
+    best = fit.best
+    summary = {
+        "best_epoch": best["epoch"],
+        "best_val_nll": best["val_nll"],
+        "best_val_accuracy": best["val_accuracy"],
+        **extra,
+        "epochs_run": len(fit.history) - 1,
+        "stopped_early": fit.stopped_early,
+        "train_episodes": train_ids,
+        "val_episodes": val_ids,
+        "seconds": round(fit.seconds, 1),
+    }
+    log_path = run_dir / "bc_log.json"
+    log_path.write_text(json.dumps({**summary, "epochs": fit.history}, indent=2))
+    record.update(summary, finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    return BCResult(
+        run_dir,
+        model_path,
+        log_path,
+        config_path,
+        best["epoch"],
+        best["val_nll"],
+        best["val_accuracy"],
+        len(fit.history) - 1,
+        fit.stopped_early,
+        train_ids,
+        val_ids,
+        fit.history,
+    )
+
+
 # ------------------------------------------------------------------------------------------------ arguments
 
 
@@ -387,87 +470,35 @@ def behaviour_clone(
     loader = _loader(train_set, batch_size, sampler)
     optimizer = torch.optim.Adam(trained_parameters(policy), lr=lr)
 
-    # Epoch 0 is the untrained policy: the baseline every later epoch is compared with.
-    history = [
-        {
-            "epoch": 0,
-            **measure(policy, train_set, batch_size, "train"),
-            **measure(policy, val_set, batch_size, "val"),
-            "seconds": 0.0,
-        }
-    ]
-    best = history[0]
-    best_state = copy.deepcopy(policy.state_dict())
-    stale = 0
-    stopped_early = False
     from tqdm import tqdm
 
-    started = time.perf_counter()
+    def run_epoch(epoch: int) -> dict[str, Any]:
+        sampler.set_epoch(epoch)
+        return {
+            **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar, previous_action, change_weight),
+            **measure(policy, val_set, batch_size, "val"),
+        }
+
+    # Epoch 0 is the untrained policy: the baseline every later epoch is compared with.
+    first = {**measure(policy, train_set, batch_size, "train"), **measure(policy, val_set, batch_size, "val")}
     with tqdm(
         total=epochs * len(train_set), desc=f"bc {algo} {env_id}", unit="frame", disable=not show_progress
     ) as bar:
-        for epoch in range(1, epochs + 1):
-            sampler.set_epoch(epoch)
-            tick = time.perf_counter()
-            row = {
-                "epoch": epoch,
-                **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar, previous_action, change_weight),
-                **measure(policy, val_set, batch_size, "val"),
-            }
-            row["seconds"] = round(time.perf_counter() - tick, 3)
-            history.append(row)
-            bar.set_postfix(val_nll=f"{row['val_nll']:.3f}", val_acc=f"{row['val_accuracy']:.3f}", refresh=False)
-            if row["val_nll"] < best["val_nll"]:
-                best, stale = row, 0
-                best_state = copy.deepcopy(policy.state_dict())
-            else:
-                stale += 1
-                if stale >= patience:
-                    stopped_early = True
-                    break
-    policy.load_state_dict(best_state)
+        fit = fit_with_early_stopping(policy, first, run_epoch, epochs, patience, bar)
     if hasattr(policy, "q_net_target"):  # DQN bootstraps from its target network: start it at the clone
         policy.q_net_target.load_state_dict(policy.q_net.state_dict())
-    policy.set_training_mode(False)
-    seconds = time.perf_counter() - started
 
-    info = ModelInfo(algo, env_id, kwargs, steps)
     model_path = run_dir / "model.zip"
     model.save(model_path)
-    write_model_info(model_path, info)
-    summary = {
-        "best_epoch": best["epoch"],
-        "best_val_nll": best["val_nll"],
-        "best_val_accuracy": best["val_accuracy"],
-        "epochs_run": len(history) - 1,
-        "stopped_early": stopped_early,
-        "train_episodes": train_ids,
-        "val_episodes": val_ids,
-        "seconds": round(seconds, 1),
-    }
-    log_path = run_dir / "bc_log.json"
-    log_path.write_text(json.dumps({**summary, "epochs": history}, indent=2))
-    record.update(summary, finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
-    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    write_model_info(model_path, ModelInfo(algo, env_id, kwargs, steps))
+    result = finish_bc_run(run_dir, model_path, config_path, record, fit, train_ids, val_ids)
+    best = fit.best
     log(
         f"dpr bc: wrote {model_path} (best epoch {best['epoch']}: validation per-robot accuracy "
         f"{best['val_accuracy']:.3f}, whole-action match {best['val_exact_match']:.3f}, expansion recall "
-        f"{best['val_expand_recall']:.3f}; {seconds:.0f} s)"
+        f"{best['val_expand_recall']:.3f}; {fit.seconds:.0f} s)"
     )
-    return BCResult(
-        run_dir,
-        model_path,
-        log_path,
-        config_path,
-        best["epoch"],
-        best["val_nll"],
-        best["val_accuracy"],
-        len(history) - 1,
-        stopped_early,
-        train_ids,
-        val_ids,
-        history,
-    )
+    return result
 
 
 def result_dict(result: BCResult) -> dict[str, Any]:

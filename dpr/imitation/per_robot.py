@@ -26,8 +26,6 @@ every dataset that has two or more. The model file records that it is a per-robo
 
 from __future__ import annotations
 
-import copy
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -46,7 +44,15 @@ from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.envs.local_obs import MAX_NEIGHBOURS, LocalObservation
 from dpr.envs.particle_env import joint_action_bits
-from dpr.imitation.bc import AccuracyMeter, BCResult, check_bc_arguments, dataset_env, split_episodes
+from dpr.imitation.bc import (
+    AccuracyMeter,
+    BCResult,
+    check_bc_arguments,
+    dataset_env,
+    finish_bc_run,
+    fit_with_early_stopping,
+    split_episodes,
+)
 from dpr.imitation.loss import batch_stats, check_features
 from dpr.policies.decentralised import DEFAULT_N_PHASES, MODEL_DEFAULTS, wave_env_kwargs
 from dpr.policies.hyperparams import load_hyperparams
@@ -383,68 +389,35 @@ def behaviour_clone_per_robot(
             }
         return row
 
-    history = [{"epoch": 0, **_measure(policy, train_rows, train_labels, 4 * batch_size, "train"), **validation()}]
-    history[0]["seconds"] = 0.0
-    best, best_state, stale, stopped_early = history[0], copy.deepcopy(policy.state_dict()), 0, False
     from tqdm import tqdm
 
-    training_started = time.perf_counter()
+    def run_epoch(epoch: int) -> dict[str, Any]:
+        row = {**_train_epoch(policy, optimizer, train_rows, train_labels, batch_size, generator), **validation()}
+        bar.update(1)
+        return row
+
+    first = {**_measure(policy, train_rows, train_labels, 4 * batch_size, "train"), **validation()}
     with tqdm(total=epochs, desc=f"bc-decentralised {algo} {env_id}", unit="epoch", disable=not show_progress) as bar:
-        for epoch in range(1, epochs + 1):
-            tick = time.perf_counter()
-            row = {
-                "epoch": epoch,
-                **_train_epoch(policy, optimizer, train_rows, train_labels, batch_size, generator),
-                **validation(),
-            }
-            row["seconds"] = round(time.perf_counter() - tick, 3)
-            history.append(row)
-            bar.update(1)
-            bar.set_postfix(val_nll=f"{row['val_nll']:.4f}", val_acc=f"{row['val_accuracy']:.4f}", refresh=False)
-            if row["val_nll"] < best["val_nll"]:
-                best, stale, best_state = row, 0, copy.deepcopy(policy.state_dict())
-            else:
-                stale += 1
-                if stale >= patience:
-                    stopped_early = True
-                    break
-    policy.load_state_dict(best_state)
-    policy.set_training_mode(False)
-    seconds = time.perf_counter() - training_started
+        fit = fit_with_early_stopping(policy, first, run_epoch, epochs, patience, bar)
 
     model_path = run_dir / "model.zip"
     model.save(model_path)
     write_model_info(model_path, ModelInfo(algo, env_id, task_kwargs, steps, per_robot=spec.as_dict()))
     train_ids = [i for train, _ in splits for i in train]
     val_ids = [i for _, val in splits for i in val]
-    summary = {
-        "best_epoch": best["epoch"],
-        "best_val_nll": best["val_nll"],
-        "best_val_accuracy": best["val_accuracy"],
-        "best_val_expand_recall": best["val_expand_recall"],
-        "epochs_run": len(history) - 1,
-        "stopped_early": stopped_early,
-        "seconds": round(seconds, 1),
-    }
-    log_path = run_dir / "bc_log.json"
-    log_path.write_text(json.dumps({**summary, "epochs": history}, indent=2))
-    record.update(summary, finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
-    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    log(
-        f"dpr bc-decentralised: wrote {model_path} (best epoch {best['epoch']}: validation accuracy "
-        f"{best['val_accuracy']:.4f}, expansion recall {best['val_expand_recall']:.4f}; {seconds:.0f} s)"
-    )
-    return BCResult(
+    best = fit.best
+    result = finish_bc_run(
         run_dir,
         model_path,
-        log_path,
         config_path,
-        best["epoch"],
-        best["val_nll"],
-        best["val_accuracy"],
-        len(history) - 1,
-        stopped_early,
+        record,
+        fit,
         train_ids,
         val_ids,
-        history,
+        best_val_expand_recall=best["val_expand_recall"],
     )
+    log(
+        f"dpr bc-decentralised: wrote {model_path} (best epoch {best['epoch']}: validation accuracy "
+        f"{best['val_accuracy']:.4f}, expansion recall {best['val_expand_recall']:.4f}; {fit.seconds:.0f} s)"
+    )
+    return result
