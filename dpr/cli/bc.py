@@ -26,6 +26,21 @@ BC_FLAGS = {
 }
 
 
+def add_fit_flags(parser, clone: dict, unit: str, held_out: str) -> None:
+    """The flags of a cloning run's fit, with their yaml defaults: ``unit`` is what one sample is."""
+    default_argument(parser, "--epochs", clone["epochs"], "maximum epochs")
+    default_argument(parser, "--batch-size", clone["batch_size"], f"{unit} per gradient step")
+    default_argument(parser, "--lr", clone["lr"], "Adam learning rate", type=float)
+    default_argument(parser, "--val-fraction", clone["val_fraction"], held_out, type=float)
+    default_argument(
+        parser,
+        "--patience",
+        clone["patience"],
+        "stop after this many epochs without a better validation log-likelihood",
+    )
+    default_argument(parser, "--seed", clone["seed"], "seed of the model, the split and the shuffling", type=int)
+
+
 def bc_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.imitation.bc import behaviour_clone
     from dpr.imitation.dagger import dagger
@@ -49,19 +64,7 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
     parser.add_argument("--robot-model", choices=ROBOT_MODELS, help="only checked: it must be the dataset's")
-    default_argument(parser, "--epochs", clone["epochs"], "maximum epochs")
-    default_argument(parser, "--batch-size", clone["batch_size"], "frames per gradient step")
-    default_argument(parser, "--lr", clone["lr"], "Adam learning rate", type=float)
-    default_argument(
-        parser, "--val-fraction", clone["val_fraction"], "fraction of episodes held out for validation", type=float
-    )
-    default_argument(
-        parser,
-        "--patience",
-        clone["patience"],
-        "stop after this many epochs without a better validation log-likelihood",
-    )
-    default_argument(parser, "--seed", clone["seed"], "seed of the model, the split and the shuffling", type=int)
+    add_fit_flags(parser, clone, "frames", "fraction of episodes held out for validation")
     parser.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
     parser.add_argument(
         "--dagger-rounds",
@@ -175,19 +178,7 @@ def bc_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
         f"wave as teacher, the hold it ran with (default the robot model's: {holds})",
     )
     default_argument(parser, "--n-phases", clone["n_phases"], "phases of one wave cycle (the clock's period)")
-    default_argument(parser, "--epochs", clone["epochs"], "maximum epochs")
-    default_argument(parser, "--batch-size", clone["batch_size"], "robot-frames per gradient step")
-    default_argument(parser, "--lr", clone["lr"], "Adam learning rate", type=float)
-    default_argument(
-        parser, "--val-fraction", clone["val_fraction"], "fraction of each dataset's episodes held out", type=float
-    )
-    default_argument(
-        parser,
-        "--patience",
-        clone["patience"],
-        "stop after this many epochs without a better validation log-likelihood",
-    )
-    default_argument(parser, "--seed", clone["seed"], "seed of the model, the split and the shuffling", type=int)
+    add_fit_flags(parser, clone, "robot-frames", "fraction of each dataset's episodes held out")
     parser.add_argument(
         "--out", help="new run folder (default runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>)"
     )
