@@ -25,11 +25,16 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
 
     Pairs come sorted by ``i`` then ``j`` as an int64 array of shape (P, 2).
     """
-    return pairs_and_distances(points, radius)[0]
+    return _pairs_and_squared_distances(points, radius)[0]
 
 
 def pairs_and_distances(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`pairs_within`'s pairs and, row by row, the distance between the two points of each."""
+    pairs, squared = _pairs_and_squared_distances(points, radius)
+    return pairs, np.sqrt(squared)
+
+
+def _pairs_and_squared_distances(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     n = len(points)
     if n < 2:
         return np.empty((0, 2), dtype=np.int64), np.empty(0)
@@ -39,7 +44,7 @@ def pairs_and_distances(points: np.ndarray, radius: float) -> tuple[np.ndarray, 
         dx, dy = x[first] - x[second], y[first] - y[second]  # 1-D gathers: cheaper than rows of (N, 2)
         squared = dx * dx + dy * dy
         close = squared < radius * radius
-        return table[close], np.sqrt(squared[close])
+        return table[close], squared[close]
     cells = np.floor((points - points.min(axis=0)) / radius).astype(np.int64)
     width = int(cells[:, 1].max()) + 3  # +3 leaves room for the -1/+1 stencil offsets
     keys = cells[:, 0] * width + cells[:, 1] + 1
@@ -70,4 +75,4 @@ def pairs_and_distances(points: np.ndarray, radius: float) -> tuple[np.ndarray, 
     close = squared < radius * radius
     # pairs of points in one cell come in both orders: one key per pair, sorted by i then j
     keys, index = np.unique(i[close] * n + j[close], return_index=True)
-    return np.stack([keys // n, keys % n], axis=1), np.sqrt(squared[close][index])
+    return np.stack([keys // n, keys % n], axis=1), squared[close][index]
