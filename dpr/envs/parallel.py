@@ -338,6 +338,17 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+def _pending_actions(vec_env, row: str) -> np.ndarray:
+    """The actions ``step_async`` left for ``step_wait`` (taken, so that a second ``step_wait`` fails), one ``row``
+    per env of the vector."""
+    if vec_env._actions is None:
+        raise RuntimeError("step_async() must come before step_wait()")
+    actions, vec_env._actions = vec_env._actions, None
+    if len(actions) != vec_env.num_envs:
+        raise ValueError(f"actions must have one row per {row} ({vec_env.num_envs}), got shape {actions.shape}")
+    return actions
+
+
 @functools.cache
 def _agents_as_vec_env_class() -> type:
     from stable_baselines3.common.vec_env import VecEnv
@@ -387,11 +398,7 @@ def _agents_as_vec_env_class() -> type:
             self._actions = np.asarray(actions)
 
         def step_wait(self):
-            if self._actions is None:
-                raise RuntimeError("step_async() must come before step_wait()")
-            actions, self._actions = self._actions, None
-            if len(actions) != self.num_envs:
-                raise ValueError(f"actions must have one row per agent ({self.num_envs}), got shape {actions.shape}")
+            actions = _pending_actions(self, "agent")
             observations, rewards, terminations, truncations, infos = self.parallel_env.step(
                 dict(zip(self.agents, actions))
             )
@@ -499,11 +506,7 @@ def _swarms_as_vec_env_class() -> type:
             self._actions = np.asarray(actions)
 
         def step_wait(self):
-            if self._actions is None:
-                raise RuntimeError("step_async() must come before step_wait()")
-            actions, self._actions = self._actions, None
-            if len(actions) != self.num_envs:
-                raise ValueError(f"actions must have one row per robot ({self.num_envs}), got shape {actions.shape}")
+            actions = _pending_actions(self, "robot")
             results = [
                 swarm.step(actions[offset : offset + swarm.num_envs])
                 for swarm, offset in zip(self.swarms, self.offsets)
