@@ -5,6 +5,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import load_tool
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", DeprecationWarning)  # pettingzoo.test loads its own deprecated env modules
@@ -245,19 +246,7 @@ def test_bad_policy_arguments():
 
 @pytest.fixture(scope="module")
 def sweep_tool():
-    import importlib.util
-    import sys
-    from pathlib import Path
-
-    tools = Path(__file__).resolve().parents[1] / "tools"
-    sys.path.insert(0, str(tools))  # the tool imports episode_cache from beside it
-    try:
-        spec = importlib.util.spec_from_file_location("decentralised_sweep", tools / "decentralised_sweep.py")
-        sweep = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sweep)
-        yield sweep
-    finally:
-        sys.path.remove(str(tools))
+    return load_tool("decentralised_sweep")
 
 
 def test_decentralised_sweep_tool_prints_its_table_caches_and_plots(sweep_tool, tmp_path, capsys):

@@ -1,25 +1,15 @@
 """tools/model_agreement.py: the paddle-against-disk table, its checks and its resumable cache."""
 
-import importlib.util
 import json
 import sys
-from pathlib import Path
 
 import pytest
-
-TOOLS = Path(__file__).resolve().parents[1] / "tools"
+from helpers import load_tool
 
 
 @pytest.fixture(scope="module")
 def agreement():
-    sys.path.insert(0, str(TOOLS))  # the tool imports wave_sweep from beside it
-    try:
-        spec = importlib.util.spec_from_file_location("model_agreement", TOOLS / "model_agreement.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.path.remove(str(TOOLS))
+    return load_tool("model_agreement")
 
 
 def test_runs_both_models_caches_every_episode_and_resumes(agreement, tmp_path, monkeypatch, capsys):

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium import spaces
+from helpers import load_tool
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", DeprecationWarning)  # pettingzoo.test loads its own deprecated env modules
@@ -352,14 +353,9 @@ def test_sb3_subproc_vec_env(task):
 
 # -- tools/bench_scale.py ------------------------------------------------------------------------------------
 def test_bench_scale_runs_small_and_writes_json(tmp_path, capsys):
-    import importlib.util
     import json
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "tools" / "bench_scale.py"
-    spec = importlib.util.spec_from_file_location("bench_scale", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_tool("bench_scale")
     out = tmp_path / "scale.json"
     argv = [
         "--parts",

@@ -74,6 +74,11 @@ def run_episode(
     return {"displacement": float(result.metrics.projected_displacement), "seconds": seconds}
 
 
+def episode_key(env_id: str, model: str, n: int, policy: str, n_phases: int, side: str | None, steps: int, seed: int):
+    """The cache key of one episode."""
+    return f"{env_id}/{model}/{n}/{policy}/{n_phases}/{side}/{steps}/{seed}"
+
+
 def label(policy: str, n_phases: int, side: str | None) -> str:
     if policy == CENTRALISED:
         return "centralised wave"
@@ -122,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             variants.append((policy, 0, None))
     grid = [(model, n) for model in args.models for n in (args.sizes or DEFAULT_SIZES[model])]
     jobs = {
-        f"{args.env}/{model}/{n}/{policy}/{n_phases}/{side}/{args.steps}/{seed}": (
+        episode_key(args.env, model, n, policy, n_phases, side, args.steps, seed): (
             args.env,
             model,
             n,
@@ -163,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     for model, n in grid:
         centralised = None
         for policy, n_phases, side in variants:
-            keys = [f"{args.env}/{model}/{n}/{policy}/{n_phases}/{side}/{args.steps}/{seed}" for seed in args.seeds]
+            keys = [episode_key(args.env, model, n, policy, n_phases, side, args.steps, seed) for seed in args.seeds]
             if keys[0] not in jobs:
                 continue
             values = np.array([records[key]["displacement"] for key in keys])
