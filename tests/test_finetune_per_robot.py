@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import assert_per_robot_model_acts_and_trains, tree_hash
 from helpers import run_cli as run
-from helpers import tree_hash
 
 from dpr.checks import ParameterError
 from dpr.datasets.collect import CollectSpec, collect
@@ -18,8 +18,6 @@ from dpr.envs.parallel import AgentsAsVecEnv, SwarmsAsVecEnv
 from dpr.imitation.per_robot import behaviour_clone_per_robot
 from dpr.policies.decentralised import PerRobotPolicyAdapter
 from dpr.policies.hyperparams import load_hyperparams
-from dpr.policies.per_robot_model import RobotModelPolicy
-from dpr.policies.per_robot_spec import RobotModelSpec
 from dpr.policies.registry import make_policy
 from dpr.policies.sb3 import ModelInfo, actor_parameters, build_model, load_model, make_vec_env, read_model_info
 from dpr.policies.sb3 import save_model as save_sb3_model
@@ -101,13 +99,7 @@ def test_the_fine_tuned_model_runs_at_any_size(finetuned, n_robots):
 
 
 def test_the_fine_tuned_model_runs_in_the_pettingzoo_env_and_trains_again(finetuned):
-    spec = RobotModelSpec.from_info(read_model_info(finetuned.model_path), finetuned.model_path)
-    env = parallel_env("navigation", n_robots=7, **spec.parallel_env_kwargs())
-    observations, _ = env.reset(seed=2)
-    actions = RobotModelPolicy.load(finetuned.model_path).act_agents(observations)
-    assert set(actions) == set(env.agents) and set(actions.values()) <= {0, 1}
-    model, _ = load_model(finetuned.model_path, AgentsAsVecEnv(env), for_training=True)
-    assert model.get_env().num_envs == 7
+    assert_per_robot_model_acts_and_trains(finetuned.model_path, 7)
 
 
 def test_two_swarm_sizes_train_side_by_side(cloned, tmp_path):

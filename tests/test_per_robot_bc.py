@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from helpers import assert_per_robot_model_acts_and_trains, tree_hash
 from helpers import run_cli as run
-from helpers import tree_hash
 
 from dpr.checks import ParameterError
 from dpr.datasets.collect import CollectSpec, collect
@@ -138,14 +138,8 @@ def test_model_runs_in_other_action_types_and_in_the_pettingzoo_env(cloned):
     observation, _ = discrete.reset(seed=1)
     policy.reset(1)
     assert discrete.action_space.contains(policy(observation))
-    spec = RobotModelSpec.from_info(read_model_info(cloned.model_path), cloned.model_path)
-    env = parallel_env("navigation", n_robots=5, **spec.parallel_env_kwargs())
-    observations, _ = env.reset(seed=2)
-    actions = RobotModelPolicy.load(cloned.model_path).act_agents(observations)
-    assert set(actions) == set(env.agents) and set(actions.values()) <= {0, 1}
-    # and as an SB3 model on the agents' VecEnv, ready for PPO to fine-tune
-    model, _ = load_model(cloned.model_path, AgentsAsVecEnv(env), for_training=True)
-    assert model.get_env().num_envs == 5
+    # and in the PettingZoo env, also as an SB3 model on the agents' VecEnv, ready for PPO to fine-tune
+    assert_per_robot_model_acts_and_trains(cloned.model_path, 5)
 
 
 def test_datasets_of_two_swarm_sizes_train_one_model(dataset, tmp_path):
