@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml constraints.txt
 # behaviour cloning -> PPO fine-tuning, beside PPO from scratch for the same env steps, all evaluated against
 # the wave policy on unseen seeds), then its table; figures in runs/pipeline/report. Run again, it resumes.
 run: $(STAMP)
-	$(BIN)/dpr pipeline --out runs/pipeline
+	$(BIN)/dpr pipeline --out runs/pipeline --shipped models/card.yaml
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

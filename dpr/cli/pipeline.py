@@ -101,11 +101,18 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         aliases=("--eval-seeds",),
     )
     preset_argument("--steps", "steps per episode, everywhere")
+    parser.add_argument(
+        "--shipped",
+        metavar="CARD",
+        help="also evaluate the shipped models that this model card lists (e.g. models/card.yaml, what `make run` "
+        "passes) on the test seeds, beside the wave on their tasks: the headline checked on your machine",
+    )
     workers_argument(parser, "worker processes for collection, RL envs and evaluation")
 
 
 def cmd_pipeline(args, parser) -> int:
     from dpr.envs import ENV_IDS
+    from dpr.rl.model_card import load_model_card
     from dpr.rl.pipeline import PipelineConfig, preset_config, run_pipeline
 
     overrides = {
@@ -117,7 +124,8 @@ def cmd_pipeline(args, parser) -> int:
         overrides["tasks"] = list(ENV_IDS)
     try:
         config = preset_config(args.preset, **overrides)
-        report = run_pipeline(config, args.out)
+        shipped = load_model_card(args.shipped) if args.shipped else []
+        report = run_pipeline(config, args.out, shipped=shipped)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error))
     except KeyboardInterrupt:

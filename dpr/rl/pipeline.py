@@ -33,7 +33,7 @@ from __future__ import annotations
 import shutil
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,6 +46,7 @@ from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.policies.hyperparams import FINETUNE_PRESET
 from dpr.policies.registry import WAVE, WAVE_MARKOV
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
+from dpr.rl.model_card import ShippedModel
 from dpr.runs import fresh_path
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
@@ -70,7 +71,7 @@ class PipelineConfig:
     approach_reward: float = 1.0  # Manipulation's shaping weight for RL, fine-tuning and from scratch (0: none)
     finetune_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
     scratch_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
-    test_seeds: list[int] = field(default_factory=lambda: list(range(100, 105)))
+    test_seeds: list[int] = field(default_factory=lambda: list(range(300, 305)))  # within the full preset's
     validation_seeds: list[int] = field(default_factory=list)  # needed to choose among several training seeds
     train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
     workers: int = 2
@@ -189,15 +190,21 @@ def run_pipeline(
     config: PipelineConfig,
     out: str | Path,
     *,
+    shipped: Sequence[ShippedModel] = (),
     show_progress: bool = True,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> Path:
-    """Run (or resume) the pipeline into ``out``; returns the report folder."""
+    """Run (or resume) the pipeline into ``out``; returns the report folder. ``shipped`` (a model card's
+    entries, :func:`dpr.rl.model_card.load_model_card`) are evaluated on the test seeds too, beside the wave on
+    their tasks, and reported as ``shipped <method>``."""
+    from dpr.policies.sb3 import model_env_kwargs
     from dpr.rl.report import REPORT_FILES, write_report
 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ParameterError("out", f"{out} exists and is not a folder")
+    for model in shipped:  # a shipped model must run on the pipeline's swarm, or its row means nothing
+        model_env_kwargs(model.path, model.env_id, {"n_robots": config.n_robots})
     for folder in ("datasets", "runs", "models", "eval/test", "eval/validation"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     config_path = out / "pipeline.yaml"
@@ -234,6 +241,12 @@ def run_pipeline(
             for seed in [None] if method == BASELINE else config.train_seeds:
                 path = _evaluate(config, task, method, seed, "test", out, show_progress, log)
                 test_evaluations.append((path, method))
+    for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
+        test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
+    for model in shipped:
+        path = out / "eval" / "shipped" / f"{model.path.stem}.json"
+        _evaluate_policy(config, model.env_id, str(model.path), path, f"shipped {model.path.name}", show_progress, log)
+        test_evaluations.append((path, f"shipped {model.method}"))
 
     report = out / "report"
     if (report / REPORT_FILES[0]).exists():
@@ -348,20 +361,34 @@ def _evaluate(
     log: Callable[[str], None],
 ) -> Path:
     """Evaluate the wave (``seed`` None) or a training run on the ``split`` seeds ("test" or "validation")."""
+    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
+    policy = BASELINE if method == BASELINE else str(_model_path(out, task, method, seed))
+    path = out / "eval" / split / f"{name}.json"
+    return _evaluate_policy(config, ENV_IDS[task], policy, path, name, show_progress, log, split)
+
+
+def _evaluate_policy(
+    config: PipelineConfig,
+    env_id: str,
+    policy: str,
+    path: Path,
+    name: str,
+    show_progress: bool,
+    log: Callable[[str], None],
+    split: str = "test",
+) -> Path:
+    """Evaluate ``policy`` (the wave, or a model file) on ``env_id`` and the ``split`` seeds into ``path``."""
     from tqdm import tqdm
 
     from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
     from dpr.rl.report import format_seeds
 
-    env_id = ENV_IDS[task]
     seeds = config.test_seeds if split == "test" else config.validation_seeds
-    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
-    path = out / "eval" / split / f"{name}.json"
     if not _stage(path, f"{name}: evaluate on the {split} seeds {format_seeds(seeds)}", log):
         return path
-    policy = BASELINE if method == BASELINE else str(_model_path(out, task, method, seed))
+    path.parent.mkdir(parents=True, exist_ok=True)
     # the wave runs on the pipeline's env; a model on the env kwargs stored in it
-    own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS} if method == BASELINE else None
+    own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS} if policy == BASELINE else None
     kwargs = policy_env_kwargs(policy, env_id, own_kwargs)
     with tqdm(total=len(seeds), desc=f"evaluate {name} ({split})", unit="episode", disable=not show_progress) as bar:
         results = evaluate(

@@ -1,0 +1,76 @@
+"""The model card: which shipped model stands for which (task, method) in the headline.
+
+``models/card.yaml`` is data, one entry per shipped model::
+
+    format: 1
+    models:
+      - task: navigation          # a key of dpr.envs.ENV_IDS
+        method: bc-ppo            # the pipeline's method name (bc, bc-ppo, ppo, ...)
+        file: navigation-bc-ppo.zip   # beside the card
+        made_by: dpr pipeline --preset full --tasks all (median training seed)
+
+``models/README.md`` describes the same models for people; ``dpr pipeline --shipped models/card.yaml`` (what
+``make run`` does) evaluates each of them on the pipeline's test seeds, so that the claim is checked where the
+user runs it. :func:`load_model_card` checks the whole card, files included, before anything runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from dpr.checks import ParameterError
+from dpr.envs import ENV_IDS
+
+CARD_FORMAT = 1
+ENTRY_KEYS = ("task", "method", "file", "made_by")
+
+
+@dataclass(frozen=True)
+class ShippedModel:
+    """One entry of the card: ``path`` is the model file (resolved beside the card)."""
+
+    task: str
+    method: str
+    path: Path
+    made_by: str
+
+    @property
+    def env_id(self) -> str:
+        return ENV_IDS[self.task]
+
+
+def load_model_card(card: str | Path, parameter: str = "--shipped") -> list[ShippedModel]:
+    """The entries of the model card at ``card``; a :class:`ParameterError` about ``parameter`` naming the card,
+    the entry and what was expected when the card is malformed, names an unknown task, repeats a (task, method)
+    or names a model file that does not exist."""
+    card = Path(card)
+    if not card.is_file():
+        raise ParameterError(parameter, f"no model card at {card}")
+    try:
+        data = yaml.safe_load(card.read_text())
+    except yaml.YAMLError as error:
+        raise ParameterError(parameter, f"{card} is not YAML: {error}") from None
+    if not isinstance(data, dict) or data.get("format") != CARD_FORMAT:
+        raise ParameterError(parameter, f"{card}: expected a mapping with 'format: {CARD_FORMAT}' and 'models'")
+    entries = data.get("models")
+    if not isinstance(entries, list) or not entries:
+        raise ParameterError(parameter, f"{card}: 'models' must be a non-empty list of entries")
+    models: list[ShippedModel] = []
+    for index, entry in enumerate(entries):
+        where = f"{card}: models[{index}]"
+        if not isinstance(entry, dict) or sorted(entry) != sorted(ENTRY_KEYS):
+            raise ParameterError(parameter, f"{where} must have exactly the keys {list(ENTRY_KEYS)}, got {entry!r}")
+        if not all(isinstance(entry[key], str) and entry[key] for key in ENTRY_KEYS):
+            raise ParameterError(parameter, f"{where}: every value must be a non-empty string")
+        if entry["task"] not in ENV_IDS:
+            raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
+        path = card.parent / entry["file"]
+        if not path.is_file():
+            raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
+        if any((model.task, model.method) == (entry["task"], entry["method"]) for model in models):
+            raise ParameterError(parameter, f"{where}: a second {entry['task']} {entry['method']} model")
+        models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"]))
+    return models

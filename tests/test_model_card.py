@@ -1,0 +1,134 @@
+"""The model card (models/card.yaml): checked whole before any work, and its models evaluated by the pipeline."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+from helpers import run_cli as run
+
+import dpr.rl.train as train_module
+from dpr.checks import ParameterError
+from dpr.envs import ENV_IDS
+from dpr.rl.model_card import load_model_card
+from dpr.rl.pipeline import PipelineConfig, run_pipeline
+from dpr.rl.train import TrainConfig, train
+
+REPO_CARD = Path(__file__).resolve().parents[1] / "models" / "card.yaml"
+TINY_PPO = {"n_steps": 32, "batch_size": 32}
+QUIET = {"show_progress": False, "log": lambda line: None}
+TINY = dict(n_robots=4, steps=30, episodes=2, bc_epochs=1, critic_warmup=32, finetune_steps=64, workers=1)
+
+
+def write_card(folder: Path, entries: list[dict]) -> Path:
+    card = folder / "card.yaml"
+    card.write_text(yaml.safe_dump({"format": 1, "models": entries}))
+    return card
+
+
+def entry(task: str, file: str, method: str = "bc-ppo") -> dict:
+    return {"task": task, "method": method, "file": file, "made_by": "a test"}
+
+
+@pytest.fixture
+def tiny_rollouts(monkeypatch):
+    original = train_module.load_hyperparams
+
+    def small(algo, env_id, preset="default", overrides=None):
+        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
+
+    monkeypatch.setattr(train_module, "load_hyperparams", small)
+
+
+def tiny_model(task: str, folder: Path) -> Path:
+    """A PPO model of ``task`` on the tiny pipeline's swarm, copied to ``folder``/<task>.zip."""
+    config = TrainConfig(
+        "ppo",
+        ENV_IDS[task],
+        n_robots=TINY["n_robots"],
+        timesteps=32,
+        steps_per_episode=TINY["steps"],
+        env_kwargs={"obs_last_action": True},
+        eval_episodes=1,
+    )
+    result = train(config, folder / f"run-{task}", **QUIET)
+    return Path(shutil.copy(result.model_path, folder / f"{task}.zip"))
+
+
+def test_the_repository_card_names_existing_models_of_every_task():
+    models = load_model_card(REPO_CARD)
+    assert {model.task for model in models} == set(ENV_IDS)
+    assert all(model.path.is_file() and model.path.suffix == ".zip" for model in models)
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (None, "no model card at"),
+        ("format: 1\nmodels: [", "is not YAML"),
+        ("models: []\n", "format: 1"),
+        ("format: 1\nmodels: []\n", "non-empty list"),
+        ({"task": "navigation", "method": "bc-ppo", "file": "x.zip"}, "exactly the keys"),
+        ({**entry("swimming", "x.zip")}, "task must be one of"),
+        ({**entry("navigation", "missing.zip")}, "names missing.zip, but there is no file"),
+    ],
+)
+def test_a_bad_card_is_refused_naming_the_card_and_the_entry(tmp_path, content, message):
+    card = tmp_path / "card.yaml"
+    if isinstance(content, str):
+        card.write_text(content)
+    elif isinstance(content, dict):
+        card = write_card(tmp_path, [content])
+    with pytest.raises(ParameterError, match=message) as raised:
+        load_model_card(card)
+    assert raised.value.parameter == "--shipped"
+    if isinstance(content, dict):
+        assert "models[0]" in str(raised.value)
+
+
+def test_a_card_naming_one_task_and_method_twice_is_refused(tmp_path):
+    (tmp_path / "a.zip").write_bytes(b"")
+    card = write_card(tmp_path, [entry("gate", "a.zip"), entry("gate", "a.zip")])
+    with pytest.raises(ParameterError, match=r"models\[1\]: a second gate bc-ppo model"):
+        load_model_card(card)
+
+
+def test_dpr_pipeline_refuses_a_card_with_a_missing_model_before_any_work(tmp_path, capsys):
+    card = write_card(tmp_path, [entry("navigation", "navigation-bc-ppo.zip")])
+    out = tmp_path / "run"
+    assert run(["pipeline", "--shipped", str(card), "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert "--shipped" in error and "navigation-bc-ppo.zip" in error
+    assert not out.exists()
+
+
+def test_a_shipped_model_of_another_swarm_size_is_refused_before_any_work(tmp_path, tiny_rollouts):
+    card = write_card(tmp_path, [entry("gate", tiny_model("gate", tmp_path).name)])
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match="n_robots"):
+        run_pipeline(PipelineConfig(**{**TINY, "n_robots": 5}), out, shipped=load_model_card(card), **QUIET)
+    assert not out.exists()
+
+
+def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(tmp_path, tiny_rollouts):
+    """A shipped model of the pipeline's task and one of another task: both are scored on the test seeds, the
+    other task gets its wave row, and the report shows them as `shipped <method>`."""
+    models = tmp_path / "models"
+    models.mkdir()
+    card = write_card(
+        models,
+        [entry("navigation", tiny_model("navigation", models).name), entry("gate", tiny_model("gate", models).name)],
+    )
+    config = PipelineConfig(**TINY, scratch_algos=[], test_seeds=[300, 301])
+    out = tmp_path / "run"
+    report = run_pipeline(config, out, shipped=load_model_card(card), **QUIET)
+    for stem in ("navigation", "gate"):
+        payload = json.loads((out / "eval" / "shipped" / f"{stem}.json").read_text())
+        assert payload["seeds"] == [300, 301] and payload["policy"].endswith(f"{stem}.zip")
+    assert json.loads((out / "eval" / "test" / "gate-wave.json").read_text())["seeds"] == [300, 301]
+    text = (report / "results.md").read_text()
+    for row in ("| Navigation | shipped bc-ppo |", "| Gate | wave |", "| Gate | shipped bc-ppo |"):
+        assert row in text
