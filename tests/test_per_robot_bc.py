@@ -228,11 +228,21 @@ def test_centralised_model_is_not_a_per_robot_model(dataset, tmp_path):
 
 def test_datasets_that_differ_in_more_than_n_are_refused(dataset, tmp_path):
     other = record(tmp_path / "projected", ENV, n_robots=4, episodes=2, steps=16, reward="projected")
-    with pytest.raises(ParameterError, match="dataset_dirs: .*may differ in n_robots only"):
+    with pytest.raises(ParameterError, match="dataset_dirs: .*may differ in n_robots and start_radius only"):
         behaviour_clone_per_robot([dataset, other], ENV, out=tmp_path / "run")
     with pytest.raises(ParameterError, match="algo"):
         behaviour_clone_per_robot(dataset, ENV, algo="dqn", out=tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def test_demonstrations_from_wider_starts_clone_together_and_the_model_keeps_no_start_radius(dataset, tmp_path):
+    """Wider starts teach the goal distances of larger swarms: such datasets clone with the others, and the model
+    runs on the task's own starts (its file carries no start_radius)."""
+    wide = record(tmp_path / "wide", ENV, n_robots=4, episodes=2, steps=16, start_radius=[150.0, 900.0])
+    result = behaviour_clone_per_robot([dataset, wide], ENV, out=tmp_path / "run", log=lambda line: None, epochs=1)
+    info = read_model_info(result.model_path)
+    assert "start_radius" not in info.env_kwargs
+    assert RobotModelPolicy.load(result.model_path).spec.trained_n_robots == (4, 16)
 
 
 def test_finetune_of_the_centralised_env_refuses_a_per_robot_model(cloned, tmp_path, capsys):

@@ -73,6 +73,10 @@ FRAME_INDEX = "frame_index"  # LeRobot's default column: the frame's step within
 # Centralised-env kwargs a per-robot model does not depend on: the adapter encodes its 0/1 actions into any action
 # type and reads the robots' states whatever else the observation holds. A model file leaves them (and N) out.
 CENTRALISED_ONLY_KWARGS = ("n_robots", "action_type", "obs_type", "obs_last_action", "image_size")
+# Kwargs of the recorded episodes, not of the model: datasets cloned together may differ in them, and a model file
+# leaves them out. Where the swarm starts changes which distances to the goal the robots see, not what a robot
+# observes or does, so demonstrations from wider starts teach the distances that larger swarms span.
+EPISODE_ONLY_KWARGS = ("n_robots", "start_radius")
 _LOSS = {
     "loss": "mean per-sample NLL of the recorded action (one sample = one robot at one frame, Categorical(2))",
     "trained": "actor only",
@@ -207,7 +211,7 @@ def _task_of(env_id: str) -> str:
 def _read_datasets(
     dataset_dirs, env_id: str, requested: dict[str, Any] | None
 ) -> tuple[list[LeRobotReader], list[dict], list[int | None]]:
-    """Readers, env kwargs and episode lengths of the datasets; they may differ in N only, and must have the
+    """Readers, env kwargs and episode lengths of the datasets; they may differ in EPISODE_ONLY_KWARGS only, and must have the
     ``requested`` kwargs' values."""
     dataset_dirs = [dataset_dirs] if isinstance(dataset_dirs, (str, Path)) else list(dataset_dirs)
     if not dataset_dirs:
@@ -217,14 +221,14 @@ def _read_datasets(
     kwargs = [k for k, _ in recorded]
 
     def shared(k: dict) -> dict:
-        return {name: value for name, value in k.items() if name != "n_robots"}
+        return {name: value for name, value in k.items() if name not in EPISODE_ONLY_KWARGS}
 
     for reader, other in zip(readers[1:], kwargs[1:]):
         if shared(other) != shared(kwargs[0]):
             raise ParameterError(
                 "dataset_dirs",
                 f"{reader.root} was recorded with {shared(other)}, {readers[0].root} with {shared(kwargs[0])}; "
-                "datasets cloned together may differ in n_robots only",
+                f"datasets cloned together may differ in {' and '.join(EPISODE_ONLY_KWARGS)} only",
             )
     return readers, kwargs, [steps for _, steps in recorded]
 
@@ -255,7 +259,7 @@ def behaviour_clone_per_robot(
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> BCResult:
     """Clone the robots' actions in ``dataset_dirs`` (one or more datasets recorded by ``dpr collect`` on
-    ``env_id``, possibly of different swarm sizes, otherwise with the same env kwargs) into a new per-robot
+    ``env_id``, possibly of different swarm sizes and start radii, otherwise with the same env kwargs) into a new per-robot
     ``algo`` model (module docstring); save ``model.zip``, ``bc_log.json`` and ``config.yaml`` into ``out`` (a new
     or empty folder; default ``runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>``).
 
@@ -289,7 +293,7 @@ def behaviour_clone_per_robot(
             check_features(reader, probe.observation_space, probe.action_space, f"{env_id} {recorded}")
         finally:
             probe.close()
-    task_kwargs = {k: v for k, v in kwargs.items() if k not in CENTRALISED_ONLY_KWARGS}
+    task_kwargs = {k: v for k, v in kwargs.items() if k not in (*CENTRALISED_ONLY_KWARGS, *EPISODE_ONLY_KWARGS)}
     n_values = [int(k["n_robots"]) for k in kwargs_list]
     swarm_env = parallel_env(
         _task_of(env_id),
