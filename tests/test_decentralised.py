@@ -1,6 +1,7 @@
 """Decentralised control: the per-robot local observation, and the scripted wave every robot runs on its own."""
 
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -271,3 +272,25 @@ def test_decentralised_sweep_tool_refuses_a_policy_that_is_not_one(sweep_tool, t
     with pytest.raises(SystemExit):
         sweep_tool.main(["--policies", "centralised", str(tmp_path / "missing.zip")])
     assert "--policies" in capsys.readouterr().err
+
+
+SHIPPED_PER_ROBOT = sorted((Path(__file__).resolve().parents[1] / "models").glob("decentralised*.zip"))
+
+
+@pytest.mark.parametrize("path", SHIPPED_PER_ROBOT, ids=lambda path: path.name)
+def test_every_shipped_per_robot_model_drives_swarms_of_any_size(path):
+    """The per-robot models in models/ load as what they are and act at sizes they never trained on."""
+    from dpr.policies.per_robot_model import RobotModelPolicy
+
+    spec = RobotModelPolicy.load(path).spec
+    assert set(spec.trained_n_robots) <= {9, 25}
+    for n_robots in (4, 36):
+        env = gym.make(ENV_IDS["navigation"], n_robots=n_robots, robot_model=spec.robot_model, max_episode_steps=20)
+        policy = make_policy(str(path), env)
+        policy.reset()
+        observation, _ = env.reset(seed=0)
+        for _ in range(20):
+            action = policy(observation)
+            assert env.action_space.contains(action)
+            observation, *_ = env.step(action)
+        env.close()

@@ -211,8 +211,8 @@ def _task_of(env_id: str) -> str:
 def _read_datasets(
     dataset_dirs, env_id: str, requested: dict[str, Any] | None
 ) -> tuple[list[LeRobotReader], list[dict], list[int | None]]:
-    """Readers, env kwargs and episode lengths of the datasets; they may differ in EPISODE_ONLY_KWARGS only, and must have the
-    ``requested`` kwargs' values."""
+    """Readers, env kwargs and episode lengths of the datasets; they may differ in EPISODE_ONLY_KWARGS only, and
+    must have the ``requested`` kwargs' values."""
     dataset_dirs = [dataset_dirs] if isinstance(dataset_dirs, (str, Path)) else list(dataset_dirs)
     if not dataset_dirs:
         raise ParameterError("dataset_dirs", "give at least one dataset")
@@ -259,9 +259,9 @@ def behaviour_clone_per_robot(
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> BCResult:
     """Clone the robots' actions in ``dataset_dirs`` (one or more datasets recorded by ``dpr collect`` on
-    ``env_id``, possibly of different swarm sizes and start radii, otherwise with the same env kwargs) into a new per-robot
-    ``algo`` model (module docstring); save ``model.zip``, ``bc_log.json`` and ``config.yaml`` into ``out`` (a new
-    or empty folder; default ``runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>``).
+    ``env_id``, possibly of different swarm sizes and start radii, otherwise with the same env kwargs) into a new
+    per-robot ``algo`` model (module docstring); save ``model.zip``, ``bc_log.json`` and ``config.yaml`` into
+    ``out`` (a new or empty folder; default ``runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>``).
 
     The local observation has ``max_neighbours`` neighbour slots and a clock whose period is one wave cycle of the
     robot model: ``hold_steps`` (the robot model's wave hold by default, as the decentralised wave) x ``n_phases``;
