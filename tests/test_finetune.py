@@ -381,7 +381,7 @@ def test_task_names_are_the_env_ids_keys():
         ({"validation_seeds": [1001]}, r"validation_seeds: \[1001\] are demonstration seeds"),
         ({"test_seeds": []}, "test_seeds: must name at least one seed"),
         ({"test_seeds": [5, 5]}, "test_seeds: each seed must appear once"),
-        ({"validation_seeds": [7, 100]}, r"validation_seeds: \[100\] are test seeds too"),
+        ({"validation_seeds": [7, 300]}, r"validation_seeds: \[300\] are test seeds too"),
         ({"train_seeds": [0, 1]}, "validation_seeds: several train_seeds need validation seeds"),
         ({"train_seeds": [-1]}, "train_seeds: must be >= 0"),
         ({"tasks": ["swimming"]}, "tasks must be among"),
