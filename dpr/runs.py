@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from dpr.checks import ParameterError
-from dpr.envs import ENV_IDS
+from dpr.envs import TASKS
 
 # The packages whose versions a run's config.yaml records.
 VERSIONED = ("deep-particle-robot", "stable-baselines3", "torch", "gymnasium", "numpy", "pymunk")
@@ -38,8 +38,7 @@ def check_new_folder(out: str | Path | None) -> None:
 
 def default_run_dir(runs_dir: str | Path, env_id: str, name: str, seed: int) -> Path:
     """``runs_dir/<task>-<name>-seed<S>-<timestamp>``, made unique with :func:`fresh_path`."""
-    task = next(task for task, known in ENV_IDS.items() if known == env_id)
-    return fresh_path(Path(runs_dir) / f"{task}-{name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
+    return fresh_path(Path(runs_dir) / f"{TASKS[env_id]}-{name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
 def package_versions() -> dict[str, str]:

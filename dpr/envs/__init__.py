@@ -19,7 +19,7 @@ from dpr.envs.particle_env import (
     REWARDS,
     ParticleSwarmEnv,
 )
-from dpr.envs.tasks import ENV_IDS, TASK_CLASSES
+from dpr.envs.tasks import ENV_IDS, TASK_CLASSES, TASKS
 from dpr.envs.unresponsive import UnresponsiveEnv
 
 for _task, _cls in TASK_CLASSES.items():
@@ -38,6 +38,7 @@ __all__ = [
     "OBS_TYPES",
     "PHYSICS_ERROR",
     "REWARDS",
+    "TASKS",
     "TASK_CLASSES",
     "GateEnv",
     "ManipulationEnv",

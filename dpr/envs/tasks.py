@@ -12,3 +12,4 @@ TASK_CLASSES = {
     "manipulation": ManipulationEnv,
 }
 ENV_IDS = {task: f"dpr/{cls.__name__.removesuffix('Env')}-v0" for task, cls in TASK_CLASSES.items()}
+TASKS = {env_id: task for task, env_id in ENV_IDS.items()}  # the inverse: "dpr/Gate-v0" -> "gate"

@@ -41,7 +41,7 @@ from dpr import runs
 from dpr.checks import ParameterError, check_int
 from dpr.datasets.features import ACTION, OBSERVATION, SEED
 from dpr.datasets.lerobot import LeRobotReader
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import MAX_EPISODE_STEPS, TASKS
 from dpr.envs.local_obs import MAX_NEIGHBOURS, LocalObservation
 from dpr.envs.particle_env import joint_action_bits
 from dpr.imitation.bc import (
@@ -204,10 +204,6 @@ def _train_epoch(policy, optimizer, rows, labels, batch_size: int, generator: to
     return result
 
 
-def _task_of(env_id: str) -> str:
-    return next(task for task, known in ENV_IDS.items() if known == env_id)
-
-
 def _read_datasets(
     dataset_dirs, env_id: str, requested: dict[str, Any] | None
 ) -> tuple[list[LeRobotReader], list[dict], list[int | None]]:
@@ -296,7 +292,7 @@ def behaviour_clone_per_robot(
     task_kwargs = {k: v for k, v in kwargs.items() if k not in (*CENTRALISED_ONLY_KWARGS, *EPISODE_ONLY_KWARGS)}
     n_values = [int(k["n_robots"]) for k in kwargs_list]
     swarm_env = parallel_env(
-        _task_of(env_id),
+        TASKS[env_id],
         n_robots=n_values[0],
         local_obs=True,
         max_neighbours=max_neighbours,

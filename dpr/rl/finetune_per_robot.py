@@ -40,7 +40,7 @@ import yaml
 from dpr import runs
 from dpr.atomic import atomic_write_json, atomic_write_text
 from dpr.checks import ParameterError, check_choice, check_int
-from dpr.envs import ENV_IDS
+from dpr.envs import ENV_IDS, TASKS
 from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.policies.hyperparams import FINETUNE_PRESET, Hyperparams, load_hyperparams
 from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env
@@ -187,7 +187,6 @@ def _swarms(config: PerRobotFinetuneConfig, resolved: _Resolved):
 
     from dpr.envs.parallel import SwarmsAsVecEnv, parallel_env
 
-    task = next(task for task, known in ENV_IDS.items() if known == config.env_id)
     kwargs = {
         **resolved.spec.parallel_env_kwargs(),
         **resolved.env_kwargs,
@@ -197,7 +196,7 @@ def _swarms(config: PerRobotFinetuneConfig, resolved: _Resolved):
     envs = []
     try:
         for n in resolved.sizes:
-            envs.append(parallel_env(task, n_robots=n, **kwargs))
+            envs.append(parallel_env(TASKS[config.env_id], n_robots=n, **kwargs))
             check_per_robot_env(config.init_from, resolved.info, envs[-1], centralised=False)
         return VecMonitor(SwarmsAsVecEnv(envs))
     except BaseException:
