@@ -110,3 +110,17 @@ def assert_per_robot_model_acts_and_trains(model_path, n_robots: int) -> None:
     assert set(actions) == set(env.agents) and set(actions.values()) <= {0, 1}
     model, _ = load_model(model_path, AgentsAsVecEnv(env), for_training=True)
     assert model.get_env().num_envs == n_robots
+
+
+def drive(env, policy, steps: int, seed: int) -> None:
+    """Reset ``env`` and ``policy`` with ``seed`` and step ``steps`` times, asserting every action is in the action
+    space; the env is closed."""
+    observation, _ = env.reset(seed=seed)
+    policy.reset(seed)
+    try:
+        for _ in range(steps):
+            action = policy(observation)
+            assert env.action_space.contains(action)
+            observation, *_ = env.step(action)
+    finally:
+        env.close()

@@ -6,7 +6,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import load_tool
+from helpers import drive, load_tool
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", DeprecationWarning)  # pettingzoo.test loads its own deprecated env modules
@@ -218,12 +218,7 @@ def test_registry_makes_the_decentralised_wave_for_every_action_type(action_type
     env = gym.make(ENV_IDS["navigation"], n_robots=4, action_type=action_type, **DISK)
     policy = make_policy("decentralised-wave", env)
     assert isinstance(policy, PerRobotPolicyAdapter)
-    obs, _ = env.reset(seed=0)
-    policy.reset(0)
-    for _ in range(10):
-        action = policy(obs)
-        assert env.action_space.contains(action)
-        obs, *_ = env.step(action)
+    drive(env, policy, steps=10, seed=0)
 
 
 def test_bad_policy_arguments():
@@ -286,11 +281,4 @@ def test_every_shipped_per_robot_model_drives_swarms_of_any_size(path):
     assert set(spec.trained_n_robots) <= {9, 25}
     for n_robots in (4, 36):
         env = gym.make(ENV_IDS["navigation"], n_robots=n_robots, robot_model=spec.robot_model, max_episode_steps=20)
-        policy = make_policy(str(path), env)
-        policy.reset()
-        observation, _ = env.reset(seed=0)
-        for _ in range(20):
-            action = policy(observation)
-            assert env.action_space.contains(action)
-            observation, *_ = env.step(action)
-        env.close()
+        drive(env, make_policy(str(path), env), steps=20, seed=0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from helpers import assert_per_robot_model_acts_and_trains, tree_hash
+from helpers import assert_per_robot_model_acts_and_trains, drive, tree_hash
 from helpers import run_cli as run
 
 from dpr.checks import ParameterError
@@ -89,13 +89,7 @@ def test_the_fine_tuned_model_runs_at_any_size(finetuned, n_robots):
     env = gym.make(ENV, n_robots=n_robots, max_episode_steps=6, **DISK)
     policy = make_policy(str(finetuned.model_path), env)
     assert isinstance(policy, PerRobotPolicyAdapter)
-    observation, _ = env.reset(seed=5)
-    policy.reset(5)
-    for _ in range(6):
-        action = policy(observation)
-        assert env.action_space.contains(action)
-        observation, *_ = env.step(action)
-    env.close()
+    drive(env, policy, steps=6, seed=5)
 
 
 def test_the_fine_tuned_model_runs_in_the_pettingzoo_env_and_trains_again(finetuned):

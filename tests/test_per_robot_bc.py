@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
-from helpers import assert_per_robot_model_acts_and_trains, tree_hash
+from helpers import assert_per_robot_model_acts_and_trains, drive, tree_hash
 from helpers import run_cli as run
 
 from dpr.checks import ParameterError
@@ -255,11 +255,4 @@ def test_finetune_of_the_centralised_env_refuses_a_per_robot_model(cloned, tmp_p
 def test_a_navigation_model_drives_swarms_of_the_other_tasks_without_an_object(cloned, env_id):
     """Unresponsive robots ignore commands: the model acts for every robot, not told which are dead."""
     env = gym.make(env_id, n_robots=9, **DISK)
-    policy = make_policy(str(cloned.model_path), env)
-    obs, _ = env.reset(seed=3)
-    policy.reset(3)
-    for _ in range(20):
-        action = policy(obs)
-        assert env.action_space.contains(action)
-        obs, *_ = env.step(action)
-    env.close()
+    drive(env, make_policy(str(cloned.model_path), env), steps=20, seed=3)

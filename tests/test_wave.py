@@ -3,6 +3,7 @@
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import drive
 
 from dpr.envs.particle_env import HELD_STEPS_CAP
 from dpr.policies.wave import MODEL_DEFAULTS, MarkovWavePolicy, WavePolicy, encode_action
@@ -150,12 +151,7 @@ def test_from_env(robot_model, action_type, obs_type):
     assert policy.start_side == MODEL_DEFAULTS[robot_model]["start_side"]
     assert WavePolicy.from_env(env, hold_steps=7).hold_steps == 7
     assert WavePolicy.from_env(env.unwrapped, start_side="far").start_side == "far"
-    obs, _ = env.reset(seed=0)
-    for _ in range(12):
-        action = policy(obs)
-        assert env.action_space.contains(action)
-        obs, *_ = env.step(action)
-    env.close()
+    drive(env, policy, steps=12, seed=0)
 
 
 def test_paddle_default_is_the_papers():
