@@ -124,3 +124,16 @@ def drive(env, policy, steps: int, seed: int) -> None:
             observation, *_ = env.step(action)
     finally:
         env.close()
+
+
+def shrink_rollouts(patch, small: dict) -> None:
+    """Through ``patch`` (a pytest MonkeyPatch), give every yaml entry that dpr.rl.train loads ``small`` on top (e.g.
+    32-step PPO rollouts), so that a few dozen steps of RL are a few updates; the caller's overrides still win."""
+    import dpr.rl.train as train_module
+
+    original = train_module.load_hyperparams
+
+    def shrunk(algo, env_id, preset="default", overrides=None):
+        return original(algo, env_id, preset, {**small, **(overrides or {})})
+
+    patch.setattr(train_module, "load_hyperparams", shrunk)

@@ -12,8 +12,8 @@ import pytest
 import torch
 import yaml
 from helpers import run_cli as run
+from helpers import shrink_rollouts
 
-import dpr.rl.train as train_module
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.envs import ENV_IDS
 from dpr.imitation import behaviour_clone
@@ -431,13 +431,8 @@ def pipeline(tmp_path_factory):
     """One tiny pipeline run. PipelineConfig has no hyperparameter overrides: the yaml's 1024-step PPO rollouts
     are shrunk to 32 steps here, so that a few dozen steps of RL are a few updates."""
     out = tmp_path_factory.mktemp("pipeline") / "run"
-    original = train_module.load_hyperparams
-
-    def small_rollouts(algo, env_id, preset="default", overrides=None):
-        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
-
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(train_module, "load_hyperparams", small_rollouts)
+        shrink_rollouts(patch, TINY_PPO)
         report = run_pipeline(PipelineConfig(**PIPELINE), out, **QUIET)
     return out, report
 
@@ -445,14 +440,9 @@ def pipeline(tmp_path_factory):
 def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
     """RL on Manipulation, fine-tuning and from scratch, gets the approach shaping; the clone and the
     evaluations do not need it (the metric follows the ball either way)."""
-    original = train_module.load_hyperparams
-
-    def small_rollouts(algo, env_id, preset="default", overrides=None):
-        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
-
     settings = {**PIPELINE, "tasks": ["manipulation"], "anchor": False, "approach_reward": 0.5}
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(train_module, "load_hyperparams", small_rollouts)
+        shrink_rollouts(patch, TINY_PPO)
         run_pipeline(PipelineConfig(**settings), tmp_path / "run", **QUIET)
     for method in ("bc-ppo", "ppo"):
         info = read_model_info(tmp_path / "run" / "models" / f"manipulation-{method}.zip")
@@ -542,15 +532,10 @@ def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path
 def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(tmp_path):
     """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
     run there (not the best), and the report's interval rows hold every run on the test seeds."""
-    original = train_module.load_hyperparams
-
-    def small_rollouts(algo, env_id, preset="default", overrides=None):
-        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
-
     settings = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
     out = tmp_path / "run"
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(train_module, "load_hyperparams", small_rollouts)
+        shrink_rollouts(patch, TINY_PPO)
         report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
     choices = yaml.safe_load((out / "choices.yaml").read_text())
     for method in METHODS[1:]:

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 from helpers import run_cli as run
+from helpers import shrink_rollouts
 
-import dpr.rl.train as train_module
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
 from dpr.rl.model_card import load_model_card
@@ -35,12 +35,7 @@ def entry(task: str, file: str, method: str = "bc-ppo") -> dict:
 
 @pytest.fixture
 def tiny_rollouts(monkeypatch):
-    original = train_module.load_hyperparams
-
-    def small(algo, env_id, preset="default", overrides=None):
-        return original(algo, env_id, preset, {**TINY_PPO, **(overrides or {})})
-
-    monkeypatch.setattr(train_module, "load_hyperparams", small)
+    shrink_rollouts(monkeypatch, TINY_PPO)
 
 
 def tiny_model(task: str, folder: Path) -> Path:
