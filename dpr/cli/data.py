@@ -18,6 +18,7 @@ from dpr.cli.common import (
     flag_message,
     json_argument,
     parse_seeds,
+    positive_int,
     swarm_arguments,
     workers_argument,
     write_json,
@@ -49,7 +50,11 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
     )
     default_argument(parser, "--seed", run["seed"], "first seed", type=int)
     swarm_arguments(parser, spec)
-    default_argument(parser, "--steps", spec["steps"], "max steps per episode")
+    parser.add_argument(
+        "--steps",
+        type=positive_int,
+        help="frames (env steps) per episode (default: a whole episode, 2500 physics steps / action_repeat)",
+    )
     parser.add_argument("--pixels", action="store_true", help="also record render() frames as observation.image (PNG)")
     default_argument(parser, "--image-size", spec["image_size"], "frame size for --pixels")
     parser.add_argument("--mcap", action="store_true", help="also write one MCAP log per episode into OUT/mcap/")

@@ -50,7 +50,13 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     swarm_arguments(parser)
     steps = defaults(evaluate)["steps"]
-    parser.add_argument("--steps", type=positive_int, default=steps, help=f"steps per episode (default {steps})")
+    parser.add_argument(
+        "--steps",
+        type=positive_int,
+        default=steps,
+        help=f"physics steps per episode (default {steps}; a model that decides every k steps, env kwarg "
+        "action_repeat=k, makes steps/k decisions)",
+    )
     workers_argument(parser, "episodes run in this many processes")
     env_kwarg_argument(parser, "object_start=paper")
     json_argument(parser, "episodes and summary")

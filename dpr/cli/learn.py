@@ -77,7 +77,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: 
 
     from tqdm import tqdm
 
-    from dpr.envs import MAX_EPISODE_STEPS
+    from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.sb3 import read_model_info
     from dpr.viz.episodes import rollout_episode
@@ -93,7 +93,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: 
     swarm, extra = split_swarm_kwargs(info.env_kwargs)
     if n_robots is not None:
         swarm.setdefault("n_robots", n_robots)
-    steps = info.max_episode_steps or MAX_EPISODE_STEPS
+    steps = info.max_episode_steps or episode_steps(info.env_kwargs)
     episodes = [
         rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
         for name, model in tqdm(models, desc="log to rerun", unit="model")
@@ -138,7 +138,11 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
         default=config["preset"],
         help=f"{DEFAULT_PRESET}: laptop-sized entry of the env id; {PAPER_PRESET}: Shen et al.'s (10M steps)",
     )
-    default_argument(parser, "--steps-per-episode", config["steps_per_episode"], "episode length")
+    parser.add_argument(
+        "--steps-per-episode",
+        type=positive_int,
+        help="env steps per episode (default: a whole episode, 2500 physics steps / action_repeat)",
+    )
     _run_arguments(parser, "n_steps=256 or learning_rate=lin_1e-3")
 
 
@@ -210,7 +214,7 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_finetune(args, parser) -> int:
-    from dpr.envs import MAX_EPISODE_STEPS
+    from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.hyperparams import FINETUNE_PRESET
     from dpr.policies.sb3 import model_env_kwargs, read_model_info
@@ -236,7 +240,7 @@ def cmd_finetune(args, parser) -> int:
             seed=args.seed,
             n_envs=args.n_envs,
             preset=FINETUNE_PRESET,
-            steps_per_episode=info.max_episode_steps or MAX_EPISODE_STEPS,
+            steps_per_episode=info.max_episode_steps or episode_steps(info.env_kwargs),
             env_kwargs=env_kwargs,
             hyperparams=dict(args.hyperparam or []),
             eval_episodes=args.eval_episodes,

@@ -100,7 +100,13 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         show=seeds_text,
         aliases=("--eval-seeds",),
     )
-    preset_argument("--steps", "steps per episode, everywhere")
+    preset_argument("--steps", "physics steps per episode, everywhere")
+    preset_argument(
+        "--action-repeat",
+        "the learners (demonstrations, BC, RL) decide every K physics steps (env kwarg action_repeat; the wave "
+        "holds each phase 10 steps, so K divides 10); budgets stay physics steps",
+        metavar="K",
+    )
     parser.add_argument(
         "--shipped",
         metavar="CARD",

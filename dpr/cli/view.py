@@ -62,7 +62,7 @@ def view_arguments(parser: argparse.ArgumentParser) -> None:
     )
     default_argument(parser, "--seed", 0, "reset seed of every rollout", type=int)
     swarm_arguments(parser, rollout)
-    default_argument(parser, "--steps", rollout["steps"], "max steps per rollout")
+    default_argument(parser, "--steps", rollout["steps"], "max physics steps per rollout")
     env_kwarg_argument(parser, "object_type=box")
     parser.add_argument("--save", metavar="OUT.rrd", help="write a new .rrd file instead of starting a viewer")
     parser.add_argument("--serve", action="store_true", help="serve over gRPC (connect with `rerun URL`) until Ctrl-C")

@@ -32,7 +32,7 @@ from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import ENV_IDS, episode_steps
 from dpr.envs.particle_env import IMAGE_SIZE_RANGE
 from dpr.metrics import EpisodeMetrics
 from dpr.policies.registry import check_policy_name, make_policy
@@ -53,7 +53,7 @@ class CollectSpec:
     policy: str = "wave"
     n_robots: int = 9
     robot_model: str = "paddle"
-    steps: int = MAX_EPISODE_STEPS
+    steps: int | None = None  # frames (env steps) per episode; None: a whole episode (dpr.envs.episode_steps)
     pixels: bool = False
     image_size: int = 96
     env_kwargs: dict = field(default_factory=dict)  # any further gym.make kwargs (e.g. object_type="box")
@@ -62,6 +62,8 @@ class CollectSpec:
 
     def __post_init__(self):
         check_choice("env_id", self.env_id, ENV_IDS.values())
+        if self.steps is None:
+            object.__setattr__(self, "steps", episode_steps(self.env_kwargs))  # (frozen)
         check_policy_name(self.policy)
         if self.label_policy is not None:
             check_policy_name(self.label_policy)

@@ -18,6 +18,7 @@ from dpr.envs.particle_env import (
     PHYSICS_ERROR,
     REWARDS,
     ParticleSwarmEnv,
+    episode_steps,
 )
 from dpr.envs.tasks import ENV_IDS, TASK_CLASSES, TASKS
 from dpr.envs.unresponsive import UnresponsiveEnv
@@ -45,5 +46,6 @@ __all__ = [
     "NavigationEnv",
     "ParticleSwarmEnv",
     "UnresponsiveEnv",
+    "episode_steps",
     "parallel_env",
 ]

@@ -17,7 +17,9 @@ class NavigationEnv(ParticleSwarmEnv):
     ``"continuous"``: ``Box(0, 1, (N,))``, a target expansion per robot (0 contracted, 1 expanded).
     A robot accepts a new target only once it has reached its previous one (within 10 degrees of stroke); a
     full stroke takes about 5 steps (the motors need time to spin the paddles up). Actions of the wrong shape,
-    dtype or range raise ``ValueError``.
+    dtype or range raise ``ValueError``. With ``action_repeat=k`` one ``step`` applies the action for k physics
+    steps (temporal abstraction: the wave's phases are 10 steps long) and returns the sum of their rewards; it
+    stops early when the episode terminates.
 
     ## Observation Space
     ``obs_type="state"`` (default): ``Box(6N,)`` float32, robot-major: for each robot x, y (goal frame), vx,
@@ -44,8 +46,9 @@ class NavigationEnv(ParticleSwarmEnv):
 
     ## Episode End
     Terminated when the agent comes within 10 units of the goal (``info["is_success"]``). Truncated at 2500
-    steps (``max_episode_steps`` of the registered id), or at once if the physics blows up (non-finite
-    state), with ``info["physics_error"]`` set.
+    steps (``max_episode_steps`` of the registered id; with ``action_repeat=k`` pass
+    ``max_episode_steps=dpr.envs.episode_steps(kwargs)``, 2500 / k, for an episode of the same time), or at
+    once if the physics blows up (non-finite state), with ``info["physics_error"]`` set.
 
     ## Info
     ``is_success``, ``centre_of_mass``, ``agent_position`` (what the task moves: the centre, or the object),
@@ -55,10 +58,10 @@ class NavigationEnv(ParticleSwarmEnv):
     ## Arguments
     ``gymnasium.make("dpr/Navigation-v0", n_robots=9, robot_model="paddle", action_type="multibinary",
     obs_type="state", reward="piecewise", reward_threshold_d=450.0, start_radius=(450, 550),
-    obs_last_action=False, image_size=96, render_size=512, render_mode=None)``. ``robot_model``: ``"paddle"``
-    (the paper's robot, 16 motor-driven paddles) or ``"disk"`` (one body whose radius follows the paddle
-    robot's outline; 15-20x faster, and the wave moves it as it moves the paddle model:
-    ``tools/model_agreement.py``).
+    obs_last_action=False, action_repeat=1, image_size=96, render_size=512, render_mode=None)``.
+    ``robot_model``: ``"paddle"`` (the paper's robot, 16 motor-driven paddles) or ``"disk"`` (one body whose
+    radius follows the paddle robot's outline; 15-20x faster, and the wave moves it as it moves the paddle
+    model: ``tools/model_agreement.py``).
     ``reward_threshold_d`` and both ends of ``start_radius`` must be finite, > 0 and <= 1e5.
     ``render_mode="rgb_array"`` draws robots, paddles, magnets, walls, object and goal, headless.
     ``env.unwrapped.world.space`` is the pymunk Space.
@@ -71,7 +74,7 @@ class NavigationEnv(ParticleSwarmEnv):
       no robot starts inside a wall or the object and the goal stays ahead of the swarm (every start of
       16 robots or fewer is unchanged). ``robot_model="disk"`` is at revision 2 (the paddle robot's outline,
       force-limited growth; ``dpr.sim.disk.DiskSwarm``), which datasets record: disk episodes of revision 1
-      differ, paddle episodes do not.
+      differ, paddle episodes do not. ``action_repeat`` (default 1, the paper's one decision per step) is new.
     """
 
     task = "navigation"

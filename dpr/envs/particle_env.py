@@ -48,6 +48,13 @@ def split_swarm_kwargs(env_kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict
     return swarm, {key: value for key, value in env_kwargs.items() if key not in SWARM_KWARGS}
 
 
+def episode_steps(env_kwargs: dict[str, Any] | None = None, physics_steps: int = MAX_EPISODE_STEPS) -> int:
+    """Env steps of an episode of ``physics_steps`` physics steps for an env made with ``env_kwargs``: each env
+    step is ``action_repeat`` physics steps (the default episode: 2500, or 250 decisions of 10 steps)."""
+    repeat = check_int("action_repeat", (env_kwargs or {}).get("action_repeat", 1), 1, MAX_EPISODE_STEPS)
+    return -(-physics_steps // repeat)
+
+
 def joint_action_bits(n_robots: int) -> np.ndarray:
     """The value of each robot's bit in a ``action_type="discrete"`` action (int64 [N]): robot 0 is the most
     significant bit, so the integer action is ``expand @ joint_action_bits(N)``."""
@@ -85,6 +92,7 @@ class ParticleSwarmEnv(gym.Env):
         reward_threshold_d: float = 450.0,
         start_radius: tuple[float, float] = (450.0, 550.0),
         obs_last_action: bool = False,
+        action_repeat: int = 1,
         image_size: int = 96,
         render_size: int = 512,
         render_mode: str | None = None,
@@ -110,6 +118,7 @@ class ParticleSwarmEnv(gym.Env):
             raise ValueError(f"obs_last_action must be True or False, got {obs_last_action!r}")
         if obs_last_action and obs_type == "pixels":
             raise ValueError("obs_last_action=True extends the state vector: use obs_type 'state' or 'pixels_state'")
+        check_int("action_repeat", action_repeat, 1, MAX_EPISODE_STEPS)
         check_int("image_size", image_size, *IMAGE_SIZE_RANGE)
         check_int("render_size", render_size, *IMAGE_SIZE_RANGE)
 
@@ -121,6 +130,7 @@ class ParticleSwarmEnv(gym.Env):
         self.reward_threshold_d = float(reward_threshold_d)
         self.start_radius = (float(low), float(high))
         self.obs_last_action = bool(obs_last_action)
+        self.action_repeat = int(action_repeat)
         self.image_size = int(image_size)
         self.render_size = int(render_size)
         self.render_mode = render_mode
@@ -225,22 +235,27 @@ class ParticleSwarmEnv(gym.Env):
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         targets = self._targets(action)
-        if self.obs_last_action:  # (off the hot path of envs that do not observe it)
-            if np.array_equal(targets, self._last_targets):
-                self._held_steps += 1
-            else:
-                self._last_targets, self._held_steps = targets, 1
-        previous = self._tracker.last_position
-        self.world.step(targets)
-        if not self.world.is_sane():
-            info = self._info()
-            info[PHYSICS_ERROR] = "non-finite or exploding body state; episode truncated"
-            return _copy(self._last_obs), 0.0, False, True, info
-        self._tracker.update(self._agent_position())
-        reward = self._reward(previous)
-        terminated = self._tracker.distance_to_goal < SUCCESS_RADIUS
+        total = 0.0
+        terminated = False
+        for _ in range(self.action_repeat):  # one decision, applied for action_repeat physics steps
+            if self.obs_last_action:  # (off the hot path of envs that do not observe it)
+                if np.array_equal(targets, self._last_targets):
+                    self._held_steps += 1
+                else:
+                    self._last_targets, self._held_steps = targets, 1
+            previous = self._tracker.last_position
+            self.world.step(targets)
+            if not self.world.is_sane():
+                info = self._info()
+                info[PHYSICS_ERROR] = "non-finite or exploding body state; episode truncated"
+                return _copy(self._last_obs), 0.0, False, True, info
+            self._tracker.update(self._agent_position())
+            total += self._reward(previous)
+            terminated = self._tracker.distance_to_goal < SUCCESS_RADIUS
+            if terminated:
+                break
         self._last_obs = self._observation()
-        return self._last_obs, reward, terminated, False, self._info()
+        return self._last_obs, total, terminated, False, self._info()
 
     def render(self):
         if self.render_mode != "rgb_array":

@@ -13,7 +13,7 @@ import numpy as np
 
 from dpr.atomic import atomic_write_text
 from dpr.checks import check_choice, check_seeds
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, episode_steps
 from dpr.metrics import EpisodeMetrics, summarize
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import is_model_path, load_model, model_env_kwargs
@@ -109,10 +109,12 @@ def policy_env_kwargs(policy: str, env_id: str, env_kwargs: dict | None) -> dict
 def run_episode(
     env_id: str, policy_name: str, seed: int, steps: int = MAX_EPISODE_STEPS, env_kwargs: dict | None = None
 ) -> EpisodeResult:
-    """One episode of at most ``steps`` steps from ``reset(seed=seed)`` (a model file's env kwargs apply)."""
+    """One episode of at most ``steps`` physics steps from ``reset(seed=seed)`` (a model file's env kwargs apply;
+    one that decides every ``action_repeat`` steps gets ``steps / action_repeat`` env steps)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
 
-    env = gym.make(env_id, max_episode_steps=steps, **policy_env_kwargs(policy_name, env_id, env_kwargs))
+    kwargs = policy_env_kwargs(policy_name, env_id, env_kwargs)
+    env = gym.make(env_id, max_episode_steps=episode_steps(kwargs, steps), **kwargs)
     try:
         result = roll_out(env, make_policy(policy_name, env), seed)
     finally:
@@ -130,7 +132,9 @@ def evaluate(
     progress=None,
 ) -> list[EpisodeResult]:
     """Run ``policy`` (a scripted policy's name or a ``.zip`` model file) on every env id and seed (in
-    ``workers`` processes); results in input order. A model runs with the env kwargs it was trained with."""
+    ``workers`` processes); results in input order. A model runs with the env kwargs it was trained with.
+    ``steps`` counts physics steps, so policies that decide every step or every ``action_repeat`` steps are
+    scored over the same time."""
     for env_id in env_ids:
         check_env_id(env_id, "env_ids")
     check_policy_name(policy)

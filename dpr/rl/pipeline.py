@@ -42,10 +42,11 @@ import yaml
 
 from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError, check_int, check_seeds
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, episode_steps
 from dpr.policies.hyperparams import FINETUNE_PRESET
 from dpr.policies.registry import WAVE, WAVE_MARKOV
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
+from dpr.policies.wave import MODEL_DEFAULTS
 from dpr.rl.model_card import ShippedModel
 from dpr.runs import fresh_path
 
@@ -75,7 +76,9 @@ class PipelineConfig:
     validation_seeds: list[int] = field(default_factory=list)  # needed to choose among several training seeds
     train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
     workers: int = 2
-    steps: int = MAX_EPISODE_STEPS  # per episode, in demonstrations, training and evaluation
+    steps: int = MAX_EPISODE_STEPS  # physics steps per episode, in demonstrations, training and evaluation
+    action_repeat: int = 1  # the learners decide every this many physics steps (a divisor of the wave's hold)
+    finetune_hyperparams: dict[str, Any] = field(default_factory=dict)  # over the yaml's `finetune` entry
 
     def __post_init__(self):
         unknown = [task for task in self.tasks if task not in ENV_IDS]
@@ -89,6 +92,15 @@ class PipelineConfig:
             check_int(name, getattr(self, name), 1)
         for name in ("critic_warmup", "demo_seed"):
             check_int(name, getattr(self, name), 0)
+        hold = MODEL_DEFAULTS["paddle"]["hold_steps"]
+        if check_int("action_repeat", self.action_repeat, 1) and hold % self.action_repeat:
+            raise ParameterError(
+                "action_repeat",
+                f"must divide the wave's hold of {hold} steps, so that the demonstrations are the wave's gait; "
+                f"got {self.action_repeat}",
+            )
+        if not isinstance(self.finetune_hyperparams, dict):
+            raise ParameterError("finetune_hyperparams", f"expected a mapping, got {self.finetune_hyperparams!r}")
         if (
             isinstance(self.approach_reward, bool)
             or not isinstance(self.approach_reward, (int, float))
@@ -119,15 +131,22 @@ class PipelineConfig:
 
     @property
     def rl_steps(self) -> int:
-        """Env steps of a fine-tuned model in all: demonstration frames, critic warm-up and fine-tuning (the
-        budget RL from scratch gets)."""
+        """Physics steps of a fine-tuned model in all: demonstrations, critic warm-up and fine-tuning (the
+        budget RL from scratch gets). Budgets count physics steps, so that learners deciding every step or every
+        ``action_repeat`` steps get the same simulated time."""
         return self.episodes * self.steps + self.critic_warmup + self.finetune_steps
 
-    def rl_env_kwargs(self, task: str) -> dict[str, Any]:
-        """The env kwargs RL trains ``task`` with: the pipeline's, and Manipulation's shaping."""
-        if task == "manipulation" and self.approach_reward:
-            return {**PIPELINE_ENV_KWARGS, "approach_reward": float(self.approach_reward)}
+    def learner_env_kwargs(self) -> dict[str, Any]:
+        """The env kwargs of the demonstrations and of every learner: the pipeline's, and the decision interval."""
+        if self.action_repeat > 1:
+            return {**PIPELINE_ENV_KWARGS, "action_repeat": self.action_repeat}
         return dict(PIPELINE_ENV_KWARGS)
+
+    def rl_env_kwargs(self, task: str) -> dict[str, Any]:
+        """The env kwargs RL trains ``task`` with: the learners', and Manipulation's shaping."""
+        if task == "manipulation" and self.approach_reward:
+            return {**self.learner_env_kwargs(), "approach_reward": float(self.approach_reward)}
+        return self.learner_env_kwargs()
 
     def methods(self) -> list[str]:
         """Names of the policies evaluated on each task, the wave first."""
@@ -271,8 +290,13 @@ def _demonstrations(
 
     if not _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
         return
+    kwargs = config.learner_env_kwargs()
     spec = CollectSpec(
-        ENV_IDS[task], policy=EXPERT, n_robots=config.n_robots, steps=config.steps, env_kwargs=PIPELINE_ENV_KWARGS
+        ENV_IDS[task],
+        policy=EXPERT,
+        n_robots=config.n_robots,
+        steps=episode_steps(kwargs, config.steps),
+        env_kwargs=kwargs,
     )
     with tqdm(total=config.episodes, desc=f"collect {task}", unit="episode", disable=not show_progress) as bar:
         summary = collect(
@@ -314,32 +338,36 @@ def _train_runs(
             log=log,
         )
         _copy_new(result.model_path, bc_model)
+    repeat = config.action_repeat  # budgets are physics steps; TrainConfig counts env steps (decisions)
     runs: list[tuple[str, dict[str, Any]]] = [
         (
             f"bc-{algo}",
             {
                 "algo": algo,
                 "preset": FINETUNE_PRESET,
-                "timesteps": config.finetune_steps,
+                "timesteps": config.finetune_steps // repeat,
                 "init_from": str(bc_model),
-                "critic_warmup": config.critic_warmup,
+                "critic_warmup": config.critic_warmup // repeat,
                 "anchor_datasets": [str(dataset)] if config.anchor else [],
+                "hyperparams": dict(config.finetune_hyperparams),
             },
         )
         for algo in config.finetune_algos
-    ] + [(algo, {"algo": algo, "timesteps": config.rl_steps}) for algo in config.scratch_algos]
+    ] + [(algo, {"algo": algo, "timesteps": config.rl_steps // repeat}) for algo in config.scratch_algos]
     for method, settings in runs:
         model = _model_path(out, task, method, seed)
         warmup = f" after {config.critic_warmup} warm-up steps" if "init_from" in settings else ""
-        if not _stage(model, f"{task}: {method}, seed {seed} ({settings['timesteps']} steps{warmup})", log):
+        physics = settings["timesteps"] * repeat
+        if not _stage(model, f"{task}: {method}, seed {seed} ({physics} physics steps{warmup})", log):
             continue
+        kwargs = config.rl_env_kwargs(task)
         train_config = TrainConfig(
             env_id=env_id,
             n_robots=config.n_robots,
             seed=seed,
             n_envs=config.workers,
-            steps_per_episode=config.steps,
-            env_kwargs=config.rl_env_kwargs(task),
+            steps_per_episode=episode_steps(kwargs, config.steps),
+            env_kwargs=kwargs,
             **settings,
         )
         result = train(

@@ -28,7 +28,7 @@ import yaml
 
 from dpr import runs
 from dpr.checks import ParameterError, check_int
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import ENV_IDS, episode_steps
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     ALGOS,
@@ -68,7 +68,7 @@ class TrainConfig:
     seed: int = 0
     n_envs: int = 1
     preset: str = DEFAULT_PRESET
-    steps_per_episode: int = MAX_EPISODE_STEPS
+    steps_per_episode: int | None = None  # env steps; None: a whole episode (dpr.envs.episode_steps)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml entry
     eval_episodes: int = 2
@@ -85,6 +85,8 @@ class TrainConfig:
             raise ValueError(f"preset must be one of {PRESETS}, got {self.preset!r}")
         if self.env_id not in ENV_IDS.values():
             raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
+        if self.steps_per_episode is None:
+            self.steps_per_episode = episode_steps(self.env_kwargs)
         for name in ("n_robots", "n_envs", "steps_per_episode", "eval_episodes"):
             check_int(name, getattr(self, name), 1)
         if self.timesteps is not None:

@@ -30,7 +30,13 @@ import numpy as np
 
 from dpr.checks import ParameterError
 from dpr.datasets import features as F
-from dpr.envs.particle_env import LENGTH_SCALE, MAX_EPISODE_STEPS, OBJECT_FEATURES, ROBOT_FEATURES
+from dpr.envs.particle_env import (
+    LENGTH_SCALE,
+    MAX_EPISODE_STEPS,
+    OBJECT_FEATURES,
+    ROBOT_FEATURES,
+    episode_steps,
+)
 from dpr.rollout import roll_out
 from dpr.sim import swarm_class
 from dpr.sim.constants import FPS
@@ -319,10 +325,11 @@ def rollout_episode(
     name: str | None = None,
     on_step: Callable[[int], None] | None = None,
 ) -> EpisodeLog:
-    """Roll ``policy`` out for at most ``steps`` steps from ``reset(seed=seed)`` (:func:`dpr.rollout.roll_out`)
-    and record every state. Stops early when the episode ends; a physics blow-up ends the record at the last
-    sane state. ``on_step(t)`` is called after each step (for a progress bar). Bad arguments are a
-    :class:`ViewParameterError` naming the parameter."""
+    """Roll ``policy`` out for at most ``steps`` physics steps from ``reset(seed=seed)``
+    (:func:`dpr.rollout.roll_out`) and record the state after every env step (``action_repeat`` physics steps).
+    Stops early when the episode ends; a physics blow-up ends the record at the last sane state. ``on_step(t)``
+    is called after each step (for a progress bar). Bad arguments are a :class:`ViewParameterError` naming the
+    parameter."""
     from dpr.policies.registry import make_policy
 
     check_view_policy(policy)
@@ -339,7 +346,7 @@ def rollout_episode(
             kwargs = model_env_kwargs(policy, env_id, kwargs)
         except ValueError as error:
             raise ViewParameterError("policy", str(error)) from error
-    env = _make_env(env_id, {**kwargs, "max_episode_steps": steps})
+    env = _make_env(env_id, {**kwargs, "max_episode_steps": episode_steps(kwargs, steps)})
     base = env.unwrapped
     recorder: list[_Recorder] = []
 
