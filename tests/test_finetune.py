@@ -505,7 +505,9 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     run_pipeline(PipelineConfig(**PIPELINE), out, show_progress=False, log=lines.append)  # would train for long
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
     skipped = [line for line in lines if line.endswith("skipped")]
-    assert len(skipped) == 1 + 1 + 2 + 4 + 1  # dataset, bc, bc-ppo and ppo, four evaluations, report
+    assert (
+        len(skipped) == 1 + 4 + 1
+    )  # the task's training (its models and test evaluations exist), four evaluations, report
     with pytest.raises(ValueError, match="^out: .* holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "finetune_steps": 128}), out, **QUIET)
     with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
@@ -526,7 +528,28 @@ def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path
         run_pipeline(PipelineConfig(**PIPELINE), old, **QUIET)  # anchor=True differs from the old default
     lines = []
     run_pipeline(PipelineConfig(**{**PIPELINE, "anchor": False}), old, show_progress=False, log=lines.append)
-    assert sum(line.endswith("skipped") for line in lines) == 1 + 1 + 2 + 4 + 1
+    assert sum(line.endswith("skipped") for line in lines) == 1 + 4 + 1
+
+
+def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipeline, tmp_path):
+    """A finished task needs only its canonical models, test evaluations and choices: a record of the run
+    kept without the datasets, the run folders and the training runs' models resumes without training, and
+    writes the same report."""
+    import shutil
+
+    record = tmp_path / "record"
+    shutil.copytree(pipeline[0], record)
+    for folder in ("datasets", "runs", "report"):
+        shutil.rmtree(record / folder)
+    for model in (record / "models").glob("*-seed*.zip"):
+        model.unlink()
+    lines = []
+    run_pipeline(PipelineConfig(**PIPELINE), record, show_progress=False, log=lines.append)
+    assert "dpr pipeline: navigation: its canonical models and test evaluations exist, skipped" in lines
+    assert not (record / "datasets").exists() or not any((record / "datasets").iterdir())
+    assert not any((record / "models").glob("*-seed*.zip"))
+    original = (pipeline[0] / "report" / "results.md").read_text()  # names its sources by path
+    assert (record / "report" / "results.md").read_text() == original.replace(str(pipeline[0]), str(record))
 
 
 def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(tmp_path):

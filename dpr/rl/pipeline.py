@@ -252,9 +252,12 @@ def run_pipeline(
     test_evaluations: list[tuple[Path, str]] = []  # (file, method): runs of one method share its label
     for task in config.tasks:
         dataset = out / "datasets" / task
-        _demonstrations(config, task, dataset, show_progress, log)
-        for seed in config.train_seeds:
-            _train_runs(config, task, dataset, seed, out, show_progress, log)
+        if _task_done(config, task, out):  # e.g. a record of it kept without its datasets and training runs
+            log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
+        else:
+            _demonstrations(config, task, dataset, show_progress, log)
+            for seed in config.train_seeds:
+                _train_runs(config, task, dataset, seed, out, show_progress, log)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method in config.methods():
             for seed in [None] if method == BASELINE else config.train_seeds:
@@ -274,6 +277,18 @@ def run_pipeline(
         write_report([path for path, _ in test_evaluations], report, labels=[method for _, method in test_evaluations])
     log(f"dpr pipeline: done in {time.perf_counter() - started:.0f} s; report in {report}")
     return report
+
+
+def _task_done(config: PipelineConfig, task: str, out: Path) -> bool:
+    """Whether ``task`` needs nothing more: every method's canonical model and every test evaluation exist. Its
+    demonstrations and training runs are then not needed, so a record of the run without them (the models, the
+    evaluations and ``choices.yaml``) resumes as it is."""
+    evaluations = [f"{task}-{BASELINE}"] + [
+        f"{task}-{method}-seed{seed}" for method in config.learned_methods() for seed in config.train_seeds
+    ]
+    return all(_model_path(out, task, method, None).exists() for method in config.learned_methods()) and all(
+        (out / "eval" / "test" / f"{name}.json").exists() for name in evaluations
+    )
 
 
 def _model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
