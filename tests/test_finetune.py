@@ -569,8 +569,27 @@ def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds
             assert median == pytest.approx(float(np.median([e["projected_displacement"] for e in payload["episodes"]])))
         chosen = choices[f"navigation-{method}"]["chosen_seed"]
         assert sorted(medians, key=lambda s: (medians[s], s))[1] == chosen
-        canonical = (out / "models" / f"navigation-{method}.zip").read_bytes()
-        assert canonical == (out / "models" / f"navigation-{method}-seed{chosen}.zip").read_bytes()
+        weights = {
+            run: load_model(out / "models" / f"navigation-{method}{run}.zip")[0].policy.state_dict()
+            for run in ("", "-seed0", "-seed1", "-seed2")
+        }
+        same = [run for run in weights if run and all((weights[run][k] == v).all() for k, v in weights[""].items())]
+        assert same == [f"-seed{chosen}"]  # the canonical model is the chosen run's weights, and no other's
     assert not list((out / "eval" / "test").glob("*200*"))
     text = (report / "results.md").read_text()
     assert "| Navigation | bc-ppo | 3 × 1 |" in text and "| Navigation | wave | 1 × 1 |" in text
+
+
+def test_canonical_models_are_slim_copies_that_act_as_their_run(pipeline):
+    """The canonical model is its median run without the optimizer's moments: smaller, and the same policy."""
+    out, _ = pipeline
+    canonical, run = out / "models" / "navigation-bc-ppo.zip", out / "models" / "navigation-bc-ppo-seed0.zip"
+    assert canonical.stat().st_size < 0.5 * run.stat().st_size
+    assert read_model_info(canonical) == read_model_info(run)
+    (slim, _), (full, _) = load_model(canonical), load_model(run)
+    observations = np.random.default_rng(0).normal(size=(16, *slim.observation_space.shape)).astype(np.float32)
+    np.testing.assert_array_equal(
+        slim.predict(observations, deterministic=True)[0], full.predict(observations, deterministic=True)[0]
+    )
+    for name, tensor in full.policy.state_dict().items():
+        assert (slim.policy.state_dict()[name] == tensor).all(), name

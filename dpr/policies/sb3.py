@@ -343,6 +343,20 @@ def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER
         ) from None
 
 
+def save_slim_copy(source: str | Path, target: str | Path) -> Path:
+    """Copy the model file ``source`` to ``target`` without the optimizer's running moments, which nothing
+    reads back (fine-tuning and evaluation load the weights only): a PPO file shrinks to about a third. ``target``
+    appears only once it is complete."""
+    model, info = load_model(source)
+    policy = model.policy
+    learning_rate = policy.optimizer.param_groups[0]["lr"]
+    policy.optimizer = policy.optimizer_class(policy.parameters(), lr=learning_rate, **policy.optimizer_kwargs)
+    target = Path(target)
+    partial = target.with_name(f".{target.stem}.partial{MODEL_SUFFIX}")
+    save_model(model, partial, info)
+    return partial.replace(target)
+
+
 def save_model(model, path: str | Path, info: ModelInfo) -> Path:
     """Save ``model`` to ``path`` (a ``.zip`` file, replaced if present) with ``info`` inside it."""
     path = Path(path)

@@ -451,10 +451,13 @@ def _choose_canonical_models(
     config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
 ) -> None:
     """Copy each method's median training run (by its median on the validation seeds) to its canonical name,
-    and record the choice in ``choices.yaml``. One training seed is its own median; nothing is evaluated."""
+    without the optimizer's state (:func:`dpr.policies.sb3.save_slim_copy`: the file to ship), and record the
+    choice in ``choices.yaml``. One training seed is its own median; nothing is evaluated."""
     import json
 
     import numpy as np
+
+    from dpr.policies.sb3 import save_slim_copy
 
     choices_path = out / "choices.yaml"
     choices = yaml.safe_load(choices_path.read_text()) if choices_path.exists() else {}
@@ -477,4 +480,4 @@ def _choose_canonical_models(
         choices[key] = {"chosen_seed": chosen, "validation_medians": medians}
         atomic_write_text(choices_path, yaml.safe_dump(choices, sort_keys=True))
         log(f"dpr pipeline: {key}: the median run is seed {chosen} -> {canonical}")
-        _copy_new(_model_path(out, task, method, chosen), canonical)
+        save_slim_copy(_model_path(out, task, method, chosen), canonical)
