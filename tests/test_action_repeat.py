@@ -98,7 +98,7 @@ def test_the_pipeline_budgets_physics_steps_and_refuses_a_repeat_that_breaks_the
     config = PipelineConfig(action_repeat=10, finetune_steps=30_000, critic_warmup=10_000, episodes=4)
     assert config.learner_env_kwargs() == {**PIPELINE_ENV_KWARGS, "action_repeat": 10}
     assert config.rl_env_kwargs("manipulation")["action_repeat"] == 10
-    assert PipelineConfig().learner_env_kwargs() == PIPELINE_ENV_KWARGS  # models of k=1 keep their kwargs
+    assert PipelineConfig(action_repeat=1).learner_env_kwargs() == PIPELINE_ENV_KWARGS  # k=1 models keep theirs
     assert config.rl_steps == 4 * MAX_EPISODE_STEPS + 10_000 + 30_000
     for bad in (3, 4, 0):
         with pytest.raises(ParameterError, match="action_repeat"):

@@ -169,7 +169,8 @@ def test_defaults_come_from_the_library():
     from dpr.rl.train import TrainConfig
 
     args = build_parser().parse_args(["train", "--algo", "ppo", "--env", "dpr/Navigation-v0"])
-    assert args.steps_per_episode == MAX_EPISODE_STEPS == TrainConfig.steps_per_episode
+    assert args.steps_per_episode is None is TrainConfig.steps_per_episode  # a whole episode of the env kwargs
+    assert TrainConfig("ppo", "dpr/Navigation-v0").steps_per_episode == MAX_EPISODE_STEPS
     assert (args.n_robots, args.robot_model, args.n_envs) == (
         TrainConfig.n_robots,
         TrainConfig.robot_model,

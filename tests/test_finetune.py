@@ -401,11 +401,12 @@ def test_pipeline_config_refuses_bad_settings(kwargs, message):
 
 
 def test_pipeline_shapes_only_manipulation_rewards():
-    config = PipelineConfig(tasks=list(ENV_IDS))
+    config = PipelineConfig(tasks=list(ENV_IDS), action_repeat=1)
     assert config.rl_env_kwargs("manipulation") == {"obs_last_action": True, "approach_reward": 1.0}
     for task in ("navigation", "gate", "unresponsive"):
         assert config.rl_env_kwargs(task) == {"obs_last_action": True}
-    assert PipelineConfig(approach_reward=0).rl_env_kwargs("manipulation") == {"obs_last_action": True}
+    unshaped = PipelineConfig(approach_reward=0, action_repeat=1)
+    assert unshaped.rl_env_kwargs("manipulation") == {"obs_last_action": True}
     for task in ENV_IDS:  # every task's env takes them
         gym.make(ENV_IDS[task], **config.rl_env_kwargs(task)).close()
 
@@ -422,6 +423,8 @@ PIPELINE = dict(
     test_seeds=[100],
     workers=1,
     anchor=True,
+    action_repeat=1,  # a decision every physics step, and the yaml's (shrunk) rollouts: RL of a few dozen steps
+    finetune_hyperparams={},
 )
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
@@ -448,6 +451,26 @@ def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
         info = read_model_info(tmp_path / "run" / "models" / f"manipulation-{method}.zip")
         assert info.env_kwargs["approach_reward"] == 0.5, method
     assert "approach_reward" not in read_model_info(tmp_path / "run" / "models" / "manipulation-bc.zip").env_kwargs
+
+
+def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):
+    """With action_repeat=10 the demonstrations, the clone and RL all decide every 10 physics steps; budgets and
+    evaluations count physics steps, so the wave (every step) and the learners are scored over the same time."""
+    from dpr.datasets.lerobot import LeRobotReader
+
+    settings = {**PIPELINE, "anchor": False, "action_repeat": 10, "steps": 60, "critic_warmup": 320}
+    out = tmp_path / "run"
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 6
+    for method in METHODS[1:]:
+        assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == 10
+        payload = json.loads((out / "eval" / "test" / f"navigation-{method}-seed0.json").read_text())
+        assert payload["steps"] == 60
+    assert json.loads((out / "eval" / "test" / "navigation-wave.json").read_text())["steps"] == 60
+    config = yaml.safe_load((out / "runs").glob("navigation-ppo-seed0*").__next__().joinpath("config.yaml").read_text())
+    assert config["timesteps"] == (2 * 60 + 320 + 64) // 10  # RL from scratch: the same physics steps, in decisions
 
 
 def test_pipeline_writes_every_stage(pipeline):

@@ -20,7 +20,17 @@ from dpr.rl.train import TrainConfig, train
 REPO_CARD = Path(__file__).resolve().parents[1] / "models" / "card.yaml"
 TINY_PPO = {"n_steps": 32, "batch_size": 32}
 QUIET = {"show_progress": False, "log": lambda line: None}
-TINY = dict(n_robots=4, steps=30, episodes=2, bc_epochs=1, critic_warmup=32, finetune_steps=64, workers=1)
+TINY = dict(
+    n_robots=4,
+    steps=30,
+    episodes=2,
+    bc_epochs=1,
+    critic_warmup=32,
+    finetune_steps=64,
+    workers=1,
+    action_repeat=1,
+    finetune_hyperparams={},
+)
 
 
 def write_card(folder: Path, entries: list[dict]) -> Path:

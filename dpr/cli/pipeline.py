@@ -22,9 +22,15 @@ from dpr.cli.common import (
 )
 
 PIPELINE_OUT = "runs/pipeline"
+PIPELINE_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam"}
+
+
+def _pairs(mapping: dict) -> str:
+    return " ".join(f"{key}={value}" for key, value in mapping.items()) or "none"
 
 
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.cli.learn import hyperparam
     from dpr.policies.sb3 import FINETUNE_ALGOS
     from dpr.rl.pipeline import DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
 
@@ -100,6 +106,16 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         show=seeds_text,
         aliases=("--eval-seeds",),
     )
+    parser.add_argument(
+        "--finetune-hyperparam",
+        dest="finetune_hyperparams",
+        action="append",
+        type=hyperparam,
+        metavar="NAME=VALUE",
+        help="a fine-tuning hyperparameter over the preset's (preset: "
+        + ", ".join(f"{name} {_pairs(config['finetune_hyperparams'])}" for name, config in presets.items())
+        + ") and the yaml's `finetune` entry, e.g. learning_rate=1e-4 (repeatable)",
+    )
     preset_argument("--steps", "physics steps per episode, everywhere")
     preset_argument(
         "--action-repeat",
@@ -119,7 +135,7 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def cmd_pipeline(args, parser) -> int:
     from dpr.envs import ENV_IDS
     from dpr.rl.model_card import load_model_card
-    from dpr.rl.pipeline import PipelineConfig, preset_config, run_pipeline
+    from dpr.rl.pipeline import DEFAULT_PRESET, PRESETS, PipelineConfig, preset_config, run_pipeline
 
     overrides = {
         field.name: getattr(args, field.name)
@@ -128,6 +144,9 @@ def cmd_pipeline(args, parser) -> int:
     }
     if overrides.get("tasks") == [ALL_ENVS]:
         overrides["tasks"] = list(ENV_IDS)
+    if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's
+        preset = PRESETS.get(args.preset, PRESETS[DEFAULT_PRESET]).finetune_hyperparams
+        overrides["finetune_hyperparams"] = {**preset, **dict(overrides["finetune_hyperparams"])}
     try:
         config = preset_config(args.preset, **overrides)
         shipped = load_model_card(args.shipped) if args.shipped else []
@@ -153,6 +172,7 @@ COMMANDS = (
         "small (the default) is `make run` (Navigation, N=9, about 13 minutes on 2 CPU cores); --preset full "
         "--tasks all is the headline.",
         arguments=pipeline_arguments,
+        flags=PIPELINE_FLAGS,
         run=cmd_pipeline,
     ),
 )

@@ -51,6 +51,7 @@ from dpr.rl.model_card import ShippedModel
 from dpr.runs import fresh_path
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
+FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}  # chosen on validation seeds (RESULTS.md)
 EXPERT = WAVE_MARKOV
 BASELINE = WAVE
 SCRATCH_ALGOS = ALGOS
@@ -77,8 +78,9 @@ class PipelineConfig:
     train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
     workers: int = 2
     steps: int = MAX_EPISODE_STEPS  # physics steps per episode, in demonstrations, training and evaluation
-    action_repeat: int = 1  # the learners decide every this many physics steps (a divisor of the wave's hold)
-    finetune_hyperparams: dict[str, Any] = field(default_factory=dict)  # over the yaml's `finetune` entry
+    action_repeat: int = 10  # the learners decide every this many physics steps (a divisor of the wave's hold)
+    # over the yaml's `finetune` entry: a tenth of the decisions per physics step, so shorter rollouts, more epochs
+    finetune_hyperparams: dict[str, Any] = field(default_factory=lambda: dict(FINETUNE_AT_REPEAT))
 
     def __post_init__(self):
         unknown = [task for task in self.tasks if task not in ENV_IDS]
