@@ -1,0 +1,263 @@
+"""The whole pipeline (`dpr pipeline`: demonstrations -> BC -> fine-tuning beside RL from scratch -> evaluation ->
+report, resumable; choices on validation seeds, canonical models)."""
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+from helpers import shrink_rollouts
+
+from dpr.envs import ENV_IDS
+from dpr.policies.sb3 import load_model, read_model_info
+from dpr.rl.pipeline import PipelineConfig, run_pipeline
+
+# One 32-step rollout per update, so that a few dozen steps of RL are a few updates.
+TINY_PPO = {"n_steps": 32, "batch_size": 32}
+QUIET = {"show_progress": False, "log": lambda line: None}
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"test_seeds": [1000]}, r"test_seeds: \[1000\] are demonstration seeds"),
+        ({"demo_seed": 100, "episodes": 3, "test_seeds": [90, 102]}, r"test_seeds: \[102\]"),
+        ({"validation_seeds": [1001]}, r"validation_seeds: \[1001\] are demonstration seeds"),
+        ({"test_seeds": []}, "test_seeds: must name at least one seed"),
+        ({"test_seeds": [5, 5]}, "test_seeds: each seed must appear once"),
+        ({"validation_seeds": [7, 300]}, r"validation_seeds: \[300\] are test seeds too"),
+        ({"train_seeds": [0, 1]}, "validation_seeds: several train_seeds need validation seeds"),
+        ({"train_seeds": [-1]}, "train_seeds: must be >= 0"),
+        ({"tasks": ["swimming"]}, "tasks must be among"),
+        ({"tasks": []}, "tasks must be among"),
+        ({"finetune_algos": ["dqn"]}, "finetune_algos must be among"),
+        ({"scratch_algos": ["sac"]}, "scratch_algos must be among"),
+        ({"episodes": 1}, "episodes: must be >= 2"),
+        ({"steps": 0}, "steps: must be >= 1"),
+        ({"critic_warmup": -1}, "critic_warmup: must be >= 0"),
+        ({"approach_reward": -1.0}, "approach_reward must be a number >= 0"),
+        ({"approach_reward": "1"}, "approach_reward must be a number >= 0"),
+    ],
+)
+def test_pipeline_config_refuses_bad_settings(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        PipelineConfig(**kwargs)
+
+
+def test_pipeline_shapes_only_manipulation_rewards():
+    config = PipelineConfig(tasks=list(ENV_IDS), action_repeat=1)
+    assert config.rl_env_kwargs("manipulation") == {"obs_last_action": True, "approach_reward": 1.0}
+    for task in ("navigation", "gate", "unresponsive"):
+        assert config.rl_env_kwargs(task) == {"obs_last_action": True}
+    unshaped = PipelineConfig(approach_reward=0, action_repeat=1)
+    assert unshaped.rl_env_kwargs("manipulation") == {"obs_last_action": True}
+    for task in ENV_IDS:  # every task's env takes them
+        gym.make(ENV_IDS[task], **config.rl_env_kwargs(task)).close()
+
+
+PIPELINE = dict(
+    tasks=["navigation"],
+    n_robots=4,
+    episodes=2,
+    steps=30,
+    bc_epochs=1,
+    critic_warmup=32,
+    finetune_steps=64,
+    scratch_algos=["ppo"],
+    test_seeds=[100],
+    workers=1,
+    anchor=True,
+    action_repeat=1,  # a decision every physics step, and the yaml's (shrunk) rollouts: RL of a few dozen steps
+    finetune_hyperparams={},
+)
+METHODS = ["wave", "bc", "bc-ppo", "ppo"]
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    """One tiny pipeline run. PipelineConfig has no hyperparameter overrides: the yaml's 1024-step PPO rollouts
+    are shrunk to 32 steps here, so that a few dozen steps of RL are a few updates."""
+    out = tmp_path_factory.mktemp("pipeline") / "run"
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        report = run_pipeline(PipelineConfig(**PIPELINE), out, **QUIET)
+    return out, report
+
+
+def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
+    """RL on Manipulation, fine-tuning and from scratch, gets the approach shaping; the clone and the
+    evaluations do not need it (the metric follows the ball either way)."""
+    settings = {**PIPELINE, "tasks": ["manipulation"], "anchor": False, "approach_reward": 0.5}
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        run_pipeline(PipelineConfig(**settings), tmp_path / "run", **QUIET)
+    for method in ("bc-ppo", "ppo"):
+        info = read_model_info(tmp_path / "run" / "models" / f"manipulation-{method}.zip")
+        assert info.env_kwargs["approach_reward"] == 0.5, method
+    assert "approach_reward" not in read_model_info(tmp_path / "run" / "models" / "manipulation-bc.zip").env_kwargs
+
+
+def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):
+    """With action_repeat=10 the demonstrations, the clone and RL all decide every 10 physics steps; budgets and
+    evaluations count physics steps, so the wave (every step) and the learners are scored over the same time."""
+    from dpr.datasets.lerobot import LeRobotReader
+
+    settings = {**PIPELINE, "anchor": False, "action_repeat": 10, "steps": 60, "critic_warmup": 320}
+    out = tmp_path / "run"
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 6
+    for method in METHODS[1:]:
+        assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == 10
+        payload = json.loads((out / "eval" / "test" / f"navigation-{method}-seed0.json").read_text())
+        assert payload["steps"] == 60
+    assert json.loads((out / "eval" / "test" / "navigation-wave.json").read_text())["steps"] == 60
+    config = yaml.safe_load((out / "runs").glob("navigation-ppo-seed0*").__next__().joinpath("config.yaml").read_text())
+    assert config["timesteps"] == (2 * 60 + 320 + 64) // 10  # RL from scratch: the same physics steps, in decisions
+
+
+def test_pipeline_writes_every_stage(pipeline):
+    out, report = pipeline
+    assert report == out / "report"
+    assert (out / "datasets" / "navigation" / "meta" / "info.json").is_file()
+    models = [f"navigation-{m}{run}.zip" for m in METHODS[1:] for run in ("", "-seed0")]  # one run: its own median
+    assert sorted(p.name for p in (out / "models").iterdir()) == sorted(models)
+    evaluations = ["navigation-wave.json", *(f"navigation-{m}-seed0.json" for m in METHODS[1:])]
+    assert sorted(p.name for p in (out / "eval" / "test").iterdir()) == sorted(evaluations)
+    assert not any((out / "eval" / "validation").iterdir())  # one training seed: nothing to choose
+    assert {"results.md", "bars.png", "trajectories.png", "intervals.png"} <= {p.name for p in report.iterdir()}
+    for model in (out / "models").iterdir():
+        info = read_model_info(model)
+        assert info.env_kwargs == {"n_robots": 4, "robot_model": "paddle", "obs_last_action": True}
+        assert info.max_episode_steps == 30
+    finetune = yaml.safe_load((out / "runs" / "navigation-bc-ppo-seed0" / "config.yaml").read_text())
+    assert finetune["init_from"] == str((out / "models" / "navigation-bc-seed0.zip").resolve())
+    assert finetune["critic_warmup"] == 32 and finetune["timesteps"] == 64
+    dataset = str((out / "datasets" / "navigation").resolve())
+    assert finetune["anchor"]["datasets"] == [dataset] and finetune["anchor"]["frames"] == 2 * 30
+    scratch = yaml.safe_load((out / "runs" / "navigation-ppo-seed0" / "config.yaml").read_text())
+    assert scratch["timesteps"] == PipelineConfig(**PIPELINE).rl_steps == 2 * 30 + 32 + 64
+    assert scratch["init_from"] is None and scratch["hyperparameters"]["preset"] == "default"
+
+
+def test_pipeline_evaluates_every_method_on_the_same_swarm(pipeline):
+    out, _ = pipeline
+    starts = []
+    for method in METHODS:
+        name = "navigation-wave" if method == "wave" else f"navigation-{method}-seed0"
+        payload = json.loads((out / "eval" / "test" / f"{name}.json").read_text())
+        assert payload["seeds"] == [100] and payload["steps"] == 30
+        assert payload["env_kwargs"].get("n_robots", 9) == 4, method  # the wave too, not the default N=9
+        assert payload["env_kwargs"]["obs_last_action"] is True
+        (episode,) = payload["episodes"]
+        starts.append(episode["trajectory"][0])
+    assert all(start == starts[0] for start in starts)
+
+
+def test_pipeline_report_has_a_row_per_method(pipeline):
+    _, report = pipeline
+    rows = [
+        line.split("|")
+        for line in (report / "results.md").read_text().split("## Interval estimates")[0].splitlines()
+        if line.startswith("| Navigation |")
+    ]
+    assert [row[2].strip() for row in rows] == METHODS
+
+
+def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(pipeline):
+    out, _ = pipeline
+    files = {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()}
+    lines = []
+    run_pipeline(PipelineConfig(**PIPELINE), out, show_progress=False, log=lines.append)  # would train for long
+    assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
+    skipped = [line for line in lines if line.endswith("skipped")]
+    assert (
+        len(skipped) == 1 + 4 + 1
+    )  # the task's training (its models and test evaluations exist), four evaluations, report
+    with pytest.raises(ValueError, match="^out: .* holds a pipeline run with other settings"):
+        run_pipeline(PipelineConfig(**{**PIPELINE, "finetune_steps": 128}), out, **QUIET)
+    with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
+        run_pipeline(PipelineConfig(**{**PIPELINE, "test_seeds": [100, 101]}), out, **QUIET)
+    assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
+
+
+def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path):
+    """A pipeline.yaml written before ``anchor`` existed resumes as anchor=False (the default), and only so."""
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(pipeline[0], old)
+    record = yaml.safe_load((old / "pipeline.yaml").read_text())
+    del record["config"]["anchor"]
+    (old / "pipeline.yaml").write_text(yaml.safe_dump(record))
+    with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
+        run_pipeline(PipelineConfig(**PIPELINE), old, **QUIET)  # anchor=True differs from the old default
+    lines = []
+    run_pipeline(PipelineConfig(**{**PIPELINE, "anchor": False}), old, show_progress=False, log=lines.append)
+    assert sum(line.endswith("skipped") for line in lines) == 1 + 4 + 1
+
+
+def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipeline, tmp_path):
+    """A finished task needs only its canonical models, test evaluations and choices: a record of the run
+    kept without the datasets, the run folders and the training runs' models resumes without training, and
+    writes the same report."""
+    import shutil
+
+    record = tmp_path / "record"
+    shutil.copytree(pipeline[0], record)
+    for folder in ("datasets", "runs", "report"):
+        shutil.rmtree(record / folder)
+    for model in (record / "models").glob("*-seed*.zip"):
+        model.unlink()
+    lines = []
+    run_pipeline(PipelineConfig(**PIPELINE), record, show_progress=False, log=lines.append)
+    assert "dpr pipeline: navigation: its canonical models and test evaluations exist, skipped" in lines
+    assert not (record / "datasets").exists() or not any((record / "datasets").iterdir())
+    assert not any((record / "models").glob("*-seed*.zip"))
+    original = (pipeline[0] / "report" / "results.md").read_text()  # names its sources by path
+    assert (record / "report" / "results.md").read_text() == original.replace(str(pipeline[0]), str(record))
+
+
+def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(tmp_path):
+    """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
+    run there (not the best), and the report's interval rows hold every run on the test seeds."""
+    settings = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
+    out = tmp_path / "run"
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    choices = yaml.safe_load((out / "choices.yaml").read_text())
+    for method in METHODS[1:]:
+        medians = choices[f"navigation-{method}"]["validation_medians"]
+        for seed, median in medians.items():
+            payload = json.loads((out / "eval" / "validation" / f"navigation-{method}-seed{seed}.json").read_text())
+            assert payload["seeds"] == [200, 201]
+            assert median == pytest.approx(float(np.median([e["projected_displacement"] for e in payload["episodes"]])))
+        chosen = choices[f"navigation-{method}"]["chosen_seed"]
+        assert sorted(medians, key=lambda s: (medians[s], s))[1] == chosen
+        weights = {
+            run: load_model(out / "models" / f"navigation-{method}{run}.zip")[0].policy.state_dict()
+            for run in ("", "-seed0", "-seed1", "-seed2")
+        }
+        same = [run for run in weights if run and all((weights[run][k] == v).all() for k, v in weights[""].items())]
+        assert same == [f"-seed{chosen}"]  # the canonical model is the chosen run's weights, and no other's
+    assert not list((out / "eval" / "test").glob("*200*"))
+    text = (report / "results.md").read_text()
+    assert "| Navigation | bc-ppo | 3 × 1 |" in text and "| Navigation | wave | 1 × 1 |" in text
+
+
+def test_canonical_models_are_slim_copies_that_act_as_their_run(pipeline):
+    """The canonical model is its median run without the optimizer's moments: smaller, and the same policy."""
+    out, _ = pipeline
+    canonical, run = out / "models" / "navigation-bc-ppo.zip", out / "models" / "navigation-bc-ppo-seed0.zip"
+    assert canonical.stat().st_size < 0.5 * run.stat().st_size
+    assert read_model_info(canonical) == read_model_info(run)
+    (slim, _), (full, _) = load_model(canonical), load_model(run)
+    observations = np.random.default_rng(0).normal(size=(16, *slim.observation_space.shape)).astype(np.float32)
+    np.testing.assert_array_equal(
+        slim.predict(observations, deterministic=True)[0], full.predict(observations, deterministic=True)[0]
+    )
+    for name, tensor in full.policy.state_dict().items():
+        assert (slim.policy.state_dict()[name] == tensor).all(), name
