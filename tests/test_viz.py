@@ -317,10 +317,14 @@ def test_evaluate_refuses_an_existing_rerun_file(tmp_path, capsys):
 
 
 # -- dpr train / finetune --rerun ---------------------------------------------------------------------------------
-def test_train_saves_its_checkpoints_and_final_model_rollouts_to_rerun(tmp_path, capsys):
+@pytest.mark.parametrize("action_repeat", [1, 2])
+def test_train_saves_its_checkpoints_and_final_model_rollouts_to_rerun(tmp_path, capsys, action_repeat):
+    """Each rollout is a whole training episode of the model's decisions, whatever its action_repeat."""
     out = tmp_path / "train.rrd"
     argv = [
         "train",
+        "--env-kwarg",
+        f"action_repeat={action_repeat}",
         "--algo",
         "ppo",
         "--env",

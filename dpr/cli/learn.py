@@ -93,7 +93,9 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: 
     swarm, extra = split_swarm_kwargs(info.env_kwargs)
     if n_robots is not None:
         swarm.setdefault("n_robots", n_robots)
-    steps = info.max_episode_steps or episode_steps(info.env_kwargs)
+    # rollout_episode counts physics steps; the model's episode length counts its decisions
+    decisions = info.max_episode_steps or episode_steps(info.env_kwargs)
+    steps = decisions * info.env_kwargs.get("action_repeat", 1)
     episodes = [
         rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
         for name, model in tqdm(models, desc="log to rerun", unit="model")
