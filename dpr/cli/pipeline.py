@@ -135,7 +135,7 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def cmd_pipeline(args, parser) -> int:
     from dpr.envs import ENV_IDS
     from dpr.rl.model_card import load_model_card
-    from dpr.rl.pipeline import DEFAULT_PRESET, PRESETS, PipelineConfig, preset_config, run_pipeline
+    from dpr.rl.pipeline import PRESETS, PipelineConfig, preset_config, run_pipeline
 
     overrides = {
         field.name: getattr(args, field.name)
@@ -145,7 +145,7 @@ def cmd_pipeline(args, parser) -> int:
     if overrides.get("tasks") == [ALL_ENVS]:
         overrides["tasks"] = list(ENV_IDS)
     if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's
-        preset = PRESETS.get(args.preset, PRESETS[DEFAULT_PRESET]).finetune_hyperparams
+        preset = PRESETS[args.preset].finetune_hyperparams  # (argparse allows only known presets)
         overrides["finetune_hyperparams"] = {**preset, **dict(overrides["finetune_hyperparams"])}
     try:
         config = preset_config(args.preset, **overrides)

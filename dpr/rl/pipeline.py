@@ -261,10 +261,9 @@ def run_pipeline(
             for seed in config.train_seeds:
                 _train_runs(config, task, dataset, seed, out, show_progress, log)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
-        for method in config.methods():
-            for seed in [None] if method == BASELINE else config.train_seeds:
-                path = _evaluate(config, task, method, seed, "test", out, show_progress, log)
-                test_evaluations.append((path, method))
+        for method, seed in _test_runs(config):
+            path = _evaluate(config, task, method, seed, "test", out, show_progress, log)
+            test_evaluations.append((path, method))
     for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
         test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
     for model in shipped:
@@ -285,12 +284,22 @@ def _task_done(config: PipelineConfig, task: str, out: Path) -> bool:
     """Whether ``task`` needs nothing more: every method's canonical model and every test evaluation exist. Its
     demonstrations and training runs are then not needed, so a record of the run without them (the models, the
     evaluations and ``choices.yaml``) resumes as it is."""
-    evaluations = [f"{task}-{BASELINE}"] + [
-        f"{task}-{method}-seed{seed}" for method in config.learned_methods() for seed in config.train_seeds
-    ]
     return all(_model_path(out, task, method, None).exists() for method in config.learned_methods()) and all(
-        (out / "eval" / "test" / f"{name}.json").exists() for name in evaluations
+        _evaluation_path(out, task, method, seed, "test").exists() for method, seed in _test_runs(config)
     )
+
+
+def _test_runs(config: PipelineConfig) -> list[tuple[str, int | None]]:
+    """(method, training seed) of every test evaluation of a task: the wave once (seed None), every run."""
+    return [
+        (method, seed) for method in config.methods() for seed in ([None] if method == BASELINE else config.train_seeds)
+    ]
+
+
+def _evaluation_path(out: Path, task: str, method: str, seed: int | None, split: str) -> Path:
+    """The evaluation of the wave or a method's training run (``seed``) on the ``split`` seeds."""
+    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
+    return out / "eval" / split / f"{name}.json"
 
 
 def _model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
@@ -406,10 +415,9 @@ def _evaluate(
     log: Callable[[str], None],
 ) -> Path:
     """Evaluate the wave (``seed`` None) or a training run on the ``split`` seeds ("test" or "validation")."""
-    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
     policy = BASELINE if method == BASELINE else str(_model_path(out, task, method, seed))
-    path = out / "eval" / split / f"{name}.json"
-    return _evaluate_policy(config, ENV_IDS[task], policy, path, name, show_progress, log, split)
+    path = _evaluation_path(out, task, method, seed, split)
+    return _evaluate_policy(config, ENV_IDS[task], policy, path, path.stem, show_progress, log, split)
 
 
 def _evaluate_policy(
