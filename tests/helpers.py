@@ -126,6 +126,21 @@ def drive(env, policy, steps: int, seed: int) -> None:
         env.close()
 
 
+# PipelineConfig budgets of a pipeline run of seconds: 4 robots, two 30-step demonstrations, a few dozen steps of
+# RL deciding every physics step, on the yaml's rollouts (shrink_rollouts makes them short).
+TINY_PIPELINE = dict(
+    n_robots=4,
+    steps=30,
+    episodes=2,
+    bc_epochs=1,
+    critic_warmup=32,
+    finetune_steps=64,
+    workers=1,
+    action_repeat=1,
+    finetune_hyperparams={},
+)
+
+
 def shrink_rollouts(patch, small: dict) -> None:
     """Through ``patch`` (a pytest MonkeyPatch), give every yaml entry that dpr.rl.train loads ``small`` on top (e.g.
     32-step PPO rollouts), so that a few dozen steps of RL are a few updates; the caller's overrides still win."""

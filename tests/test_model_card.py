@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers import TINY_PIPELINE, shrink_rollouts
 from helpers import run_cli as run
-from helpers import shrink_rollouts
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
@@ -20,17 +20,6 @@ from dpr.rl.train import TrainConfig, train
 REPO_CARD = Path(__file__).resolve().parents[1] / "models" / "card.yaml"
 TINY_PPO = {"n_steps": 32, "batch_size": 32}
 QUIET = {"show_progress": False, "log": lambda line: None}
-TINY = dict(
-    n_robots=4,
-    steps=30,
-    episodes=2,
-    bc_epochs=1,
-    critic_warmup=32,
-    finetune_steps=64,
-    workers=1,
-    action_repeat=1,
-    finetune_hyperparams={},
-)
 
 
 def write_card(folder: Path, entries: list[dict]) -> Path:
@@ -53,9 +42,9 @@ def tiny_model(task: str, folder: Path) -> Path:
     config = TrainConfig(
         "ppo",
         ENV_IDS[task],
-        n_robots=TINY["n_robots"],
+        n_robots=TINY_PIPELINE["n_robots"],
         timesteps=32,
-        steps_per_episode=TINY["steps"],
+        steps_per_episode=TINY_PIPELINE["steps"],
         env_kwargs={"obs_last_action": True},
         eval_episodes=1,
     )
@@ -114,7 +103,7 @@ def test_a_shipped_model_of_another_swarm_size_is_refused_before_any_work(tmp_pa
     card = write_card(tmp_path, [entry("gate", tiny_model("gate", tmp_path).name)])
     out = tmp_path / "run"
     with pytest.raises(ValueError, match="n_robots"):
-        run_pipeline(PipelineConfig(**{**TINY, "n_robots": 5}), out, shipped=load_model_card(card), **QUIET)
+        run_pipeline(PipelineConfig(**{**TINY_PIPELINE, "n_robots": 5}), out, shipped=load_model_card(card), **QUIET)
     assert not out.exists()
 
 
@@ -127,7 +116,7 @@ def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(t
         models,
         [entry("navigation", tiny_model("navigation", models).name), entry("gate", tiny_model("gate", models).name)],
     )
-    config = PipelineConfig(**TINY, scratch_algos=[], test_seeds=[300, 301])
+    config = PipelineConfig(**TINY_PIPELINE, scratch_algos=[], test_seeds=[300, 301])
     out = tmp_path / "run"
     report = run_pipeline(config, out, shipped=load_model_card(card), **QUIET)
     for stem in ("navigation", "gate"):

@@ -7,7 +7,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
-from helpers import shrink_rollouts
+from helpers import TINY_PIPELINE, shrink_rollouts
 
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import load_model, read_model_info
@@ -56,21 +56,7 @@ def test_pipeline_shapes_only_manipulation_rewards():
         gym.make(ENV_IDS[task], **config.rl_env_kwargs(task)).close()
 
 
-PIPELINE = dict(
-    tasks=["navigation"],
-    n_robots=4,
-    episodes=2,
-    steps=30,
-    bc_epochs=1,
-    critic_warmup=32,
-    finetune_steps=64,
-    scratch_algos=["ppo"],
-    test_seeds=[100],
-    workers=1,
-    anchor=True,
-    action_repeat=1,  # a decision every physics step, and the yaml's (shrunk) rollouts: RL of a few dozen steps
-    finetune_hyperparams={},
-)
+PIPELINE = dict(TINY_PIPELINE, tasks=["navigation"], scratch_algos=["ppo"], test_seeds=[100], anchor=True)
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
 
