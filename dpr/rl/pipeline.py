@@ -51,7 +51,8 @@ from dpr.rl.model_card import ShippedModel
 from dpr.runs import fresh_path
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
-FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}  # chosen on validation seeds (RESULTS.md)
+# fine-tuning at action_repeat=10, chosen on validation seeds (docs/learning.md)
+FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}
 EXPERT = WAVE_MARKOV
 BASELINE = WAVE
 SCRATCH_ALGOS = ALGOS
