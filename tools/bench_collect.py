@@ -4,6 +4,8 @@
   ``collect`` into a fresh state-only dataset, both in 1 process and both in 2 worker processes (the
   ``dpr collect`` default); reports recorded / bare wall time.
 * workers: the same episodes recorded with ``--workers 1`` and ``--workers 2``; reports the speed-up.
+* writer (``--writer``): the recording contract alone on random state-only frames, no env: the time per
+  ``add_frame`` and per ``save_episode`` (wall and CPU time) of a ``--steps``-frame episode, best of ``--repeats``.
 * scale (``--scale``): a large state-only dataset (default 200 episodes x 2500 steps, N=9, disk model),
   reporting wall time, peak RSS of the recording process and of a worker, and the size on disk; then opens
   it lazily and reads one episode, reporting the reader's RSS.
@@ -26,9 +28,11 @@ import time
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 
 import dpr  # noqa: F401  (registers the ids)
 from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.lerobot import LeRobotWriter
 from dpr.envs import MAX_EPISODE_STEPS
 from dpr.policies.registry import make_policy
 from dpr.rollout import roll_out
@@ -119,6 +123,45 @@ def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> di
     }
 
 
+def bench_writer(steps: int, n_robots: int, repeats: int) -> dict:
+    """Best-of-``repeats`` cost of ``add_frame`` (per frame) and ``save_episode`` (per episode) of a state-only
+    dataset shaped like the paddle env's (6 state values and 1 action per robot)."""
+    features = {
+        "observation.state": {"dtype": "float32", "shape": [6 * n_robots], "names": None},
+        "action": {"dtype": "float32", "shape": [n_robots], "names": None},
+        "next.reward": {"dtype": "float32", "shape": [1], "names": None},
+        "next.done": {"dtype": "bool", "shape": [1], "names": None},
+    }
+    rng = np.random.default_rng(0)
+    frames = [
+        {
+            "observation.state": rng.standard_normal(6 * n_robots).astype(np.float32),
+            "action": (rng.random(n_robots) < 0.5).astype(np.float32),
+            "next.reward": rng.standard_normal(1).astype(np.float32),
+            "next.done": np.array([False]),
+        }
+        for _ in range(steps)
+    ]
+    adds, saves, save_cpu = [], [], []
+    with tempfile.TemporaryDirectory() as folder:
+        with LeRobotWriter.create(Path(folder) / "ds", fps=10, features=features, robot_type="paddle") as writer:
+            for index in range(repeats):
+                start = time.perf_counter()
+                for frame in frames:
+                    writer.add_frame(frame, task="navigate")
+                added, added_cpu = time.perf_counter(), time.process_time()
+                writer.save_episode({"seed": index})
+                adds.append((added - start) / steps)
+                saves.append(time.perf_counter() - added)
+                save_cpu.append(time.process_time() - added_cpu)
+    return {
+        "frames": steps,
+        "add_frame_us": min(adds) * 1e6,
+        "save_episode_ms": min(saves) * 1e3,
+        "save_episode_cpu_ms": min(save_cpu) * 1e3,
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", default="dpr/Navigation-v0")
@@ -128,6 +171,7 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=MAX_EPISODE_STEPS)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scale", action="store_true", help="run the scale benchmark instead")
+    parser.add_argument("--writer", action="store_true", help="time the dataset writer alone instead")
     parser.add_argument("--out", type=Path, help="dataset folder for --scale (must not exist)")
     parser.add_argument("--workers", type=int, default=2, help="workers for --scale")
     parser.add_argument("--json", type=Path, help="also write the results here")
@@ -137,6 +181,8 @@ def main() -> int:
         if args.out is None:
             parser.error("--scale needs --out")
         results = {"scale": bench_scale(spec, args.episodes, args.out, args.workers)}
+    elif args.writer:
+        results = {"writer": bench_writer(args.steps, args.n_robots, args.repeats)}
     else:
         results = {
             "overhead_1_worker": bench_overhead(spec, args.episodes, args.repeats, workers=1),
