@@ -4,8 +4,9 @@
   ``collect`` into a fresh state-only dataset, both in 1 process and both in 2 worker processes (the
   ``dpr collect`` default); reports recorded / bare wall time.
 * workers: the same episodes recorded with ``--workers 1`` and ``--workers 2``; reports the speed-up.
-* writer (``--writer``): the recording contract alone on random state-only frames, no env: the time per
-  ``add_frame`` and per ``save_episode`` (wall and CPU time) of a ``--steps``-frame episode, best of ``--repeats``.
+* writer (``--writer``): the recording contract alone on random frames with the env's dataset features (no
+  rollout): the time per ``add_frame`` and per ``save_episode`` (wall and CPU time) of a ``--steps``-frame
+  episode, best of ``--repeats``.
 * scale (``--scale``): a large state-only dataset (default 200 episodes x 2500 steps, N=9, disk model),
   reporting wall time, peak RSS of the recording process and of a worker, and the size on disk; then opens
   it lazily and reads one episode, reporting the reader's RSS.
@@ -32,6 +33,7 @@ import numpy as np
 
 import dpr  # noqa: F401  (registers the ids)
 from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import LeRobotWriter
 from dpr.envs import MAX_EPISODE_STEPS
 from dpr.policies.registry import make_policy
@@ -123,24 +125,19 @@ def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> di
     }
 
 
-def bench_writer(steps: int, n_robots: int, repeats: int) -> dict:
-    """Best-of-``repeats`` cost of ``add_frame`` (per frame) and ``save_episode`` (per episode) of a state-only
-    dataset shaped like the paddle env's (6 state values and 1 action per robot)."""
-    features = {
-        "observation.state": {"dtype": "float32", "shape": [6 * n_robots], "names": None},
-        "action": {"dtype": "float32", "shape": [n_robots], "names": None},
-        "next.reward": {"dtype": "float32", "shape": [1], "names": None},
-        "next.done": {"dtype": "bool", "shape": [1], "names": None},
-    }
+def bench_writer(spec: CollectSpec, repeats: int) -> dict:
+    """Best-of-``repeats`` cost of ``add_frame`` (per frame) and ``save_episode`` (per episode) of an episode of
+    ``spec.steps`` random frames with the features ``collect`` records for ``spec``'s env."""
+    env = spec.make_env()
+    try:
+        features = dataset_features(env)
+        task = env.unwrapped.task_description
+    finally:
+        env.close()
     rng = np.random.default_rng(0)
     frames = [
-        {
-            "observation.state": rng.standard_normal(6 * n_robots).astype(np.float32),
-            "action": (rng.random(n_robots) < 0.5).astype(np.float32),
-            "next.reward": rng.standard_normal(1).astype(np.float32),
-            "next.done": np.array([False]),
-        }
-        for _ in range(steps)
+        {name: rng.random(feature["shape"]).astype(feature["dtype"]) for name, feature in features.items()}
+        for _ in range(spec.steps)
     ]
     adds, saves, save_cpu = [], [], []
     with tempfile.TemporaryDirectory() as folder:
@@ -148,14 +145,14 @@ def bench_writer(steps: int, n_robots: int, repeats: int) -> dict:
             for index in range(repeats):
                 start = time.perf_counter()
                 for frame in frames:
-                    writer.add_frame(frame, task="navigate")
+                    writer.add_frame(frame, task=task)
                 added, added_cpu = time.perf_counter(), time.process_time()
                 writer.save_episode({"seed": index})
-                adds.append((added - start) / steps)
+                adds.append((added - start) / spec.steps)
                 saves.append(time.perf_counter() - added)
                 save_cpu.append(time.process_time() - added_cpu)
     return {
-        "frames": steps,
+        "frames": spec.steps,
         "add_frame_us": min(adds) * 1e6,
         "save_episode_ms": min(saves) * 1e3,
         "save_episode_cpu_ms": min(save_cpu) * 1e3,
@@ -182,7 +179,7 @@ def main() -> int:
             parser.error("--scale needs --out")
         results = {"scale": bench_scale(spec, args.episodes, args.out, args.workers)}
     elif args.writer:
-        results = {"writer": bench_writer(args.steps, args.n_robots, args.repeats)}
+        results = {"writer": bench_writer(spec, args.repeats)}
     else:
         results = {
             "overhead_1_worker": bench_overhead(spec, args.episodes, args.repeats, workers=1),
