@@ -64,3 +64,33 @@ def test_report_writes_the_interval_section_and_figures(tmp_path):
     for name in ("intervals.png", "profile.png"):
         assert tmp_path / "report" / name in written
         assert Image.open(tmp_path / "report" / name).size[0] > 300
+
+
+def test_the_estimates_are_rliables_statistics():
+    from rliable import metrics
+
+    from dpr.rl.statistics import iqm
+
+    rng = np.random.default_rng(3)
+    for n in (1, 4, 7, 50, 150):
+        values = rng.normal(size=n)
+        assert iqm(values) == pytest.approx(metrics.aggregate_iqm(values))
+    x, y = rng.integers(0, 5, size=(20, 3)).astype(float), rng.integers(0, 5, size=(20, 3)).astype(float)
+    assert probability_of_improvement(x, y) == pytest.approx(metrics.probability_of_improvement(x, y))
+
+
+def test_the_same_scores_give_the_same_intervals(tmp_path):
+    paths, labels = _evaluations(tmp_path, {"bc": [0.8, 1.1, 1.3]}, wave=lambda seed: 10.0 + (seed * 7919) % 13)
+    rows = [interval_rows(method_scores([load_evaluation(p, lb) for p, lb in zip(paths, labels)]), reps=REPS)]
+    rows.append(interval_rows(method_scores([load_evaluation(p, lb) for p, lb in zip(paths, labels)]), reps=REPS))
+    assert rows[0] == rows[1]
+    assert rows[0][1].iqm[1] < rows[0][1].iqm[2]  # an interval, not a point
+
+
+def test_the_ratio_to_the_wave_is_paired_on_seeds(tmp_path):
+    # Starts differ a lot in difficulty, and the method moves 1.2 times as far as the wave on every one of them:
+    # resampling both on the same seeds leaves no doubt about the ratio, while the IQM itself is uncertain.
+    paths, labels = _evaluations(tmp_path, {"bc-ppo": [1.2]}, wave=lambda seed: 5.0 + 3.0 * (seed % 10))
+    _, row = interval_rows(method_scores([load_evaluation(p, lb) for p, lb in zip(paths, labels)]), reps=REPS)
+    assert row.ratio == pytest.approx((1.2, 1.2, 1.2))
+    assert row.iqm[2] - row.iqm[1] > 5.0

@@ -1,5 +1,5 @@
 """Interval estimates of a method's score over training runs and test seeds, after Agarwal et al., "Deep RL at
-the edge of the statistical precipice" (NeurIPS 2021), with their ``rliable`` library.
+the edge of the statistical precipice" (NeurIPS 2021), with the definitions of their ``rliable`` library.
 
 A *method* is one label in a report (``bc-ppo``, say); each `dpr evaluate --json` file under that label is one
 *training run* (a model trained from one training seed), scored on the same *test seeds*. Per task and method
@@ -9,16 +9,17 @@ confidence interval whose strata are the runs: test seeds are resampled within e
 - the median and the interquartile mean (IQM: the mean of the middle 50%, robust to a few failed starts and
   less noisy than the median) of the projected displacement, over all (run, test seed) pairs;
 - the ratio of the method's IQM to the wave policy's on the same test seeds (paired: a bootstrap sample draws
-  the same seeds for both);
+  the same seeds for both, so how hard a start is cancels out);
 - the probability of improvement P(method > wave): the chance that the method, on a random test seed and run,
   moves farther than the wave on a random test seed (Mann-Whitney), averaged over runs.
 
-rliable (with its numerics) is imported only when an estimate is computed.
+The IQM and P(improvement) are rliable's (``metrics.aggregate_iqm``, ``metrics.probability_of_improvement``;
+tests compare them), vectorised over bootstrap samples; the intervals are percentile intervals of our own
+stratified bootstrap (:func:`_estimates` says why), seeded so that the same files always give the same report.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,53 +83,68 @@ def scores_of_runs(task: str, label: str, runs: list[tuple[str, str, list[dict]]
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
     """P(X > Y) + P(X = Y) / 2 per column of two (seeds, runs) matrices, averaged over columns: the Mann-Whitney
-    statistic that ``rliable.metrics.probability_of_improvement`` computes, vectorised for the bootstrap."""
-    greater = (x[:, None, :] > y[None, :, :]).mean(axis=(0, 1))
-    equal = (x[:, None, :] == y[None, :, :]).mean(axis=(0, 1))
-    return float(np.mean(greater + 0.5 * equal))
+    statistic that ``rliable.metrics.probability_of_improvement`` computes."""
+    return float(_improvement(x[None], y[None])[0])
+
+
+def _improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """:func:`probability_of_improvement` of every pair ``x[b], y[b]`` of two (batch, seeds, runs) arrays."""
+    greater = (x[:, :, None, :] > y[:, None, :, :]).mean(axis=(1, 2))
+    equal = (x[:, :, None, :] == y[:, None, :, :]).mean(axis=(1, 2))
+    return (greater + 0.5 * equal).mean(axis=-1)
+
+
+def iqm(values: np.ndarray) -> np.ndarray:
+    """The interquartile mean over the last axis: the mean of what is left after cutting ``int(n / 4)`` values
+    from each end, as ``rliable.metrics.aggregate_iqm`` (scipy's ``trim_mean(..., 0.25)``) does."""
+    n = values.shape[-1]
+    cut = int(0.25 * n)
+    return np.sort(values, axis=-1)[..., cut : n - cut].mean(axis=-1)
+
+
+def _percentile_interval(point: float, samples: np.ndarray) -> Interval:
+    low, high = np.percentile(samples, [50 * (1 - CONFIDENCE), 50 * (1 + CONFIDENCE)])
+    return float(point), float(low), float(high)
 
 
 def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> IntervalRow:
-    with warnings.catch_warnings():
-        # arch (under rliable) deprecates the RandomState that rliable hands it; the draws are the same.
-        warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
-        return _bootstrap_estimates(scores, wave, reps)
+    """The stratified bootstrap of one method's (seeds, runs) ``scores``, paired with the ``wave``'s (seeds,).
 
-
-def _bootstrap_estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> IntervalRow:
-    from rliable import library, metrics
-
-    def point_and_interval(values: np.ndarray, bounds: np.ndarray) -> list[Interval]:
-        return [(float(v), float(lo), float(hi)) for v, lo, hi in zip(values, bounds[0], bounds[1])]
-
-    def location(x: np.ndarray) -> np.ndarray:
-        return np.array([np.median(x), metrics.aggregate_iqm(x)])
-
-    estimates, intervals = library.get_interval_estimates(
-        {"x": scores},
-        location,
-        reps=reps,
-        confidence_interval_size=CONFIDENCE,
-        random_state=np.random.RandomState(BOOTSTRAP_SEED),
+    Written here rather than taken from ``rliable.library.get_interval_estimates``, for two reasons measured on
+    rliable 1.2: its bootstraps draw from numpy's global random state (the ``random_state`` they are given is
+    not used for the draws), so the same files gave other intervals on every run; and its two-array bootstrap
+    resamples the method and the wave independently, which drops the pairing on starting seeds."""
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    n_seeds, n_runs = scores.shape
+    paired = wave is not None and iqm(wave) > 0
+    samples, ratios, improvements = [], [], []
+    for first in range(0, reps, _CHUNK):
+        # Each run is a stratum: its test seeds are drawn with replacement, and the wave gets the same seeds.
+        index = rng.integers(n_seeds, size=(min(_CHUNK, reps - first), n_seeds, n_runs))
+        resampled = scores[index, np.arange(n_runs)]
+        pooled = resampled.reshape(len(index), -1)  # all (seed, run) pairs of each bootstrap sample
+        samples.append((np.median(pooled, axis=1), iqm(pooled)))
+        if paired:
+            wave_resampled = wave[index]
+            ratios.append(samples[-1][1] / np.maximum(iqm(wave_resampled.reshape(len(index), -1)), 1e-12))
+            improvements.append(_improvement(resampled, wave_resampled))
+    medians, iqms = (np.concatenate(parts) for parts in zip(*samples))
+    row = IntervalRow(
+        "",
+        "",
+        n_runs,
+        n_seeds,
+        median=_percentile_interval(np.median(scores), medians),
+        iqm=_percentile_interval(iqm(scores.ravel()), iqms),
     )
-    median, iqm = point_and_interval(estimates["x"], intervals["x"])
-    row = IntervalRow("", "", scores.shape[1], scores.shape[0], median, iqm)
-    if wave is not None and metrics.aggregate_iqm(wave) > 0:
-        tiled = np.repeat(wave[:, None], scores.shape[1], axis=1)  # resampled with the method's own indices
-
-        def versus_wave(x: np.ndarray, reference: np.ndarray) -> np.ndarray:
-            ratio = metrics.aggregate_iqm(x) / max(metrics.aggregate_iqm(reference), 1e-12)
-            return np.array([ratio, probability_of_improvement(x, reference)])
-
-        estimates, intervals = library.get_interval_estimates(
-            {"x": (scores, tiled)},
-            versus_wave,
-            reps=reps,
-            confidence_interval_size=CONFIDENCE,
-            random_state=np.random.RandomState(BOOTSTRAP_SEED),
-        )
-        row.ratio, row.p_improvement = point_and_interval(estimates["x"], intervals["x"])
+    if paired:
+        row.ratio = _percentile_interval(iqm(scores.ravel()) / iqm(wave), np.concatenate(ratios))
+        tiled = np.repeat(wave[:, None], n_runs, axis=1)
+        row.p_improvement = _percentile_interval(probability_of_improvement(scores, tiled), np.concatenate(improvements))
     return row
+
+
+_CHUNK = 100  # bootstrap samples per batch: the improvement compares every seed pair of every run
 
 
 def interval_rows(methods: dict[str, dict[str, MethodScores]], reps: int = BOOTSTRAP_REPS) -> list[IntervalRow]:
