@@ -139,8 +139,8 @@ def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> Interv
     )
     if paired:
         row.ratio = _percentile_interval(iqm(scores.ravel()) / iqm(wave), np.concatenate(ratios))
-        tiled = np.repeat(wave[:, None], n_runs, axis=1)
-        row.p_improvement = _percentile_interval(probability_of_improvement(scores, tiled), np.concatenate(improvements))
+        point = probability_of_improvement(scores, np.repeat(wave[:, None], n_runs, axis=1))
+        row.p_improvement = _percentile_interval(point, np.concatenate(improvements))
     return row
 
 
