@@ -79,10 +79,14 @@ def test_the_estimates_are_rliables_statistics():
     assert probability_of_improvement(x, y) == pytest.approx(metrics.probability_of_improvement(x, y))
 
 
+def _interval_rows(paths, labels):
+    """The report's interval rows of freshly loaded evaluation files."""
+    return interval_rows(method_scores([load_evaluation(p, label) for p, label in zip(paths, labels)]), reps=REPS)
+
+
 def test_the_same_scores_give_the_same_intervals(tmp_path):
     paths, labels = _evaluations(tmp_path, {"bc": [0.8, 1.1, 1.3]}, wave=lambda seed: 10.0 + (seed * 7919) % 13)
-    rows = [interval_rows(method_scores([load_evaluation(p, lb) for p, lb in zip(paths, labels)]), reps=REPS)]
-    rows.append(interval_rows(method_scores([load_evaluation(p, lb) for p, lb in zip(paths, labels)]), reps=REPS))
+    rows = [_interval_rows(paths, labels), _interval_rows(paths, labels)]
     assert rows[0] == rows[1]
     assert rows[0][1].iqm[1] < rows[0][1].iqm[2]  # an interval, not a point
 
@@ -91,6 +95,6 @@ def test_the_ratio_to_the_wave_is_paired_on_seeds(tmp_path):
     # Starts differ a lot in difficulty, and the method moves 1.2 times as far as the wave on every one of them:
     # resampling both on the same seeds leaves no doubt about the ratio, while the IQM itself is uncertain.
     paths, labels = _evaluations(tmp_path, {"bc-ppo": [1.2]}, wave=lambda seed: 5.0 + 3.0 * (seed % 10))
-    _, row = interval_rows(method_scores([load_evaluation(p, lb) for p, lb in zip(paths, labels)]), reps=REPS)
+    _, row = _interval_rows(paths, labels)
     assert row.ratio == pytest.approx((1.2, 1.2, 1.2))
     assert row.iqm[2] - row.iqm[1] > 5.0

@@ -31,6 +31,7 @@ from dpr.rl.figures import new_figure, policy_colours
 CONFIDENCE = 0.95
 BOOTSTRAP_REPS = 2000
 BOOTSTRAP_SEED = 0  # the intervals of a report are reproducible
+BOOTSTRAP_CHUNK = 100  # bootstrap samples per batch: the improvement compares every seed pair of every run
 PROFILE_RATIOS = np.linspace(0.0, 3.0, 121)  # x axis of the performance profile: fraction of the wave's median
 
 Interval = tuple[float, float, float]  # point estimate, lower and upper bound
@@ -116,11 +117,13 @@ def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> Interv
     resamples the method and the wave independently, which drops the pairing on starting seeds."""
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     n_seeds, n_runs = scores.shape
-    paired = wave is not None and iqm(wave) > 0
+    score_iqm = iqm(scores.ravel())
+    wave_iqm = 0.0 if wave is None else iqm(wave)
+    paired = wave_iqm > 0
     samples, ratios, improvements = [], [], []
-    for first in range(0, reps, _CHUNK):
+    for first in range(0, reps, BOOTSTRAP_CHUNK):
         # Each run is a stratum: its test seeds are drawn with replacement, and the wave gets the same seeds.
-        index = rng.integers(n_seeds, size=(min(_CHUNK, reps - first), n_seeds, n_runs))
+        index = rng.integers(n_seeds, size=(min(BOOTSTRAP_CHUNK, reps - first), n_seeds, n_runs))
         resampled = scores[index, np.arange(n_runs)]
         pooled = resampled.reshape(len(index), -1)  # all (seed, run) pairs of each bootstrap sample
         samples.append((np.median(pooled, axis=1), iqm(pooled)))
@@ -135,16 +138,13 @@ def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> Interv
         n_runs,
         n_seeds,
         median=_percentile_interval(np.median(scores), medians),
-        iqm=_percentile_interval(iqm(scores.ravel()), iqms),
+        iqm=_percentile_interval(score_iqm, iqms),
     )
     if paired:
-        row.ratio = _percentile_interval(iqm(scores.ravel()) / iqm(wave), np.concatenate(ratios))
+        row.ratio = _percentile_interval(score_iqm / wave_iqm, np.concatenate(ratios))
         point = probability_of_improvement(scores, np.repeat(wave[:, None], n_runs, axis=1))
         row.p_improvement = _percentile_interval(point, np.concatenate(improvements))
     return row
-
-
-_CHUNK = 100  # bootstrap samples per batch: the improvement compares every seed pair of every run
 
 
 def interval_rows(methods: dict[str, dict[str, MethodScores]], reps: int = BOOTSTRAP_REPS) -> list[IntervalRow]:
