@@ -38,6 +38,14 @@ QUIET = {"show_progress": False, "log": lambda line: None}
         ({"critic_warmup": -1}, "critic_warmup: must be >= 0"),
         ({"approach_reward": -1.0}, "approach_reward must be a number >= 0"),
         ({"approach_reward": "1"}, "approach_reward must be a number >= 0"),
+        ({"teacher_holds": []}, "teacher_holds: expected a list of different holds"),
+        ({"teacher_holds": [7, 7]}, "teacher_holds: expected a list of different holds"),
+        ({"teacher_holds": [0]}, "teacher_holds: must be >= 1"),
+        ({"teacher_holds": [21]}, "teacher_holds: must be <= 20"),
+        ({"teacher_holds": [7, 10]}, "validation_seeds: several teacher_holds need validation seeds"),
+        ({"teacher_holds": [7, 10], "validation_seeds": [200]}, r"action_repeat: must divide every teacher hold"),
+        ({"action_repeat": 3}, r"action_repeat: must divide every teacher hold \[10\]"),
+        ({"action_repeat": -1}, "action_repeat: must be >= 0"),
     ],
 )
 def test_pipeline_config_refuses_bad_settings(kwargs, message):
@@ -47,13 +55,13 @@ def test_pipeline_config_refuses_bad_settings(kwargs, message):
 
 def test_pipeline_shapes_only_manipulation_rewards():
     config = PipelineConfig(tasks=list(ENV_IDS), action_repeat=1)
-    assert config.rl_env_kwargs("manipulation") == {"obs_last_action": True, "approach_reward": 1.0}
+    assert config.rl_env_kwargs("manipulation", 10) == {"obs_last_action": True, "approach_reward": 1.0}
     for task in ("navigation", "gate", "unresponsive"):
-        assert config.rl_env_kwargs(task) == {"obs_last_action": True}
+        assert config.rl_env_kwargs(task, 10) == {"obs_last_action": True}
     unshaped = PipelineConfig(approach_reward=0, action_repeat=1)
-    assert unshaped.rl_env_kwargs("manipulation") == {"obs_last_action": True}
+    assert unshaped.rl_env_kwargs("manipulation", 10) == {"obs_last_action": True}
     for task in ENV_IDS:  # every task's env takes them
-        gym.make(ENV_IDS[task], **config.rl_env_kwargs(task)).close()
+        gym.make(ENV_IDS[task], **config.rl_env_kwargs(task, 10)).close()
 
 
 PIPELINE = dict(TINY_PIPELINE, tasks=["navigation"], scratch_algos=["ppo"], test_seeds=[100], anchor=True)
@@ -102,6 +110,45 @@ def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):
     assert json.loads((out / "eval" / "test" / "navigation-wave.json").read_text())["steps"] == 60
     config = yaml.safe_load((out / "runs").glob("navigation-ppo-seed0*").__next__().joinpath("config.yaml").read_text())
     assert config["timesteps"] == (2 * 60 + 320 + 64) // 10  # RL from scratch: the same physics steps, in decisions
+
+
+def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path):
+    """With several teacher holds, the Markov wave at each is scored on the validation seeds, the best median's
+    is the teacher (recorded, read back on resume), its demonstrations are cloned, and with action_repeat 0 every
+    learner decides once per teacher phase, fine-tuning discounting 0.99 per physics step. The teacher is scored on
+    the test seeds beside the wave, which stays the paper's."""
+    from dpr.datasets.lerobot import LeRobotReader
+    from dpr.rl.pipeline import PER_PHASE
+
+    holds = [5, 10]
+    settings = {**PIPELINE, "anchor": False, "teacher_holds": holds, "action_repeat": PER_PHASE, "steps": 60}
+    settings.update(validation_seeds=[200, 201], critic_warmup=100, finetune_steps=200)
+    out = tmp_path / "run"
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    record = yaml.safe_load((out / "choices.yaml").read_text())["navigation-teacher"]
+    for hold in holds:
+        payload = json.loads((out / "eval" / "validation" / f"navigation-teacher-hold{hold}.json").read_text())
+        assert payload["seeds"] == [200, 201] and payload["env_kwargs"]["action_repeat"] == hold
+        median = float(np.median([e["projected_displacement"] for e in payload["episodes"]]))
+        assert record["validation_medians"][hold] == pytest.approx(median)
+    chosen = record["hold_steps"]
+    assert chosen == max(holds, key=lambda hold: record["validation_medians"][hold])
+    teacher = "wave-markov" if chosen == 10 else f"wave-markov:hold_steps={chosen}"
+    assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 60 // chosen
+    for method in METHODS[1:]:
+        assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == chosen
+    run = next((out / "runs").glob("navigation-bc-ppo-seed0*"))
+    overrides = yaml.safe_load((run / "config.yaml").read_text())["hyperparameter_overrides"]
+    assert overrides["gamma"] == round(0.99**chosen, 3)
+    scored = json.loads((out / "eval" / "test" / "navigation-teacher.json").read_text())
+    assert scored["policy"] == teacher and scored["seeds"] == [100]
+    assert json.loads((out / "eval" / "test" / "navigation-wave.json").read_text())["policy"] == "wave"
+    assert "| Navigation | teacher |" in (report / "results.md").read_text()
+    lines = []
+    run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append)
+    assert not any("evaluate on the validation seeds" in line for line in lines if "exists" not in line)
 
 
 def test_pipeline_writes_every_stage(pipeline):

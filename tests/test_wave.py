@@ -386,3 +386,41 @@ def test_markov_wave_moves_the_paddle_swarm_toward_the_goal():
     for _ in range(400):
         obs, _, terminated, truncated, info = env.step(policy(obs))
     assert info["projected_displacement"] > 0.0
+
+
+@pytest.mark.parametrize(
+    "name, cls, hold", [("wave:hold_steps=6", WavePolicy, 6), ("wave-markov", MarkovWavePolicy, 10)]
+)
+def test_a_waves_name_carries_its_hold(name, cls, hold):
+    """make_policy("wave-markov:hold_steps=7", env) is the Markov wave holding 7 steps; a plain name keeps the
+    robot model's hold (paddle 10)."""
+    from dpr.policies.registry import make_policy
+
+    env = _markov_env("paddle", 4)
+    policy = make_policy(name, env).policy
+    assert type(policy) is cls and policy.hold_steps == hold
+    obs, _ = env.reset(seed=0)
+    markov = make_policy("wave-markov:hold_steps=7", env)
+    actions = []
+    for _ in range(21):
+        actions.append(markov(obs))
+        obs, *_ = env.step(actions[-1])
+    assert [t for t in range(1, 21) if not np.array_equal(actions[t], actions[t - 1])] == [7, 14]
+
+
+@pytest.mark.parametrize(
+    "name, message",
+    [
+        ("wave-markov:hold_steps=0", "hold_steps must be an integer >= 1 and <= 20, got '0'"),
+        ("wave-markov:hold_steps=21", "hold_steps must be an integer >= 1 and <= 20, got '21'"),
+        ("wave:hold_steps=seven", "hold_steps must be an integer >= 1, got 'seven'"),
+        ("wave:bins=3", "only 'wave' and 'wave-markov' take a setting"),
+        ("random:hold_steps=3", "only 'wave' and 'wave-markov' take a setting"),
+        ("waves:hold_steps=3", "policy must be one of"),
+    ],
+)
+def test_a_bad_setting_in_a_waves_name_is_refused(name, message):
+    from dpr.policies.registry import check_policy_name
+
+    with pytest.raises(ValueError, match=message):
+        check_policy_name(name)

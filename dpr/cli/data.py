@@ -36,7 +36,8 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--policy",
         default=spec["policy"],
-        help="'wave', 'wave-markov', 'decentralised-wave', 'random' or a model .zip: any policy `dpr evaluate` "
+        help="'wave', 'wave-markov' (either may name its hold: 'wave-markov:hold_steps=7'), "
+        "'decentralised-wave', 'random' or a model .zip: any policy `dpr evaluate` "
         f"accepts (default {spec['policy']})",
     )
     parser.add_argument(

@@ -118,11 +118,20 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     )
     preset_argument("--steps", "physics steps per episode, everywhere")
     preset_argument(
+        "--teacher-holds",
+        "holds (physics steps per phase) of the Markov wave among which each task's teacher, the policy its "
+        "demonstrations come from, is chosen by its median on the validation seeds (the paper's wave, which "
+        "every result is a percentage of, holds 10)",
+        nargs="+",
+        metavar="HOLD",
+    )
+    preset_argument(
         "--action-repeat",
-        "the learners (demonstrations, BC, RL) decide every K physics steps (env kwarg action_repeat; the wave "
-        "holds each phase 10 steps, so K divides 10); budgets stay physics steps. The presets' fine-tuning "
-        "discount, 0.904 per decision, is 0.99 per physics step at K=10: with another K, pass "
-        "--finetune-hyperparam gamma=G with G = 0.99^K (0.951 at K=5)",
+        "the learners (demonstrations, BC, RL) decide every K physics steps (env kwarg action_repeat; K divides "
+        "every teacher hold), or 0: once per phase of the task's teacher (K = its hold); budgets stay physics "
+        "steps. Fine-tuning discounts 0.99 per physics step (gamma = 0.99^K per decision) unless "
+        "--finetune-hyperparam sets gamma",
+        type=non_negative_int,
         metavar="K",
     )
     parser.add_argument(

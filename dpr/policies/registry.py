@@ -1,7 +1,9 @@
 """Policies by name: what ``dpr evaluate`` and ``dpr collect`` accept as ``--policy``.
 
 A name is a scripted policy (:data:`SCRIPTED_POLICIES`) or the path of a model file ending in ``.zip``
-written by ``dpr train`` (loaded by :mod:`dpr.policies.sb3`, which imports stable-baselines3 lazily).
+written by ``dpr train`` (loaded by :mod:`dpr.policies.sb3`, which imports stable-baselines3 lazily). The two
+waves take their hold in the name: ``wave-markov:hold_steps=7`` holds each phase 7 steps instead of the robot
+model's default (:data:`dpr.policies.wave.MODEL_DEFAULTS`).
 
 Every policy made here is a callable ``policy(observation) -> action`` with ``reset(seed)``, called once
 per episode right after ``env.reset(seed=seed)``.
@@ -14,6 +16,7 @@ WAVE_MARKOV = "wave-markov"  # the same wave, its phase read from the observatio
 RANDOM = "random"
 DECENTRALISED_WAVE = "decentralised-wave"  # every robot runs the wave from its own local observation
 SCRIPTED_POLICIES = (WAVE, WAVE_MARKOV, RANDOM, DECENTRALISED_WAVE)
+HOLD_PARAMETER = "hold_steps"  # the one setting a wave's name carries: wave-markov:hold_steps=7
 
 
 class RandomPolicy:
@@ -42,6 +45,33 @@ class _Unseeded:
         return self.policy(observation)
 
 
+def wave_name(base: str, hold_steps: int) -> str:
+    """The name of the wave ``base`` ("wave" or "wave-markov") holding each phase ``hold_steps`` steps."""
+    return f"{base}:{HOLD_PARAMETER}={hold_steps}"
+
+
+def parse_scripted_name(name: str) -> tuple[str, dict[str, int]]:
+    """("wave-markov", {"hold_steps": 7}) from "wave-markov:hold_steps=7"; a plain name has no settings. A
+    ValueError names what is wrong: an unknown policy, a setting on a policy without settings, a bad hold."""
+    base, colon, setting = name.partition(":")
+    if base not in SCRIPTED_POLICIES:
+        raise ValueError(f"policy must be one of {SCRIPTED_POLICIES} or a path to a .zip model, got {name!r}")
+    if not colon:
+        return base, {}
+    key, _, value = setting.partition("=")
+    if base not in (WAVE, WAVE_MARKOV) or key != HOLD_PARAMETER:
+        raise ValueError(
+            f"policy {name!r}: only {WAVE!r} and {WAVE_MARKOV!r} take a setting, written {wave_name(WAVE_MARKOV, 7)!r}"
+        )
+    from dpr.envs.particle_env import HELD_STEPS_CAP
+
+    cap = HELD_STEPS_CAP if base == WAVE_MARKOV else None  # the Markov wave reads its hold from the observation
+    if not value.isdigit() or int(value) < 1 or (cap is not None and int(value) > cap):
+        bound = f" and <= {cap}" if cap is not None else ""
+        raise ValueError(f"policy {name!r}: {HOLD_PARAMETER} must be an integer >= 1{bound}, got {value!r}")
+    return base, {HOLD_PARAMETER: int(value)}
+
+
 def check_policy_name(name: str) -> str:
     """``name`` if it names a policy (a model file must exist and carry its env metadata), else a
     ValueError that lists the choices."""
@@ -50,17 +80,17 @@ def check_policy_name(name: str) -> str:
     if is_model_path(name):
         read_model_info(name)
         return name
-    if name not in SCRIPTED_POLICIES:
-        raise ValueError(f"policy must be one of {SCRIPTED_POLICIES} or a path to a .zip model, got {name!r}")
+    parse_scripted_name(name)
     return name
 
 
 def make_policy(name: str, env):
     """The policy called ``name`` for ``env``: "wave" (the paper's hand-crafted policy, phases held a fixed
     number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
-    can reproduce), "random", "decentralised-wave" (every robot decides from its own local observation and a
-    shared clock, :mod:`dpr.policies.decentralised`), or a ``.zip`` model file trained on ``env``'s id and
-    spaces; a per-robot model file (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
+    can reproduce), either with another hold ("wave-markov:hold_steps=7"), "random", "decentralised-wave"
+    (every robot decides from its own local observation and a shared clock, :mod:`dpr.policies.decentralised`),
+    or a ``.zip`` model file trained on ``env``'s id and spaces; a per-robot model file
+    (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
     check_policy_name(name)
     from dpr.policies.sb3 import is_model_path, load_model_policy, read_model_info
 
@@ -70,14 +100,15 @@ def make_policy(name: str, env):
 
             return per_robot_model_policy(name, env)
         return load_model_policy(name, env)
+    name, settings = parse_scripted_name(name)
     if name == WAVE:
         from dpr.policies.wave import WavePolicy
 
-        return _Unseeded(WavePolicy.from_env(env))
+        return _Unseeded(WavePolicy.from_env(env, **settings))
     if name == WAVE_MARKOV:
         from dpr.policies.wave import MarkovWavePolicy
 
-        return _Unseeded(MarkovWavePolicy.from_env(env))
+        return _Unseeded(MarkovWavePolicy.from_env(env, **settings))
     if name == DECENTRALISED_WAVE:
         from dpr.policies.decentralised import DecentralisedWavePolicy
 

@@ -43,20 +43,26 @@ import yaml
 from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError, check_int, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, episode_steps
+from dpr.envs.particle_env import HELD_STEPS_CAP
 from dpr.policies.hyperparams import FINETUNE_PRESET
-from dpr.policies.registry import WAVE, WAVE_MARKOV
+from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
 from dpr.policies.wave import MODEL_DEFAULTS
 from dpr.rl.model_card import ShippedModel
 from dpr.runs import fresh_path
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
-# fine-tuning at action_repeat=10, chosen on validation seeds (docs/learning.md): shorter rollouts, more epochs,
-# and the yaml's discount of 0.99 per physics step made per decision (0.99**10), without which the critic learnt
-# nothing (explained variance about 0)
-FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10, "gamma": 0.904}
-EXPERT = WAVE_MARKOV
-BASELINE = WAVE
+# fine-tuning at action_repeat=10, chosen on validation seeds (docs/learning.md): shorter rollouts, more epochs
+FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}
+# The yaml's discount is per env step; fine-tuning discounts this much per *physics* step, gamma = 0.99**K per
+# decision of K steps (unless finetune_hyperparams sets gamma): with 0.99 per decision at K=10 the critic learnt
+# nothing (explained variance about 0, docs/learning.md)
+PHYSICS_DISCOUNT = 0.99
+EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
+BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
+TEACHER = "teacher"  # the chosen teacher's row in the report, when there was a choice
+WAVE_HOLD = MODEL_DEFAULTS["paddle"]["hold_steps"]
+PER_PHASE = 0  # action_repeat 0: the learners decide once per phase of the task's teacher (K = its hold)
 SCRATCH_ALGOS = ALGOS
 BC_ALGO = DEFAULT_ALGO  # what the demonstrations are cloned into: an actor-critic every FINETUNE_ALGOS can load
 
@@ -81,7 +87,10 @@ class PipelineConfig:
     train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
     workers: int = 2
     steps: int = MAX_EPISODE_STEPS  # physics steps per episode, in demonstrations, training and evaluation
-    action_repeat: int = 10  # the learners decide every this many physics steps (a divisor of the wave's hold)
+    # the Markov wave's holds among which each task's teacher is chosen, by its median on the validation seeds
+    teacher_holds: list[int] = field(default_factory=lambda: [WAVE_HOLD])
+    # the learners decide every this many physics steps (a divisor of every teacher hold), or PER_PHASE
+    action_repeat: int = 10
     # over the yaml's `finetune` entry (FINETUNE_AT_REPEAT)
     finetune_hyperparams: dict[str, Any] = field(default_factory=lambda: dict(FINETUNE_AT_REPEAT))
 
@@ -97,12 +106,19 @@ class PipelineConfig:
             check_int(name, getattr(self, name), 1)
         for name in ("critic_warmup", "demo_seed"):
             check_int(name, getattr(self, name), 0)
-        hold = MODEL_DEFAULTS["paddle"]["hold_steps"]
-        if check_int("action_repeat", self.action_repeat, 1) and hold % self.action_repeat:
+        holds = self.teacher_holds
+        if not isinstance(holds, list) or not holds or len(set(holds)) < len(holds):
+            raise ParameterError("teacher_holds", f"expected a list of different holds, got {holds!r}")
+        for hold in holds:
+            check_int("teacher_holds", hold, 1, HELD_STEPS_CAP)
+        if len(holds) > 1 and not self.validation_seeds:
+            raise ParameterError("validation_seeds", "several teacher_holds need validation seeds to choose one")
+        repeat = check_int("action_repeat", self.action_repeat, PER_PHASE)
+        if repeat != PER_PHASE and any(hold % repeat for hold in holds):
             raise ParameterError(
                 "action_repeat",
-                f"must divide the wave's hold of {hold} steps, so that the demonstrations are the wave's gait; "
-                f"got {self.action_repeat}",
+                f"must divide every teacher hold {holds}, so that the demonstrations are the teacher's gait "
+                f"(or be {PER_PHASE}: once per phase); got {repeat}",
             )
         if not isinstance(self.finetune_hyperparams, dict):
             raise ParameterError("finetune_hyperparams", f"expected a mapping, got {self.finetune_hyperparams!r}")
@@ -141,21 +157,31 @@ class PipelineConfig:
         ``action_repeat`` steps get the same simulated time."""
         return self.episodes * self.steps + self.critic_warmup + self.finetune_steps
 
-    def learner_env_kwargs(self) -> dict[str, Any]:
-        """The env kwargs of the demonstrations and of every learner: the pipeline's, and the decision interval."""
-        if self.action_repeat > 1:
-            return {**PIPELINE_ENV_KWARGS, "action_repeat": self.action_repeat}
-        return dict(PIPELINE_ENV_KWARGS)
+    def decision_steps(self, hold: int) -> int:
+        """Physics steps per decision of the learners of a task whose teacher holds ``hold`` steps."""
+        return hold if self.action_repeat == PER_PHASE else self.action_repeat
 
-    def rl_env_kwargs(self, task: str) -> dict[str, Any]:
+    def learner_env_kwargs(self, hold: int) -> dict[str, Any]:
+        """The env kwargs of the demonstrations and of every learner of a task whose teacher holds ``hold``
+        steps: the pipeline's, and the decision interval."""
+        repeat = self.decision_steps(hold)
+        return {**PIPELINE_ENV_KWARGS, "action_repeat": repeat} if repeat > 1 else dict(PIPELINE_ENV_KWARGS)
+
+    def rl_env_kwargs(self, task: str, hold: int) -> dict[str, Any]:
         """The env kwargs RL trains ``task`` with: the learners', and Manipulation's shaping."""
         if task == "manipulation" and self.approach_reward:
-            return {**self.learner_env_kwargs(), "approach_reward": float(self.approach_reward)}
-        return self.learner_env_kwargs()
+            return {**self.learner_env_kwargs(hold), "approach_reward": float(self.approach_reward)}
+        return self.learner_env_kwargs(hold)
+
+    def finetune_hyperparams_at(self, hold: int) -> dict[str, Any]:
+        """The fine-tuning hyperparameters: ``finetune_hyperparams``, discounting PHYSICS_DISCOUNT per physics
+        step unless they set gamma."""
+        return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3), **self.finetune_hyperparams}
 
     def methods(self) -> list[str]:
-        """Names of the policies evaluated on each task, the wave first."""
-        return [BASELINE, *self.learned_methods()]
+        """Names of the policies evaluated on each task: the wave first, the chosen teacher when there was a
+        choice (with one hold at the wave's, the teacher is the wave)."""
+        return [BASELINE, *([TEACHER] if self.teacher_holds != [WAVE_HOLD] else []), *self.learned_methods()]
 
     def learned_methods(self) -> list[str]:
         """Names of the methods trained once per training seed."""
@@ -257,15 +283,16 @@ def run_pipeline(
     test_evaluations: list[tuple[Path, str]] = []  # (file, method): runs of one method share its label
     for task in config.tasks:
         dataset = out / "datasets" / task
+        hold = _choose_teacher(config, task, out, show_progress, log)  # on validation seeds
         if _task_done(config, task, out):  # e.g. a record of it kept without its datasets and training runs
             log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
         else:
-            _demonstrations(config, task, dataset, show_progress, log)
+            _demonstrations(config, task, hold, dataset, show_progress, log)
             for seed in config.train_seeds:
-                _train_runs(config, task, dataset, seed, out, show_progress, log)
+                _train_runs(config, task, hold, dataset, seed, out, show_progress, log)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method, seed in _test_runs(config):
-            path = _evaluate(config, task, method, seed, "test", out, show_progress, log)
+            path = _evaluate(config, task, method, seed, "test", out, show_progress, log, hold)
             test_evaluations.append((path, method))
     for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
         test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
@@ -293,9 +320,11 @@ def _task_done(config: PipelineConfig, task: str, out: Path) -> bool:
 
 
 def _test_runs(config: PipelineConfig) -> list[tuple[str, int | None]]:
-    """(method, training seed) of every test evaluation of a task: the wave once (seed None), every run."""
+    """(method, training seed) of every test evaluation of a task: the wave and the teacher once (seed None),
+    every training run."""
+    once = (BASELINE, TEACHER)
     return [
-        (method, seed) for method in config.methods() for seed in ([None] if method == BASELINE else config.train_seeds)
+        (method, seed) for method in config.methods() for seed in ([None] if method in once else config.train_seeds)
     ]
 
 
@@ -310,19 +339,58 @@ def _model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
     return out / "models" / (f"{task}-{method}.zip" if seed is None else f"{task}-{method}-seed{seed}.zip")
 
 
+def _teacher(hold: int) -> str:
+    """The policy name of the Markov wave holding ``hold`` steps (the plain name at the wave's own hold)."""
+    return EXPERT if hold == WAVE_HOLD else wave_name(EXPERT, hold)
+
+
+def _choose_teacher(
+    config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
+) -> int:
+    """The hold of ``task``'s teacher: among ``teacher_holds``, the Markov wave's with the highest median on the
+    validation seeds (the first listed of equal ones), each run as its learners will run, deciding once per
+    their decision interval. Recorded in ``choices.yaml`` and read back on resume; one hold is no choice."""
+    import json
+
+    import numpy as np
+
+    if len(config.teacher_holds) == 1:
+        return config.teacher_holds[0]
+    choices_path = out / "choices.yaml"
+    choices = yaml.safe_load(choices_path.read_text()) if choices_path.exists() else {}
+    key = f"{task}-{TEACHER}"
+    if key in choices:
+        return int(choices[key]["hold_steps"])
+    medians = {}
+    for hold in config.teacher_holds:
+        path = _evaluation_path(out, task, f"{TEACHER}-hold{hold}", None, "validation")
+        kwargs = {"n_robots": config.n_robots, **config.learner_env_kwargs(hold)}
+        _evaluate_policy(
+            config, ENV_IDS[task], _teacher(hold), path, path.stem, show_progress, log, "validation", kwargs
+        )
+        episodes = json.loads(path.read_text())["episodes"]
+        medians[hold] = float(np.median([episode["projected_displacement"] for episode in episodes]))
+    chosen = max(config.teacher_holds, key=lambda hold: medians[hold])  # max keeps the first of equal ones
+    choices[key] = {"hold_steps": chosen, "validation_medians": medians}
+    atomic_write_text(choices_path, yaml.safe_dump(choices, sort_keys=True))
+    log(f"dpr pipeline: {key}: the Markov wave holding {chosen} steps ({medians[chosen]:.1f} on validation seeds)")
+    return chosen
+
+
 def _demonstrations(
-    config: PipelineConfig, task: str, dataset: Path, show_progress: bool, log: Callable[[str], None]
+    config: PipelineConfig, task: str, hold: int, dataset: Path, show_progress: bool, log: Callable[[str], None]
 ) -> None:
     from tqdm import tqdm
 
     from dpr.datasets.collect import CollectSpec, collect
 
-    if not _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {EXPERT}", log):
+    teacher = _teacher(hold)
+    if not _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {teacher}", log):
         return
-    kwargs = config.learner_env_kwargs()
+    kwargs = config.learner_env_kwargs(hold)
     spec = CollectSpec(
         ENV_IDS[task],
-        policy=EXPERT,
+        policy=teacher,
         n_robots=config.n_robots,
         steps=episode_steps(kwargs, config.steps),
         env_kwargs=kwargs,
@@ -343,6 +411,7 @@ def _demonstrations(
 def _train_runs(
     config: PipelineConfig,
     task: str,
+    hold: int,
     dataset: Path,
     seed: int,
     out: Path,
@@ -367,7 +436,7 @@ def _train_runs(
             log=log,
         )
         _copy_new(result.model_path, bc_model)
-    repeat = config.action_repeat  # budgets are physics steps; TrainConfig counts env steps (decisions)
+    repeat = config.decision_steps(hold)  # budgets are physics steps; TrainConfig counts env steps (decisions)
     runs: list[tuple[str, dict[str, Any]]] = [
         (
             f"bc-{algo}",
@@ -378,7 +447,7 @@ def _train_runs(
                 "init_from": str(bc_model),
                 "critic_warmup": config.critic_warmup // repeat,
                 "anchor_datasets": [str(dataset)] if config.anchor else [],
-                "hyperparams": dict(config.finetune_hyperparams),
+                "hyperparams": config.finetune_hyperparams_at(hold),
             },
         )
         for algo in config.finetune_algos
@@ -389,7 +458,7 @@ def _train_runs(
         physics = settings["timesteps"] * repeat
         if not _stage(model, f"{task}: {method}, seed {seed} ({physics} physics steps{warmup})", log):
             continue
-        kwargs = config.rl_env_kwargs(task)
+        kwargs = config.rl_env_kwargs(task, hold)
         train_config = TrainConfig(
             env_id=env_id,
             n_robots=config.n_robots,
@@ -416,11 +485,19 @@ def _evaluate(
     out: Path,
     show_progress: bool,
     log: Callable[[str], None],
+    hold: int = WAVE_HOLD,
 ) -> Path:
-    """Evaluate the wave (``seed`` None) or a training run on the ``split`` seeds ("test" or "validation")."""
-    policy = BASELINE if method == BASELINE else str(_model_path(out, task, method, seed))
+    """Evaluate the wave or the teacher holding ``hold`` steps (``seed`` None), or a training run, on the ``split``
+    seeds ("test" or "validation"). The wave runs on the pipeline's env, the teacher as its learners run."""
     path = _evaluation_path(out, task, method, seed, split)
-    return _evaluate_policy(config, ENV_IDS[task], policy, path, path.stem, show_progress, log, split)
+    own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS}
+    if method == BASELINE:
+        policy = BASELINE
+    elif method == TEACHER:
+        policy, own_kwargs = _teacher(hold), {**own_kwargs, **config.learner_env_kwargs(hold)}
+    else:
+        policy, own_kwargs = str(_model_path(out, task, method, seed)), None
+    return _evaluate_policy(config, ENV_IDS[task], policy, path, path.stem, show_progress, log, split, own_kwargs)
 
 
 def _evaluate_policy(
@@ -432,10 +509,13 @@ def _evaluate_policy(
     show_progress: bool,
     log: Callable[[str], None],
     split: str = "test",
+    own_kwargs: dict[str, Any] | None = None,
 ) -> Path:
-    """Evaluate ``policy`` (the wave, or a model file) on ``env_id`` and the ``split`` seeds into ``path``."""
+    """Evaluate ``policy`` on ``env_id`` and the ``split`` seeds into ``path``: a scripted policy on ``own_kwargs``
+    (by default the wave's: the pipeline's env), a model file on the env kwargs stored in it."""
     from tqdm import tqdm
 
+    from dpr.policies.sb3 import is_model_path
     from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
     from dpr.rl.report import format_seeds
 
@@ -443,8 +523,8 @@ def _evaluate_policy(
     if not _stage(path, f"{name}: evaluate on the {split} seeds {format_seeds(seeds)}", log):
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    # the wave runs on the pipeline's env; a model on the env kwargs stored in it
-    own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS} if policy == BASELINE else None
+    if own_kwargs is None and not is_model_path(policy):
+        own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS}
     kwargs = policy_env_kwargs(policy, env_id, own_kwargs)
     with tqdm(total=len(seeds), desc=f"evaluate {name} ({split})", unit="episode", disable=not show_progress) as bar:
         results = evaluate(
