@@ -344,35 +344,54 @@ def _teacher(hold: int) -> str:
     return EXPERT if hold == WAVE_HOLD else wave_name(EXPERT, hold)
 
 
+def _teacher_env_kwargs(config: PipelineConfig, hold: int) -> dict[str, Any]:
+    """The env kwargs the teacher holding ``hold`` steps is scored with: as its learners run."""
+    return {"n_robots": config.n_robots, **config.learner_env_kwargs(hold)}
+
+
+def _load_choices(out: Path) -> dict[str, Any]:
+    """``choices.yaml``: every choice made on the validation seeds so far."""
+    path = out / "choices.yaml"
+    return yaml.safe_load(path.read_text()) if path.exists() else {}
+
+
+def _save_choices(out: Path, choices: dict[str, Any]) -> None:
+    atomic_write_text(out / "choices.yaml", yaml.safe_dump(choices, sort_keys=True))
+
+
+def _median_displacement(evaluation: Path) -> float:
+    """The median projected displacement over the episodes of an evaluation file."""
+    import json
+
+    import numpy as np
+
+    episodes = json.loads(evaluation.read_text())["episodes"]
+    return float(np.median([episode["projected_displacement"] for episode in episodes]))
+
+
 def _choose_teacher(
     config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
 ) -> int:
     """The hold of ``task``'s teacher: among ``teacher_holds``, the Markov wave's with the highest median on the
     validation seeds (the first listed of equal ones), each run as its learners will run, deciding once per
     their decision interval. Recorded in ``choices.yaml`` and read back on resume; one hold is no choice."""
-    import json
-
-    import numpy as np
-
     if len(config.teacher_holds) == 1:
         return config.teacher_holds[0]
-    choices_path = out / "choices.yaml"
-    choices = yaml.safe_load(choices_path.read_text()) if choices_path.exists() else {}
+    choices = _load_choices(out)
     key = f"{task}-{TEACHER}"
     if key in choices:
         return int(choices[key]["hold_steps"])
     medians = {}
     for hold in config.teacher_holds:
         path = _evaluation_path(out, task, f"{TEACHER}-hold{hold}", None, "validation")
-        kwargs = {"n_robots": config.n_robots, **config.learner_env_kwargs(hold)}
+        kwargs = _teacher_env_kwargs(config, hold)
         _evaluate_policy(
             config, ENV_IDS[task], _teacher(hold), path, path.stem, show_progress, log, "validation", kwargs
         )
-        episodes = json.loads(path.read_text())["episodes"]
-        medians[hold] = float(np.median([episode["projected_displacement"] for episode in episodes]))
+        medians[hold] = _median_displacement(path)
     chosen = max(config.teacher_holds, key=lambda hold: medians[hold])  # max keeps the first of equal ones
     choices[key] = {"hold_steps": chosen, "validation_medians": medians}
-    atomic_write_text(choices_path, yaml.safe_dump(choices, sort_keys=True))
+    _save_choices(out, choices)
     log(f"dpr pipeline: {key}: the Markov wave holding {chosen} steps ({medians[chosen]:.1f} on validation seeds)")
     return chosen
 
@@ -490,13 +509,13 @@ def _evaluate(
     """Evaluate the wave or the teacher holding ``hold`` steps (``seed`` None), or a training run, on the ``split``
     seeds ("test" or "validation"). The wave runs on the pipeline's env, the teacher as its learners run."""
     path = _evaluation_path(out, task, method, seed, split)
-    own_kwargs = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS}
+    own_kwargs = None  # the wave's default (_evaluate_policy), or a model's own
     if method == BASELINE:
         policy = BASELINE
     elif method == TEACHER:
-        policy, own_kwargs = _teacher(hold), {**own_kwargs, **config.learner_env_kwargs(hold)}
+        policy, own_kwargs = _teacher(hold), _teacher_env_kwargs(config, hold)
     else:
-        policy, own_kwargs = str(_model_path(out, task, method, seed)), None
+        policy = str(_model_path(out, task, method, seed))
     return _evaluate_policy(config, ENV_IDS[task], policy, path, path.stem, show_progress, log, split, own_kwargs)
 
 
@@ -546,14 +565,9 @@ def _choose_canonical_models(
     """Copy each method's median training run (by its median on the validation seeds) to its canonical name,
     without the optimizer's state (:func:`dpr.policies.sb3.save_slim_copy`: the file to ship), and record the
     choice in ``choices.yaml``. One training seed is its own median; nothing is evaluated."""
-    import json
-
-    import numpy as np
-
     from dpr.policies.sb3 import save_slim_copy
 
-    choices_path = out / "choices.yaml"
-    choices = yaml.safe_load(choices_path.read_text()) if choices_path.exists() else {}
+    choices = _load_choices(out)
     for method in config.learned_methods():
         canonical = _model_path(out, task, method, None)
         key = f"{task}-{method}"
@@ -566,11 +580,10 @@ def _choose_canonical_models(
             medians = {}
             for seed in config.train_seeds:
                 path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
-                episodes = json.loads(path.read_text())["episodes"]
-                medians[seed] = float(np.median([episode["projected_displacement"] for episode in episodes]))
+                medians[seed] = _median_displacement(path)
             ranked = sorted(medians, key=lambda seed: (medians[seed], seed))
             chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
         choices[key] = {"chosen_seed": chosen, "validation_medians": medians}
-        atomic_write_text(choices_path, yaml.safe_dump(choices, sort_keys=True))
+        _save_choices(out, choices)
         log(f"dpr pipeline: {key}: the median run is seed {chosen} -> {canonical}")
         save_slim_copy(_model_path(out, task, method, chosen), canonical)
