@@ -11,7 +11,7 @@ from dpr.datasets.collect import CollectSpec
 from dpr.envs import MAX_EPISODE_STEPS, episode_steps
 from dpr.metrics import MetricTracker
 from dpr.rl.evaluation import evaluate
-from dpr.rl.pipeline import PER_PHASE, PIPELINE_ENV_KWARGS, PipelineConfig, preset_config
+from dpr.rl.pipeline_config import PER_PHASE, PIPELINE_ENV_KWARGS, PipelineConfig, preset_config
 from dpr.rl.train import TrainConfig
 
 

@@ -11,7 +11,8 @@ from helpers import TINY_PIPELINE, shrink_rollouts
 
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import load_model, read_model_info
-from dpr.rl.pipeline import PipelineConfig, run_pipeline
+from dpr.rl.pipeline import run_pipeline
+from dpr.rl.pipeline_config import PipelineConfig
 
 # One 32-step rollout per update, so that a few dozen steps of RL are a few updates.
 TINY_PPO = {"n_steps": 32, "batch_size": 32}
@@ -118,7 +119,7 @@ def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path):
     learner decides once per teacher phase, fine-tuning discounting 0.99 per physics step. The teacher is scored on
     the test seeds beside the wave, which stays the paper's."""
     from dpr.datasets.lerobot import LeRobotReader
-    from dpr.rl.pipeline import PER_PHASE
+    from dpr.rl.pipeline_config import PER_PHASE
 
     holds = [5, 10]
     settings = {**PIPELINE, "anchor": False, "teacher_holds": holds, "action_repeat": PER_PHASE, "steps": 60}

@@ -32,7 +32,7 @@ def _pairs(mapping: dict) -> str:
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
     from dpr.policies.sb3 import FINETUNE_ALGOS
-    from dpr.rl.pipeline import DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
+    from dpr.rl.pipeline_config import DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
 
     presets = {name: dataclasses.asdict(config) for name, config in PRESETS.items()}
 
@@ -146,7 +146,8 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def cmd_pipeline(args, parser) -> int:
     from dpr.envs import ENV_IDS
     from dpr.rl.model_card import load_model_card
-    from dpr.rl.pipeline import PRESETS, PipelineConfig, preset_config, run_pipeline
+    from dpr.rl.pipeline import run_pipeline
+    from dpr.rl.pipeline_config import PRESETS, PipelineConfig, preset_config
 
     overrides = {
         field.name: getattr(args, field.name)

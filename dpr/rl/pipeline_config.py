@@ -1,0 +1,171 @@
+"""The pipeline's settings: :class:`PipelineConfig` (the ``dpr pipeline`` flags, checked before any work), the
+named :data:`PRESETS`, and the names and constants every stage of :mod:`dpr.rl.pipeline` shares."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from dpr.checks import ParameterError, check_int, check_seeds
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs.particle_env import HELD_STEPS_CAP
+from dpr.policies.registry import WAVE, WAVE_MARKOV
+from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
+from dpr.policies.wave import MODEL_DEFAULTS
+
+PIPELINE_ENV_KWARGS = {"obs_last_action": True}
+# fine-tuning at action_repeat=10, chosen on validation seeds (docs/learning.md): shorter rollouts, more epochs
+FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}
+# The yaml's discount is per env step; fine-tuning discounts this much per *physics* step, gamma = 0.99**K per
+# decision of K steps (unless finetune_hyperparams sets gamma): with 0.99 per decision at K=10 the critic learnt
+# nothing (explained variance about 0, docs/learning.md)
+PHYSICS_DISCOUNT = 0.99
+EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
+BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
+TEACHER = "teacher"  # the chosen teacher's row in the report, when there was a choice
+WAVE_HOLD = MODEL_DEFAULTS["paddle"]["hold_steps"]
+PER_PHASE = 0  # action_repeat 0: the learners decide once per phase of the task's teacher (K = its hold)
+SCRATCH_ALGOS = ALGOS
+BC_ALGO = DEFAULT_ALGO  # what the demonstrations are cloned into: an actor-critic every FINETUNE_ALGOS can load
+
+
+@dataclass
+class PipelineConfig:
+    """Budgets of one pipeline run (the ``dpr pipeline`` flags); the defaults are ``make run``'s."""
+
+    tasks: list[str] = field(default_factory=lambda: ["navigation"])
+    n_robots: int = 9
+    episodes: int = 40  # demonstrations per task (fewer clone the wave poorly: RESULTS.md)
+    demo_seed: int = 1000
+    bc_epochs: int = 15
+    critic_warmup: int = 10_000
+    finetune_steps: int = 30_000
+    anchor: bool = False  # anchor fine-tuning to the task's demonstrations (dpr finetune --anchor)
+    approach_reward: float = 1.0  # Manipulation's shaping weight for RL, fine-tuning and from scratch (0: none)
+    finetune_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
+    scratch_algos: list[str] = field(default_factory=lambda: [DEFAULT_ALGO])
+    test_seeds: list[int] = field(default_factory=lambda: list(range(300, 305)))  # within the full preset's
+    validation_seeds: list[int] = field(default_factory=list)  # needed to choose among several training seeds
+    train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
+    workers: int = 2
+    steps: int = MAX_EPISODE_STEPS  # physics steps per episode, in demonstrations, training and evaluation
+    # the Markov wave's holds among which each task's teacher is chosen, by its median on the validation seeds
+    teacher_holds: list[int] = field(default_factory=lambda: [WAVE_HOLD])
+    # the learners decide every this many physics steps (a divisor of every teacher hold), or PER_PHASE
+    action_repeat: int = 10
+    # over the yaml's `finetune` entry (FINETUNE_AT_REPEAT)
+    finetune_hyperparams: dict[str, Any] = field(default_factory=lambda: dict(FINETUNE_AT_REPEAT))
+
+    def __post_init__(self):
+        unknown = [task for task in self.tasks if task not in ENV_IDS]
+        if not self.tasks or unknown:
+            raise ValueError(f"tasks must be among {tuple(ENV_IDS)}, got {self.tasks!r}")
+        for name, allowed in (("finetune_algos", FINETUNE_ALGOS), ("scratch_algos", SCRATCH_ALGOS)):
+            bad = [algo for algo in getattr(self, name) if algo not in allowed]
+            if bad:
+                raise ValueError(f"{name} must be among {allowed}, got {bad}")
+        for name in ("n_robots", "episodes", "bc_epochs", "finetune_steps", "workers", "steps"):
+            check_int(name, getattr(self, name), 1)
+        for name in ("critic_warmup", "demo_seed"):
+            check_int(name, getattr(self, name), 0)
+        holds = self.teacher_holds
+        if not isinstance(holds, list) or not holds or len(set(holds)) < len(holds):
+            raise ParameterError("teacher_holds", f"expected a list of different holds, got {holds!r}")
+        for hold in holds:
+            check_int("teacher_holds", hold, 1, HELD_STEPS_CAP)
+        if len(holds) > 1 and not self.validation_seeds:
+            raise ParameterError("validation_seeds", "several teacher_holds need validation seeds to choose one")
+        repeat = check_int("action_repeat", self.action_repeat, PER_PHASE)
+        if repeat != PER_PHASE and any(hold % repeat for hold in holds):
+            raise ParameterError(
+                "action_repeat",
+                f"must divide every teacher hold {holds}, so that the demonstrations are the teacher's gait "
+                f"(or be {PER_PHASE}: once per phase); got {repeat}",
+            )
+        if not isinstance(self.finetune_hyperparams, dict):
+            raise ParameterError("finetune_hyperparams", f"expected a mapping, got {self.finetune_hyperparams!r}")
+        if (
+            isinstance(self.approach_reward, bool)
+            or not isinstance(self.approach_reward, (int, float))
+            or not self.approach_reward >= 0
+        ):
+            raise ValueError(f"approach_reward must be a number >= 0, got {self.approach_reward!r}")
+        if self.episodes < 2:
+            raise ParameterError(
+                "episodes", f"must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}"
+            )
+        for name in ("test_seeds", "validation_seeds", "train_seeds"):
+            check_seeds(name, getattr(self, name), allow_empty=name == "validation_seeds")
+        if len(self.train_seeds) > 1 and not self.validation_seeds:
+            raise ParameterError(
+                "validation_seeds", "several train_seeds need validation seeds to choose each method's median run"
+            )
+        demo_seeds = set(range(self.demo_seed, self.demo_seed + self.episodes))
+        for name in ("test_seeds", "validation_seeds"):
+            seen = sorted(demo_seeds & set(getattr(self, name)))
+            if seen:
+                raise ParameterError(name, f"{seen} are demonstration seeds too; use seeds the models never saw")
+        shared = sorted(set(self.validation_seeds) & set(self.test_seeds))
+        if shared:
+            raise ParameterError(
+                "validation_seeds",
+                f"{shared} are test seeds too; the seeds that choose must not be the ones that score",
+            )
+
+    @property
+    def rl_steps(self) -> int:
+        """Physics steps of a fine-tuned model in all: demonstrations, critic warm-up and fine-tuning (the
+        budget RL from scratch gets). Budgets count physics steps, so that learners deciding every step or every
+        ``action_repeat`` steps get the same simulated time."""
+        return self.episodes * self.steps + self.critic_warmup + self.finetune_steps
+
+    def decision_steps(self, hold: int) -> int:
+        """Physics steps per decision of the learners of a task whose teacher holds ``hold`` steps."""
+        return hold if self.action_repeat == PER_PHASE else self.action_repeat
+
+    def learner_env_kwargs(self, hold: int) -> dict[str, Any]:
+        """The env kwargs of the demonstrations and of every learner of a task whose teacher holds ``hold``
+        steps: the pipeline's, and the decision interval."""
+        repeat = self.decision_steps(hold)
+        return {**PIPELINE_ENV_KWARGS, "action_repeat": repeat} if repeat > 1 else dict(PIPELINE_ENV_KWARGS)
+
+    def rl_env_kwargs(self, task: str, hold: int) -> dict[str, Any]:
+        """The env kwargs RL trains ``task`` with: the learners', and Manipulation's shaping."""
+        if task == "manipulation" and self.approach_reward:
+            return {**self.learner_env_kwargs(hold), "approach_reward": float(self.approach_reward)}
+        return self.learner_env_kwargs(hold)
+
+    def finetune_hyperparams_at(self, hold: int) -> dict[str, Any]:
+        """The fine-tuning hyperparameters: ``finetune_hyperparams``, discounting PHYSICS_DISCOUNT per physics
+        step unless they set gamma."""
+        return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3), **self.finetune_hyperparams}
+
+    def methods(self) -> list[str]:
+        """Names of the policies evaluated on each task: the wave first, the chosen teacher when there was a
+        choice (with one hold at the wave's, the teacher is the wave)."""
+        return [BASELINE, *([TEACHER] if self.teacher_holds != [WAVE_HOLD] else []), *self.learned_methods()]
+
+    def learned_methods(self) -> list[str]:
+        """Names of the methods trained once per training seed."""
+        return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
+
+
+DEFAULT_PRESET = "small"
+PRESETS: dict[str, PipelineConfig] = {
+    "small": PipelineConfig(),
+    "full": PipelineConfig(
+        tasks=list(ENV_IDS),
+        episodes=80,
+        finetune_steps=300_000,
+        train_seeds=[0, 1, 2],
+        validation_seeds=list(range(200, 220)),
+        test_seeds=list(range(300, 350)),
+    ),
+}
+
+
+def preset_config(name: str, **overrides: Any) -> PipelineConfig:
+    """The preset ``name`` with ``overrides`` (PipelineConfig fields) applied and checked."""
+    if name not in PRESETS:
+        raise ParameterError("preset", f"expected one of {list(PRESETS)}, got {name!r}")
+    return PipelineConfig(**{**asdict(PRESETS[name]), **overrides})
