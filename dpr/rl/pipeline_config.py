@@ -160,6 +160,10 @@ PRESETS: dict[str, PipelineConfig] = {
         train_seeds=[0, 1, 2],
         validation_seeds=list(range(200, 220)),
         test_seeds=list(range(300, 350)),
+        # each task's teacher chosen among these holds on the validation seeds, its learners deciding once per
+        # phase (RESULTS.md, "The teacher's tempo")
+        teacher_holds=[6, 7, 8, 10, 12],
+        action_repeat=PER_PHASE,
     ),
 }
 
