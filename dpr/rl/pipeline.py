@@ -210,12 +210,13 @@ def _save_choices(out: Path, choices: dict[str, Any]) -> None:
 
 
 def _median_displacement(evaluation: Path) -> float:
-    """The median projected displacement over the episodes of an evaluation file."""
-    import json
-
+    """The median projected displacement over the episodes of an evaluation file, read through the report's
+    checked loader (a damaged file from an earlier run is an error naming it)."""
     import numpy as np
 
-    episodes = json.loads(evaluation.read_text())["episodes"]
+    from dpr.rl.report import load_evaluation
+
+    episodes = load_evaluation(evaluation)["episodes"]
     return float(np.median([episode["projected_displacement"] for episode in episodes]))
 
 
