@@ -43,7 +43,15 @@ QUIET = {"show_progress": False, "log": lambda line: None}
         ({"teacher_holds": [7, 7]}, "teacher_holds: expected a list of different holds"),
         ({"teacher_holds": [0]}, "teacher_holds: must be >= 1"),
         ({"teacher_holds": [21]}, "teacher_holds: must be <= 20"),
-        ({"teacher_holds": [7, 10]}, "validation_seeds: several teacher_holds need validation seeds"),
+        ({"teacher_holds": [7, 10]}, "validation_seeds: several teacher_holds or teacher_bin_widths need"),
+        ({"teacher_bin_widths": [50.0, 60.0]}, "validation_seeds: several teacher_holds or teacher_bin_widths need"),
+        ({"teacher_bin_widths": []}, "teacher_bin_widths: expected a list of different widths > 0"),
+        ({"teacher_bin_widths": [50, 50.0]}, "teacher_bin_widths: expected a list of different widths > 0"),
+        ({"teacher_bin_widths": [0.0]}, "teacher_bin_widths: expected a list of different widths > 0"),
+        ({"teacher_bin_widths": ["50"]}, "teacher_bin_widths: expected a list of different widths > 0"),
+        ({"teacher_seeds": [299, 300]}, r"teacher_seeds: \[300\] are test seeds too"),
+        ({"teacher_seeds": [1000]}, r"teacher_seeds: \[1000\] are demonstration seeds"),
+        ({"teacher_seeds": [3, 3]}, "teacher_seeds: each seed must appear once"),
         ({"teacher_holds": [7, 10], "validation_seeds": [200]}, r"action_repeat: must divide every teacher hold"),
         ({"action_repeat": 3}, r"action_repeat: must divide every teacher hold \[10\]"),
         ({"action_repeat": -1}, "action_repeat: must be >= 0"),
@@ -113,43 +121,73 @@ def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):
     assert config["timesteps"] == (2 * 60 + 320 + 64) // 10  # RL from scratch: the same physics steps, in decisions
 
 
-def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path):
-    """With several teacher holds, the Markov wave at each is scored on the validation seeds, the best median's
-    is the teacher (recorded, read back on resume), its demonstrations are cloned, and with action_repeat 0 every
-    learner decides once per teacher phase, fine-tuning discounting 0.99 per physics step. The teacher is scored on
-    the test seeds beside the wave, which stays the paper's."""
+@pytest.mark.parametrize(
+    "bin_widths, teacher_seeds", [([60.0], []), ([50.0, 60.0], [210, 211, 212])], ids=["holds", "holds-and-bins"]
+)
+def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path, bin_widths, teacher_seeds):
+    """With several teacher holds (and bin widths), the Markov wave at each is scored on the teacher seeds (by
+    default the validation seeds), the best median's is the teacher (recorded, read back on resume), its
+    demonstrations are cloned, and with action_repeat 0 every learner decides once per teacher phase, fine-tuning
+    discounting 0.99 per physics step. The teacher is scored on the test seeds beside the wave, which stays the
+    paper's."""
     from dpr.datasets.lerobot import LeRobotReader
-    from dpr.rl.pipeline_config import PER_PHASE
+    from dpr.rl.pipeline_config import PER_PHASE, Teacher
 
     holds = [5, 10]
     settings = {**PIPELINE, "anchor": False, "teacher_holds": holds, "action_repeat": PER_PHASE, "steps": 60}
     settings.update(validation_seeds=[200, 201], critic_warmup=100, finetune_steps=200)
+    settings.update(teacher_bin_widths=bin_widths, teacher_seeds=teacher_seeds)
     out = tmp_path / "run"
     with pytest.MonkeyPatch.context() as patch:
         shrink_rollouts(patch, TINY_PPO)
         report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
     record = yaml.safe_load((out / "choices.yaml").read_text())["navigation-teacher"]
-    for hold in holds:
-        payload = json.loads((out / "eval" / "validation" / f"navigation-teacher-hold{hold}.json").read_text())
-        assert payload["seeds"] == [200, 201] and payload["env_kwargs"]["action_repeat"] == hold
+    candidates = [Teacher(hold, width) for hold in holds for width in bin_widths]
+    assert len(record["validation_medians"]) == len(candidates)
+    for teacher in candidates:
+        payload = json.loads((out / "eval" / "validation" / f"navigation-teacher-{teacher.stem}.json").read_text())
+        assert payload["seeds"] == (teacher_seeds or [200, 201]) and payload["policy"] == teacher.policy
+        assert payload["env_kwargs"]["action_repeat"] == teacher.hold
         median = float(np.median([e["projected_displacement"] for e in payload["episodes"]]))
-        assert record["validation_medians"][hold] == pytest.approx(median)
-    chosen = record["hold_steps"]
-    assert chosen == max(holds, key=lambda hold: record["validation_medians"][hold])
-    teacher = "wave-markov" if chosen == 10 else f"wave-markov:hold_steps={chosen}"
-    assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 60 // chosen
+        key = teacher.hold if bin_widths == [60.0] else teacher.stem  # the records before bin widths keyed by hold
+        assert record["validation_medians"][key] == pytest.approx(median)
+    best = max(record["validation_medians"].values())
+    chosen = Teacher(record["hold_steps"], record.get("bin_width", 60.0))
+    assert (
+        chosen in candidates
+        and best == record["validation_medians"][chosen.stem if len(bin_widths) > 1 else chosen.hold]
+    )
+    assert ("bin_width" in record) == (chosen.bin_width != 60.0)
+    assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 60 // chosen.hold
     for method in METHODS[1:]:
-        assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == chosen
+        assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == chosen.hold
     run = next((out / "runs").glob("navigation-bc-ppo-seed0*"))
     overrides = yaml.safe_load((run / "config.yaml").read_text())["hyperparameter_overrides"]
-    assert overrides["gamma"] == round(0.99**chosen, 3)
+    assert overrides["gamma"] == round(0.99**chosen.hold, 3)
     scored = json.loads((out / "eval" / "test" / "navigation-teacher.json").read_text())
-    assert scored["policy"] == teacher and scored["seeds"] == [100]
+    assert scored["policy"] == chosen.policy and scored["seeds"] == [100]
     assert json.loads((out / "eval" / "test" / "navigation-wave.json").read_text())["policy"] == "wave"
     assert "| Navigation | teacher |" in (report / "results.md").read_text()
     lines = []
     run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append)
     assert not any("evaluate on the validation seeds" in line for line in lines if "exists" not in line)
+
+
+def test_a_teachers_name_says_its_hold_and_bins():
+    """The teacher's policy name is what `dpr evaluate --policy` takes; the wave's Markov twin keeps the plain
+    name, and file stems name the bins only when they are not the wave's."""
+    from dpr.policies.registry import parse_scripted_name
+    from dpr.rl.pipeline_config import Teacher
+
+    assert Teacher().policy == "wave-markov" and Teacher().stem == "hold10"
+    assert Teacher(8).policy == "wave-markov:hold_steps=8" and Teacher(8).stem == "hold8"
+    assert Teacher(6, 50.0).policy == "wave-markov:hold_steps=6,bin_width=50" and Teacher(6, 50.0).stem == "hold6-bin50"
+    assert parse_scripted_name(Teacher(6, 50.0).policy)[1] == {"hold_steps": 6, "bin_width": 50.0}
+    config = PipelineConfig(teacher_holds=[6, 8], teacher_bin_widths=[50, 60], validation_seeds=[200], action_repeat=0)
+    assert config.teachers() == [Teacher(6, 50.0), Teacher(6, 60.0), Teacher(8, 50.0), Teacher(8, 60.0)]
+    assert config.teacher_choice_seeds() == [200]
+    assert PipelineConfig(teacher_seeds=[7, 8]).teacher_choice_seeds() == [7, 8]
+    assert "teacher" not in PipelineConfig().methods() and "teacher" in config.methods()
 
 
 def test_pipeline_writes_every_stage(pipeline):

@@ -408,14 +408,35 @@ def test_a_waves_name_carries_its_hold(name, cls, hold):
     assert [t for t in range(1, 21) if not np.array_equal(actions[t], actions[t - 1])] == [7, 14]
 
 
+def test_a_waves_name_carries_its_bin_width():
+    """wave_name and make_policy round-trip the bin width: "wave-markov:hold_steps=6,bin_width=50" is the
+    Markov wave holding 6 steps with 50-unit bins, which plans more bins than the 60-unit wave on the same swarm."""
+    from dpr.policies.registry import make_policy, parse_scripted_name, wave_name
+
+    name = wave_name("wave-markov", 6, 50.0)
+    assert name == "wave-markov:hold_steps=6,bin_width=50"
+    assert parse_scripted_name(name) == ("wave-markov", {"hold_steps": 6, "bin_width": 50.0})
+    assert parse_scripted_name("wave:bin_width=45.5") == ("wave", {"bin_width": 45.5})
+    env = _markov_env("paddle", 9)
+    policy = make_policy(name, env).policy
+    assert type(policy) is MarkovWavePolicy and (policy.hold_steps, policy.bin_width) == (6, 50.0)
+    points = np.array([[0.0, 100.0 + 55.0 * k] for k in range(5)])  # 55 apart along the goal direction
+    assert policy.plan(points).tolist() == [0, 1, 2, 3, 4]
+    assert make_policy("wave-markov", env).policy.plan(points).tolist() == [0, 0, 1, 2, 3]
+
+
 @pytest.mark.parametrize(
     "name, message",
     [
         ("wave-markov:hold_steps=0", "hold_steps must be an integer >= 1 and <= 20, got '0'"),
         ("wave-markov:hold_steps=21", "hold_steps must be an integer >= 1 and <= 20, got '21'"),
         ("wave:hold_steps=seven", "hold_steps must be an integer >= 1, got 'seven'"),
-        ("wave:bins=3", "only 'wave' and 'wave-markov' take a setting"),
-        ("random:hold_steps=3", "only 'wave' and 'wave-markov' take a setting"),
+        ("wave:bins=3", "the settings are hold_steps and bin_width, each once"),
+        ("wave:hold_steps=6,hold_steps=7", "the settings are hold_steps and bin_width, each once"),
+        ("wave-markov:hold_steps=6,bin_width=0", "bin_width must be a number > 0, got '0'"),
+        ("wave-markov:bin_width=wide", "bin_width must be a number > 0, got 'wide'"),
+        ("wave-markov:bin_width=inf", "bin_width must be a number > 0, got 'inf'"),
+        ("random:hold_steps=3", "only 'wave' and 'wave-markov' take settings"),
         ("waves:hold_steps=3", "policy must be one of"),
     ],
 )

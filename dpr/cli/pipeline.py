@@ -120,10 +120,24 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     preset_argument(
         "--teacher-holds",
         "holds (physics steps per phase) of the Markov wave among which each task's teacher, the policy its "
-        "demonstrations come from, is chosen by its median on the validation seeds (the paper's wave, which "
+        "demonstrations come from, is chosen by its median on the teacher seeds (the paper's wave, which "
         "every result is a percentage of, holds 10)",
         nargs="+",
         metavar="HOLD",
+    )
+    preset_argument(
+        "--teacher-bin-widths",
+        "bin widths (units along the goal direction; the wave's is 60) of the Markov wave: each task's teacher is "
+        "chosen among every pair of a teacher hold and a bin width",
+        type=float,
+        nargs="+",
+        metavar="WIDTH",
+    )
+    preset_argument(
+        "--teacher-seeds",
+        "seeds that choose each task's teacher (none: the validation seeds); never test seeds",
+        type=lambda text: parse_seeds(text, "--teacher-seeds"),
+        show=lambda seeds: seeds_text(seeds) or "none",
     )
     preset_argument(
         "--action-repeat",

@@ -2,8 +2,9 @@
 
 A name is a scripted policy (:data:`SCRIPTED_POLICIES`) or the path of a model file ending in ``.zip``
 written by ``dpr train`` (loaded by :mod:`dpr.policies.sb3`, which imports stable-baselines3 lazily). The two
-waves take their hold in the name: ``wave-markov:hold_steps=7`` holds each phase 7 steps instead of the robot
-model's default (:data:`dpr.policies.wave.MODEL_DEFAULTS`).
+waves take their hold and bin width in the name: ``wave-markov:hold_steps=7`` holds each phase 7 steps instead of
+the robot model's default (:data:`dpr.policies.wave.MODEL_DEFAULTS`), ``wave-markov:hold_steps=6,bin_width=50``
+also bins the robots 50 units wide instead of 60.
 
 Every policy made here is a callable ``policy(observation) -> action`` with ``reset(seed)``, called once
 per episode right after ``env.reset(seed=seed)``.
@@ -16,7 +17,8 @@ WAVE_MARKOV = "wave-markov"  # the same wave, its phase read from the observatio
 RANDOM = "random"
 DECENTRALISED_WAVE = "decentralised-wave"  # every robot runs the wave from its own local observation
 SCRIPTED_POLICIES = (WAVE, WAVE_MARKOV, RANDOM, DECENTRALISED_WAVE)
-HOLD_PARAMETER = "hold_steps"  # the one setting a wave's name carries: wave-markov:hold_steps=7
+HOLD_PARAMETER = "hold_steps"  # the settings a wave's name carries: wave-markov:hold_steps=7,bin_width=50
+BIN_WIDTH_PARAMETER = "bin_width"
 
 
 class RandomPolicy:
@@ -45,31 +47,50 @@ class _Unseeded:
         return self.policy(observation)
 
 
-def wave_name(base: str, hold_steps: int) -> str:
-    """The name of the wave ``base`` ("wave" or "wave-markov") holding each phase ``hold_steps`` steps."""
-    return f"{base}:{HOLD_PARAMETER}={hold_steps}"
+def wave_name(base: str, hold_steps: int, bin_width: float | None = None) -> str:
+    """The name of the wave ``base`` ("wave" or "wave-markov") holding each phase ``hold_steps`` steps, its bins
+    ``bin_width`` units wide (None: the wave's 60)."""
+    name = f"{base}:{HOLD_PARAMETER}={hold_steps}"
+    return name if bin_width is None else f"{name},{BIN_WIDTH_PARAMETER}={bin_width:g}"
 
 
-def parse_scripted_name(name: str) -> tuple[str, dict[str, int]]:
-    """("wave-markov", {"hold_steps": 7}) from "wave-markov:hold_steps=7"; a plain name has no settings. A
-    ValueError names what is wrong: an unknown policy, a setting on a policy without settings, a bad hold."""
-    base, colon, setting = name.partition(":")
+def parse_scripted_name(name: str) -> tuple[str, dict[str, float]]:
+    """("wave-markov", {"hold_steps": 7}) from "wave-markov:hold_steps=7" (and "bin_width": 50.0 from
+    ",bin_width=50"); a plain name has no settings. A ValueError names what is wrong: an unknown policy, a
+    setting on a policy without settings, an unknown setting, a bad hold or bin width."""
+    base, colon, text = name.partition(":")
     if base not in SCRIPTED_POLICIES:
         raise ValueError(f"policy must be one of {SCRIPTED_POLICIES} or a path to a .zip model, got {name!r}")
     if not colon:
         return base, {}
-    key, _, value = setting.partition("=")
-    if base not in (WAVE, WAVE_MARKOV) or key != HOLD_PARAMETER:
-        raise ValueError(
-            f"policy {name!r}: only {WAVE!r} and {WAVE_MARKOV!r} take a setting, written {wave_name(WAVE_MARKOV, 7)!r}"
-        )
+    written = f"{wave_name(WAVE_MARKOV, 7)!r} or {wave_name(WAVE_MARKOV, 6, 50)!r}"
+    if base not in (WAVE, WAVE_MARKOV):
+        raise ValueError(f"policy {name!r}: only {WAVE!r} and {WAVE_MARKOV!r} take settings, written {written}")
     from dpr.envs.particle_env import HELD_STEPS_CAP
 
-    cap = HELD_STEPS_CAP if base == WAVE_MARKOV else None  # the Markov wave reads its hold from the observation
-    if not value.isdigit() or int(value) < 1 or (cap is not None and int(value) > cap):
-        bound = f" and <= {cap}" if cap is not None else ""
-        raise ValueError(f"policy {name!r}: {HOLD_PARAMETER} must be an integer >= 1{bound}, got {value!r}")
-    return base, {HOLD_PARAMETER: int(value)}
+    settings: dict[str, float] = {}
+    for setting in text.split(","):
+        key, _, value = setting.partition("=")
+        if key not in (HOLD_PARAMETER, BIN_WIDTH_PARAMETER) or key in settings:
+            raise ValueError(
+                f"policy {name!r}: the settings are {HOLD_PARAMETER} and {BIN_WIDTH_PARAMETER}, "
+                f"each once, written {written}"
+            )
+        if key == BIN_WIDTH_PARAMETER:
+            try:
+                width = float(value)
+            except ValueError:
+                width = float("nan")
+            if not 0 < width < float("inf"):
+                raise ValueError(f"policy {name!r}: {BIN_WIDTH_PARAMETER} must be a number > 0, got {value!r}")
+            settings[key] = width
+            continue
+        cap = HELD_STEPS_CAP if base == WAVE_MARKOV else None  # the Markov wave reads its hold from the observation
+        if not value.isdigit() or int(value) < 1 or (cap is not None and int(value) > cap):
+            bound = f" and <= {cap}" if cap is not None else ""
+            raise ValueError(f"policy {name!r}: {HOLD_PARAMETER} must be an integer >= 1{bound}, got {value!r}")
+        settings[key] = int(value)
+    return base, settings
 
 
 def check_policy_name(name: str) -> str:
@@ -87,10 +108,10 @@ def check_policy_name(name: str) -> str:
 def make_policy(name: str, env):
     """The policy called ``name`` for ``env``: "wave" (the paper's hand-crafted policy, phases held a fixed
     number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
-    can reproduce), either with another hold ("wave-markov:hold_steps=7"), "random", "decentralised-wave"
-    (every robot decides from its own local observation and a shared clock, :mod:`dpr.policies.decentralised`),
-    or a ``.zip`` model file trained on ``env``'s id and spaces; a per-robot model file
-    (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
+    can reproduce), either with another hold or bin width ("wave-markov:hold_steps=6,bin_width=50"), "random",
+    "decentralised-wave" (every robot decides from its own local observation and a shared clock,
+    :mod:`dpr.policies.decentralised`), or a ``.zip`` model file trained on ``env``'s id and spaces; a per-robot
+    model file (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
     check_policy_name(name)
     from dpr.policies.sb3 import is_model_path, load_model_policy, read_model_info
 

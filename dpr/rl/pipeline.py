@@ -45,16 +45,14 @@ from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, episode_steps
 from dpr.policies.hyperparams import FINETUNE_PRESET
-from dpr.policies.registry import wave_name
 from dpr.rl.model_card import ShippedModel
 from dpr.rl.pipeline_config import (
     BASELINE,
     BC_ALGO,
-    EXPERT,
     PIPELINE_ENV_KWARGS,
     TEACHER,
-    WAVE_HOLD,
     PipelineConfig,
+    Teacher,
 )
 from dpr.runs import fresh_path
 
@@ -133,22 +131,32 @@ def run_pipeline(
     test_evaluations: list[tuple[Path, str]] = []  # (file, method): runs of one method share its label
     for task in config.tasks:
         dataset = out / "datasets" / task
-        hold = _choose_teacher(config, task, out, show_progress, log)  # on validation seeds
+        teacher = _choose_teacher(config, task, out, show_progress, log)  # on validation seeds
         if _task_done(config, task, out):  # e.g. a record of it kept without its datasets and training runs
             log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
         else:
-            _demonstrations(config, task, hold, dataset, show_progress, log)
+            _demonstrations(config, task, teacher, dataset, show_progress, log)
             for seed in config.train_seeds:
-                _train_runs(config, task, hold, dataset, seed, out, show_progress, log)
+                _train_runs(config, task, teacher.hold, dataset, seed, out, show_progress, log)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method, seed in _test_runs(config):
-            path = _evaluate(config, task, method, seed, "test", out, show_progress, log, hold)
+            path = _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
             test_evaluations.append((path, method))
     for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
         test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
     for model in shipped:
         path = out / "eval" / "shipped" / f"{model.path.stem}.json"
-        _evaluate_policy(config, model.env_id, str(model.path), path, f"shipped {model.path.name}", show_progress, log)
+        _evaluate_policy(
+            config,
+            model.env_id,
+            str(model.path),
+            path,
+            f"shipped {model.path.name}",
+            show_progress,
+            log,
+            config.test_seeds,
+            "test",
+        )
         test_evaluations.append((path, f"shipped {model.method}"))
 
     report = out / "report"
@@ -189,14 +197,9 @@ def _model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
     return out / "models" / (f"{task}-{method}.zip" if seed is None else f"{task}-{method}-seed{seed}.zip")
 
 
-def _teacher(hold: int) -> str:
-    """The policy name of the Markov wave holding ``hold`` steps (the plain name at the wave's own hold)."""
-    return EXPERT if hold == WAVE_HOLD else wave_name(EXPERT, hold)
-
-
-def _teacher_env_kwargs(config: PipelineConfig, hold: int) -> dict[str, Any]:
-    """The env kwargs the teacher holding ``hold`` steps is scored with: as its learners run."""
-    return {"n_robots": config.n_robots, **config.learner_env_kwargs(hold)}
+def _teacher_env_kwargs(config: PipelineConfig, teacher: Teacher) -> dict[str, Any]:
+    """The env kwargs ``teacher`` is scored with: as its learners run."""
+    return {"n_robots": config.n_robots, **config.learner_env_kwargs(teacher.hold)}
 
 
 def _load_choices(out: Path) -> dict[str, Any]:
@@ -222,45 +225,58 @@ def _median_displacement(evaluation: Path) -> float:
 
 def _choose_teacher(
     config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
-) -> int:
-    """The hold of ``task``'s teacher: among ``teacher_holds``, the Markov wave's with the highest median on the
-    validation seeds (the first listed of equal ones), each run as its learners will run, deciding once per
-    their decision interval. Recorded in ``choices.yaml`` and read back on resume; one hold is no choice."""
-    if len(config.teacher_holds) == 1:
-        return config.teacher_holds[0]
+) -> Teacher:
+    """``task``'s teacher: among every teacher hold and bin width, the Markov wave with the highest median on the
+    teacher seeds (the first listed of equal ones), each run as its learners will run, deciding once per their
+    decision interval. Recorded in ``choices.yaml`` and read back on resume; one candidate is no choice."""
+    candidates = config.teachers()
+    if len(candidates) == 1:
+        return candidates[0]
     choices = _load_choices(out)
     key = f"{task}-{TEACHER}"
     if key in choices:
-        return int(choices[key]["hold_steps"])
+        return Teacher(int(choices[key]["hold_steps"]), float(choices[key].get("bin_width", Teacher().bin_width)))
     medians = {}
-    for hold in config.teacher_holds:
-        path = _evaluation_path(out, task, f"{TEACHER}-hold{hold}", None, "validation")
-        kwargs = _teacher_env_kwargs(config, hold)
+    seeds = config.teacher_choice_seeds()
+    for teacher in candidates:
+        path = _evaluation_path(out, task, f"{TEACHER}-{teacher.stem}", None, "validation")
+        kwargs = _teacher_env_kwargs(config, teacher)
         _evaluate_policy(
-            config, ENV_IDS[task], _teacher(hold), path, path.stem, show_progress, log, "validation", kwargs
+            config, ENV_IDS[task], teacher.policy, path, path.stem, show_progress, log, seeds, "validation", kwargs
         )
-        medians[hold] = _median_displacement(path)
-    chosen = max(config.teacher_holds, key=lambda hold: medians[hold])  # max keeps the first of equal ones
-    choices[key] = {"hold_steps": chosen, "validation_medians": medians}
+        medians[teacher] = _median_displacement(path)
+    chosen = max(candidates, key=lambda teacher: medians[teacher])  # max keeps the first of equal ones
+    # keyed by hold alone while every candidate has the wave's bins (the records made before bin widths read so)
+    by_hold = config.teacher_bin_widths == [Teacher().bin_width]
+    choices[key] = {
+        "hold_steps": chosen.hold,
+        **({} if chosen.bin_width == Teacher().bin_width else {"bin_width": chosen.bin_width}),
+        "validation_medians": {teacher.hold if by_hold else teacher.stem: medians[teacher] for teacher in candidates},
+    }
     _save_choices(out, choices)
-    log(f"dpr pipeline: {key}: the Markov wave holding {chosen} steps ({medians[chosen]:.1f} on validation seeds)")
+    log(f"dpr pipeline: {key}: {chosen.policy} ({medians[chosen]:.1f} on validation seeds)")
     return chosen
 
 
 def _demonstrations(
-    config: PipelineConfig, task: str, hold: int, dataset: Path, show_progress: bool, log: Callable[[str], None]
+    config: PipelineConfig,
+    task: str,
+    teacher: Teacher,
+    dataset: Path,
+    show_progress: bool,
+    log: Callable[[str], None],
 ) -> None:
     from tqdm import tqdm
 
     from dpr.datasets.collect import CollectSpec, collect
 
-    teacher = _teacher(hold)
-    if not _collect_stage(dataset, config.episodes, f"{task}: {config.episodes} demonstrations of {teacher}", log):
+    what = f"{task}: {config.episodes} demonstrations of {teacher.policy}"
+    if not _collect_stage(dataset, config.episodes, what, log):
         return
-    kwargs = config.learner_env_kwargs(hold)
+    kwargs = config.learner_env_kwargs(teacher.hold)
     spec = CollectSpec(
         ENV_IDS[task],
-        policy=teacher,
+        policy=teacher.policy,
         n_robots=config.n_robots,
         steps=episode_steps(kwargs, config.steps),
         env_kwargs=kwargs,
@@ -355,19 +371,22 @@ def _evaluate(
     out: Path,
     show_progress: bool,
     log: Callable[[str], None],
-    hold: int = WAVE_HOLD,
+    teacher: Teacher = Teacher(),
 ) -> Path:
-    """Evaluate the wave or the teacher holding ``hold`` steps (``seed`` None), or a training run, on the ``split``
-    seeds ("test" or "validation"). The wave runs on the pipeline's env, the teacher as its learners run."""
+    """Evaluate the wave or ``teacher`` (``seed`` None), or a training run, on the ``split`` seeds ("test" or
+    "validation"). The wave runs on the pipeline's env, the teacher as its learners run."""
     path = _evaluation_path(out, task, method, seed, split)
     own_kwargs = None  # the wave's default (_evaluate_policy), or a model's own
     if method == BASELINE:
         policy = BASELINE
     elif method == TEACHER:
-        policy, own_kwargs = _teacher(hold), _teacher_env_kwargs(config, hold)
+        policy, own_kwargs = teacher.policy, _teacher_env_kwargs(config, teacher)
     else:
         policy = str(_model_path(out, task, method, seed))
-    return _evaluate_policy(config, ENV_IDS[task], policy, path, path.stem, show_progress, log, split, own_kwargs)
+    seeds = config.test_seeds if split == "test" else config.validation_seeds
+    return _evaluate_policy(
+        config, ENV_IDS[task], policy, path, path.stem, show_progress, log, seeds, split, own_kwargs
+    )
 
 
 def _evaluate_policy(
@@ -378,18 +397,19 @@ def _evaluate_policy(
     name: str,
     show_progress: bool,
     log: Callable[[str], None],
-    split: str = "test",
+    seeds: Sequence[int],
+    split: str,
     own_kwargs: dict[str, Any] | None = None,
 ) -> Path:
-    """Evaluate ``policy`` on ``env_id`` and the ``split`` seeds into ``path``: a scripted policy on ``own_kwargs``
-    (by default the wave's: the pipeline's env), a model file on the env kwargs stored in it."""
+    """Evaluate ``policy`` on ``env_id`` and ``seeds`` (the ``split``'s: "test" or "validation") into ``path``: a
+    scripted policy on ``own_kwargs`` (by default the wave's: the pipeline's env), a model file on the env kwargs
+    stored in it."""
     from tqdm import tqdm
 
     from dpr.policies.sb3 import is_model_path
     from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
     from dpr.rl.report import format_seeds
 
-    seeds = config.test_seeds if split == "test" else config.validation_seeds
     if not _stage(path, f"{name}: evaluate on the {split} seeds {format_seeds(seeds)}", log):
         return path
     path.parent.mkdir(parents=True, exist_ok=True)

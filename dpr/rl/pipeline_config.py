@@ -9,9 +9,9 @@ from typing import Any
 from dpr.checks import ParameterError, check_int, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.envs.particle_env import HELD_STEPS_CAP
-from dpr.policies.registry import WAVE, WAVE_MARKOV
+from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
-from dpr.policies.wave import MODEL_DEFAULTS
+from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
 # fine-tuning at action_repeat=10, chosen on validation seeds (docs/learning.md): shorter rollouts, more epochs
@@ -27,6 +27,27 @@ WAVE_HOLD = MODEL_DEFAULTS["paddle"]["hold_steps"]
 PER_PHASE = 0  # action_repeat 0: the learners decide once per phase of the task's teacher (K = its hold)
 SCRATCH_ALGOS = ALGOS
 BC_ALGO = DEFAULT_ALGO  # what the demonstrations are cloned into: an actor-critic every FINETUNE_ALGOS can load
+
+
+@dataclass(frozen=True)
+class Teacher:
+    """A task's teacher: the Markov wave holding each phase ``hold`` physics steps, its robots binned
+    ``bin_width`` units wide along the goal direction."""
+
+    hold: int = WAVE_HOLD
+    bin_width: float = BIN_WIDTH
+
+    @property
+    def policy(self) -> str:
+        """Its policy name (``dpr evaluate --policy``): the plain name at the wave's own hold and bins."""
+        if (self.hold, self.bin_width) == (WAVE_HOLD, BIN_WIDTH):
+            return EXPERT
+        return wave_name(EXPERT, self.hold, None if self.bin_width == BIN_WIDTH else self.bin_width)
+
+    @property
+    def stem(self) -> str:
+        """Its name in file names and in ``choices.yaml``: ``hold8``, or ``hold6-bin50`` with other bins."""
+        return f"hold{self.hold}" + ("" if self.bin_width == BIN_WIDTH else f"-bin{self.bin_width:g}")
 
 
 @dataclass
@@ -49,8 +70,13 @@ class PipelineConfig:
     train_seeds: list[int] = field(default_factory=lambda: [0])  # seeds of BC and RL: one run per method each
     workers: int = 2
     steps: int = MAX_EPISODE_STEPS  # physics steps per episode, in demonstrations, training and evaluation
-    # the Markov wave's holds among which each task's teacher is chosen, by its median on the validation seeds
+    # the Markov wave's holds and bin widths among which each task's teacher is chosen (every pair), by its median
+    # on the teacher_seeds
     teacher_holds: list[int] = field(default_factory=lambda: [WAVE_HOLD])
+    teacher_bin_widths: list[float] = field(default_factory=lambda: [BIN_WIDTH])
+    # the seeds that choose the teacher (none: the validation seeds); like them never test or demonstration seeds.
+    # The wave is cheap to score, and its medians on 20 seeds spread too widely to rank five holds.
+    teacher_seeds: list[int] = field(default_factory=list)
     # the learners decide every this many physics steps (a divisor of every teacher hold), or PER_PHASE
     action_repeat: int = 10
     # over the yaml's `finetune` entry (FINETUNE_AT_REPEAT)
@@ -73,8 +99,19 @@ class PipelineConfig:
             raise ParameterError("teacher_holds", f"expected a list of different holds, got {holds!r}")
         for hold in holds:
             check_int("teacher_holds", hold, 1, HELD_STEPS_CAP)
-        if len(holds) > 1 and not self.validation_seeds:
-            raise ParameterError("validation_seeds", "several teacher_holds need validation seeds to choose one")
+        widths = self.teacher_bin_widths
+        if (
+            not isinstance(widths, list)
+            or not widths
+            or len(set(widths)) < len(widths)
+            or not all(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 < w < float("inf") for w in widths)
+        ):
+            raise ParameterError("teacher_bin_widths", f"expected a list of different widths > 0, got {widths!r}")
+        self.teacher_bin_widths = [float(width) for width in widths]
+        if len(self.teachers()) > 1 and not (self.validation_seeds or self.teacher_seeds):
+            raise ParameterError(
+                "validation_seeds", "several teacher_holds or teacher_bin_widths need validation seeds to choose one"
+            )
         repeat = check_int("action_repeat", self.action_repeat, PER_PHASE)
         if repeat != PER_PHASE and any(hold % repeat for hold in holds):
             raise ParameterError(
@@ -94,23 +131,23 @@ class PipelineConfig:
             raise ParameterError(
                 "episodes", f"must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}"
             )
-        for name in ("test_seeds", "validation_seeds", "train_seeds"):
-            check_seeds(name, getattr(self, name), allow_empty=name == "validation_seeds")
+        for name in ("test_seeds", "validation_seeds", "teacher_seeds", "train_seeds"):
+            check_seeds(name, getattr(self, name), allow_empty=name in ("validation_seeds", "teacher_seeds"))
         if len(self.train_seeds) > 1 and not self.validation_seeds:
             raise ParameterError(
                 "validation_seeds", "several train_seeds need validation seeds to choose each method's median run"
             )
         demo_seeds = set(range(self.demo_seed, self.demo_seed + self.episodes))
-        for name in ("test_seeds", "validation_seeds"):
+        for name in ("test_seeds", "validation_seeds", "teacher_seeds"):
             seen = sorted(demo_seeds & set(getattr(self, name)))
             if seen:
                 raise ParameterError(name, f"{seen} are demonstration seeds too; use seeds the models never saw")
-        shared = sorted(set(self.validation_seeds) & set(self.test_seeds))
-        if shared:
-            raise ParameterError(
-                "validation_seeds",
-                f"{shared} are test seeds too; the seeds that choose must not be the ones that score",
-            )
+        for name in ("validation_seeds", "teacher_seeds"):
+            shared = sorted(set(getattr(self, name)) & set(self.test_seeds))
+            if shared:
+                raise ParameterError(
+                    name, f"{shared} are test seeds too; the seeds that choose must not be the ones that score"
+                )
 
     @property
     def rl_steps(self) -> int:
@@ -118,6 +155,14 @@ class PipelineConfig:
         budget RL from scratch gets). Budgets count physics steps, so that learners deciding every step or every
         ``action_repeat`` steps get the same simulated time."""
         return self.episodes * self.steps + self.critic_warmup + self.finetune_steps
+
+    def teachers(self) -> list[Teacher]:
+        """The candidate teachers: every teacher hold with every teacher bin width."""
+        return [Teacher(hold, width) for hold in self.teacher_holds for width in self.teacher_bin_widths]
+
+    def teacher_choice_seeds(self) -> list[int]:
+        """The seeds the candidate teachers are scored on: ``teacher_seeds``, else the validation seeds."""
+        return self.teacher_seeds or self.validation_seeds
 
     def decision_steps(self, hold: int) -> int:
         """Physics steps per decision of the learners of a task whose teacher holds ``hold`` steps."""
@@ -141,9 +186,9 @@ class PipelineConfig:
         return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3), **self.finetune_hyperparams}
 
     def methods(self) -> list[str]:
-        """Names of the policies evaluated on each task: the wave first, the chosen teacher when there was a
-        choice (with one hold at the wave's, the teacher is the wave)."""
-        return [BASELINE, *([TEACHER] if self.teacher_holds != [WAVE_HOLD] else []), *self.learned_methods()]
+        """Names of the policies evaluated on each task: the wave first, the chosen teacher unless it is the wave's
+        Markov twin (one hold, the wave's, and the wave's bins)."""
+        return [BASELINE, *([TEACHER] if self.teachers() != [Teacher()] else []), *self.learned_methods()]
 
     def learned_methods(self) -> list[str]:
         """Names of the methods trained once per training seed."""
