@@ -135,8 +135,8 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     )
     preset_argument(
         "--teacher-seeds",
-        "seeds that choose each task's teacher (none: the validation seeds); never test seeds",
-        type=lambda text: parse_seeds(text, "--teacher-seeds"),
+        "seeds that choose each task's teacher ('none': the validation seeds); never test seeds",
+        type=lambda text: [] if text == "none" else parse_seeds(text, "--teacher-seeds"),
         show=lambda seeds: seeds_text(seeds) or "none",
     )
     preset_argument(
