@@ -1,6 +1,7 @@
 """The whole pipeline (`dpr pipeline`: demonstrations -> BC -> fine-tuning beside RL from scratch -> evaluation ->
 report, resumable; choices on validation seeds, canonical models)."""
 
+import dataclasses
 import json
 
 import gymnasium as gym
@@ -253,6 +254,29 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "test_seeds": [100, 101]}), out, **QUIET)
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
+
+
+@pytest.mark.parametrize(
+    "record, flags",
+    [
+        ("full", []),
+        ("full-hold10", ["--teacher-holds", "10", "--action-repeat", "10", "--finetune-hyperparam", "gamma=0.904"]),
+    ],
+)
+def test_each_record_resumes_with_the_flags_results_md_gives(record, flags):
+    """The settings `dpr pipeline --preset full --tasks all <flags>` makes are those a record in docs/results was
+    made with (settings added since it started at their defaults), so its documented command resumes it."""
+    from pathlib import Path
+
+    from dpr.cli import build_parser
+    from dpr.cli.pipeline import pipeline_config
+
+    root = Path(__file__).resolve().parents[1]
+    saved = yaml.safe_load((root / "docs" / "results" / record / "pipeline.yaml").read_text())["config"]
+    args = build_parser().parse_args(["pipeline", "--preset", "full", "--tasks", "all", *flags])
+    assert dataclasses.asdict(pipeline_config(args)) == {**dataclasses.asdict(PipelineConfig()), **saved}
+    shown = " ".join((root / "RESULTS.md").read_text().replace("\\\n", " ").split())  # continued lines joined
+    assert " ".join(["dpr pipeline --preset full --tasks all --out", f"runs/{record}", *flags, ""]) in shown
 
 
 def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path):

@@ -157,10 +157,10 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     workers_argument(parser, "worker processes for collection, RL envs and evaluation")
 
 
-def cmd_pipeline(args, parser) -> int:
+def pipeline_config(args):
+    """The :class:`dpr.rl.pipeline_config.PipelineConfig` the parsed flags say: the preset, and every flag given
+    over it (checked: a ValueError names the setting)."""
     from dpr.envs import ENV_IDS
-    from dpr.rl.model_card import load_model_card
-    from dpr.rl.pipeline import run_pipeline
     from dpr.rl.pipeline_config import PRESETS, PipelineConfig, preset_config
 
     overrides = {
@@ -173,8 +173,15 @@ def cmd_pipeline(args, parser) -> int:
     if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's
         preset = PRESETS[args.preset].finetune_hyperparams  # (argparse allows only known presets)
         overrides["finetune_hyperparams"] = {**preset, **dict(overrides["finetune_hyperparams"])}
+    return preset_config(args.preset, **overrides)
+
+
+def cmd_pipeline(args, parser) -> int:
+    from dpr.rl.model_card import load_model_card
+    from dpr.rl.pipeline import run_pipeline
+
     try:
-        config = preset_config(args.preset, **overrides)
+        config = pipeline_config(args)
         shipped = load_model_card(args.shipped) if args.shipped else []
         report = run_pipeline(config, args.out, shipped=shipped)
     except (TypeError, ValueError) as error:

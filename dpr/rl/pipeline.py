@@ -18,9 +18,8 @@ For each task, and each training seed ``s`` of ``train_seeds``:
 7. ``report/``: the table, interval estimates over test seeds x training runs, and figures (:mod:`dpr.rl.report`).
 
 :data:`dpr.rl.pipeline_config.PRESETS` names whole configurations: ``small`` (``make run``: one task, one
-training seed, minutes) and ``full`` (the headline: four tasks, each task's teacher chosen among five holds
-and two bin widths on 80 validation seeds, three training seeds, 20 validation seeds for the rest, 50 test
-seeds).
+training seed, minutes) and ``full`` (the headline: four tasks, each task's teacher chosen among five holds,
+three training seeds, 20 validation and 50 test seeds).
 
 Every env runs with ``obs_last_action=True`` (the previous action and how long it has been held are part of
 the observation), which the Markov wave needs and which every learner gets too. On Manipulation, RL
