@@ -152,3 +152,8 @@ def shrink_rollouts(patch, small: dict) -> None:
         return original(algo, env_id, preset, {**small, **(overrides or {})})
 
     patch.setattr(train_module, "load_hyperparams", shrunk)
+
+
+def parquet_files(root: Path, folder: str) -> list[str]:
+    """The parquet files of a dataset ``folder`` ("data", "meta/episodes"), relative to the dataset ``root``."""
+    return sorted(str(p.relative_to(root)) for p in (root / folder).glob("*/*.parquet"))

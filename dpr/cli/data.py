@@ -36,7 +36,7 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--policy",
         default=spec["policy"],
-        help="'wave', 'wave-markov' (either may name its hold: 'wave-markov:hold_steps=7'), "
+        help="'wave', 'wave-markov' (either may name its hold and bins: 'wave-markov:hold_steps=6,bin_width=50'), "
         "'decentralised-wave', 'random' or a model .zip: any policy `dpr evaluate` "
         f"accepts (default {spec['policy']})",
     )

@@ -37,7 +37,8 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         "--policy",
         default=WAVE,
         help="'wave' (the paper's hand-crafted policy), 'wave-markov' "
-        "(its phase read from the observation), either with another hold ('wave-markov:hold_steps=7'), "
+        "(its phase read from the observation), either with another hold or bin width "
+        "('wave-markov:hold_steps=6,bin_width=50'), "
         "'decentralised-wave' (every robot decides from its own local "
         "observation), 'random', or a model file MODEL.zip written by "
         "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)",
