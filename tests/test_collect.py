@@ -1,12 +1,9 @@
 """Dataset collection (dpr.datasets.collect), replay (dpr.datasets.replay) and the `dpr collect` / `dpr replay`
-commands: recorded frames equal an independent rollout, resuming, refusing another spec, Ctrl-C while saving, MCAP
-logs, pixels, discrete actions and bad command-line input (the real CLI killed or interrupted:
-test_collect_interrupts.py)."""
+commands: recorded frames equal an independent rollout, resuming, refusing another spec, MCAP logs, pixels, discrete
+actions and bad command-line input (killed or interrupted: test_collect_interrupts.py)."""
 
 import json
-import os
 import shutil
-import signal
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,7 +15,7 @@ from helpers import parquet_files, run_cli, tree_hash
 
 import dpr.datasets.collect as collect_module
 from dpr.datasets.collect import CollectSpec, collect
-from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
+from dpr.datasets.lerobot import DatasetError, LeRobotReader
 from dpr.datasets.mcap import read_mcap
 from dpr.datasets.replay import replay_dataset
 from dpr.envs.particle_env import LENGTH_SCALE
@@ -355,41 +352,6 @@ def test_cli_collect_compact(tmp_path):
     assert run_cli([*argv, "--episodes", "3", "--workers", "1", "--out", str(root), "--compact"]) == 0
     assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
     assert LeRobotReader(root).num_episodes == 3
-
-
-# ----------------------------------------------------------------------------------------------------- Ctrl-C
-
-
-@pytest.fixture
-def sigint_raises():
-    """SIGINT raises KeyboardInterrupt, as in an interactive Python, even where the tests run with it ignored
-    (a background job of a shell without job control)."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    yield
-    signal.signal(signal.SIGINT, previous)
-
-
-def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch, sigint_raises):
-    """Ctrl-C arriving in the middle of writing an episode's files waits for them, then stops the run."""
-    original = LeRobotWriter.save_episode
-
-    def interrupted_save(self, episode_meta=None):
-        os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at the next bytecode, inside the save
-        return original(self, episode_meta)
-
-    monkeypatch.setattr(LeRobotWriter, "save_episode", interrupted_save)
-    root = tmp_path / "ds"
-    try:
-        summary = collect(root, small_spec(steps=30), episodes=3, workers=1)
-    except KeyboardInterrupt:
-        pytest.fail("collect() let Ctrl-C escape instead of stopping after the saved episodes")
-    assert summary.interrupted
-    assert (summary.episodes_added, summary.episodes_total, summary.frames_total) == (1, 1, 30)
-    reader = LeRobotReader(root)
-    assert reader.num_episodes == 1 and reader.episodes[0]["seed"] == 0
-    assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
-    assert not list(root.rglob("*.dpr-tmp"))
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 # -------------------------------------------------------------------------------------------- MCAP, pixels

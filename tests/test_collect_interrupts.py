@@ -1,5 +1,6 @@
-"""`dpr collect` as a user runs it, killed or interrupted: SIGKILL mid-run loses at most the episodes being
-recorded and the same command resumes; Ctrl-C stops cleanly with whole episodes committed."""
+"""Collection killed or interrupted: `dpr collect` as a user runs it survives SIGKILL mid-run (at most the episodes
+being recorded are lost, and the same command resumes) and stops cleanly on Ctrl-C with whole episodes committed;
+Ctrl-C while an episode's files are being written commits that episode whole."""
 
 import json
 import os
@@ -12,8 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import parquet_files
+from test_collect import small_spec
 
-from dpr.datasets.lerobot import LeRobotReader
+from dpr.datasets.collect import collect
+from dpr.datasets.lerobot import LeRobotReader, LeRobotWriter
 from dpr.datasets.replay import replay_episode
 
 REPO = Path(__file__).resolve().parents[1]
@@ -192,3 +195,38 @@ def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
 
     assert run_cli_collect(out, log) == 0, log.read_text()  # the writer lock was released
     check_complete_dataset(out, CLI_STEPS)
+
+
+# ----------------------------------------------------------------------------------------- Ctrl-C while saving
+
+
+@pytest.fixture
+def sigint_raises():
+    """SIGINT raises KeyboardInterrupt, as in an interactive Python, even where the tests run with it ignored
+    (a background job of a shell without job control)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch, sigint_raises):
+    """Ctrl-C arriving in the middle of writing an episode's files waits for them, then stops the run."""
+    original = LeRobotWriter.save_episode
+
+    def interrupted_save(self, episode_meta=None):
+        os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at the next bytecode, inside the save
+        return original(self, episode_meta)
+
+    monkeypatch.setattr(LeRobotWriter, "save_episode", interrupted_save)
+    root = tmp_path / "ds"
+    try:
+        summary = collect(root, small_spec(steps=30), episodes=3, workers=1)
+    except KeyboardInterrupt:
+        pytest.fail("collect() let Ctrl-C escape instead of stopping after the saved episodes")
+    assert summary.interrupted
+    assert (summary.episodes_added, summary.episodes_total, summary.frames_total) == (1, 1, 30)
+    reader = LeRobotReader(root)
+    assert reader.num_episodes == 1 and reader.episodes[0]["seed"] == 0
+    assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
+    assert not list(root.rglob("*.dpr-tmp"))
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
