@@ -49,6 +49,17 @@ def test_evaluate_passes_env_kwargs(tmp_path):
     assert json.loads(out.read_text())["env_kwargs"]["object_type"] == "box"
 
 
+def test_env_kwarg_values_read_as_json_or_as_python_constants():
+    from dpr.cli.common import env_kwarg
+
+    assert env_kwarg("obs_last_action=True") == ("obs_last_action", True)  # as gym.make(..., obs_last_action=True)
+    assert env_kwarg("obs_last_action=false") == ("obs_last_action", False)
+    assert env_kwarg("n_dead=None") == ("n_dead", None)
+    assert env_kwarg("action_repeat=6") == ("action_repeat", 6)
+    assert env_kwarg("object_type=box") == ("object_type", "box")
+    assert env_kwarg("goal=[1, 2]") == ("goal", [1, 2])
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

@@ -160,9 +160,15 @@ def name_and_value(text: str, flag: str) -> tuple[str, str]:
     return key, value
 
 
+PYTHON_CONSTANTS = {"True": True, "False": False, "None": None}  # as a gym.make call would spell them
+
+
 def env_kwarg(text: str) -> tuple[str, object]:
-    """'object_type=box' -> ('object_type', 'box'); values parse as JSON when they can (numbers, true, [..])."""
+    """'object_type=box' -> ('object_type', 'box'); values parse as JSON when they can (numbers, true, [..]), and
+    True, False and None as in Python."""
     key, value = name_and_value(text, "--env-kwarg")
+    if value in PYTHON_CONSTANTS:
+        return key, PYTHON_CONSTANTS[value]
     try:
         return key, json.loads(value)
     except ValueError:
