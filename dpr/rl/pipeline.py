@@ -177,6 +177,16 @@ def _task_done(config: PipelineConfig, task: str, out: Path) -> bool:
     )
 
 
+def report_evaluations(config: PipelineConfig, out: Path) -> list[tuple[Path, str]]:
+    """(file, method) of every test evaluation of ``config``'s tasks in the run folder ``out``, in the report's
+    order: per task the wave, the teacher, then each method's training runs."""
+    return [
+        (_evaluation_path(Path(out), task, method, seed, "test"), method)
+        for task in config.tasks
+        for method, seed in _test_runs(config)
+    ]
+
+
 def _test_runs(config: PipelineConfig) -> list[tuple[str, int | None]]:
     """(method, training seed) of every test evaluation of a task: the wave and the teacher once (seed None),
     every training run."""
