@@ -26,7 +26,7 @@ import yaml
 
 from dpr.envs import ENV_IDS
 from dpr.rl.pipeline import report_evaluations
-from dpr.rl.pipeline_config import PipelineConfig
+from dpr.rl.pipeline_config import PipelineConfig, saved_settings
 from dpr.rl.report import write_report
 
 
@@ -42,7 +42,7 @@ def merge(out: Path, runs: list[Path]) -> PipelineConfig:
     if out.exists():
         raise ValueError(f"{out} exists; the merged record goes into a new folder")
     saved = [_settings(run) for run in runs]
-    configs = [PipelineConfig(**{**asdict(PipelineConfig()), **entry["config"]}) for entry in saved]
+    configs = [PipelineConfig(**saved_settings(entry["config"])) for entry in saved]
     first = {**asdict(configs[0]), "tasks": None}
     for run, config in zip(runs[1:], configs[1:]):
         differ = sorted(name for name, value in {**asdict(config), "tasks": None}.items() if value != first[name])

@@ -53,6 +53,7 @@ from dpr.rl.pipeline_config import (
     TEACHER,
     PipelineConfig,
     Teacher,
+    saved_settings,
 )
 from dpr.runs import fresh_path
 
@@ -108,9 +109,7 @@ def run_pipeline(
     config_path = out / "pipeline.yaml"
     if config_path.exists():
         previous = yaml.safe_load(config_path.read_text()).get("config")
-        if isinstance(previous, dict):  # a setting added since that run started had its default value there
-            previous = {**asdict(PipelineConfig()), **previous}
-        if previous != asdict(config):
+        if not isinstance(previous, dict) or saved_settings(previous) != asdict(config):
             raise ParameterError(
                 "out",
                 f"{out} holds a pipeline run with other settings ({config_path}); "
@@ -128,7 +127,6 @@ def run_pipeline(
             )
         )
     started = time.perf_counter()
-    test_evaluations: list[tuple[Path, str]] = []  # (file, method): runs of one method share its label
     for task in config.tasks:
         dataset = out / "datasets" / task
         teacher = _choose_teacher(config, task, out, show_progress, log)  # on validation seeds
@@ -140,8 +138,8 @@ def run_pipeline(
                 _train_runs(config, task, teacher.hold, dataset, seed, out, show_progress, log)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method, seed in _test_runs(config):
-            path = _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
-            test_evaluations.append((path, method))
+            _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
+    test_evaluations = report_evaluations(config, out)  # (file, method): runs of one method share its label
     for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
         test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
     for model in shipped:

@@ -195,6 +195,12 @@ class PipelineConfig:
         return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
 
 
+def saved_settings(saved: dict[str, Any]) -> dict[str, Any]:
+    """The settings a run folder's ``pipeline.yaml`` records under ``config``, as ``asdict(PipelineConfig)``: a
+    setting added since that run started had its default value there."""
+    return {**asdict(PipelineConfig()), **saved}
+
+
 DEFAULT_PRESET = "small"
 PRESETS: dict[str, PipelineConfig] = {
     "small": PipelineConfig(),
