@@ -12,6 +12,8 @@ per episode right after ``env.reset(seed=seed)``.
 
 from __future__ import annotations
 
+from dpr.checks import check_number
+
 WAVE = "wave"  # the paper's hand-crafted policy
 WAVE_MARKOV = "wave-markov"  # the same wave, its phase read from the observation: an expert imitation can copy
 RANDOM = "random"
@@ -77,13 +79,11 @@ def parse_scripted_name(name: str) -> tuple[str, dict[str, float]]:
                 f"each once, written {written}"
             )
         if key == BIN_WIDTH_PARAMETER:
-            try:
-                width = float(value)
+            try:  # the check WavePolicy and the pipeline's teacher_bin_widths make
+                settings[key] = check_number(BIN_WIDTH_PARAMETER, float(value), above=0)
             except ValueError:
-                width = float("nan")
-            if not 0 < width < float("inf"):
-                raise ValueError(f"policy {name!r}: {BIN_WIDTH_PARAMETER} must be a number > 0, got {value!r}")
-            settings[key] = width
+                problem = f"{BIN_WIDTH_PARAMETER} must be a number > 0, got {value!r}"
+                raise ValueError(f"policy {name!r}: {problem}") from None
             continue
         cap = HELD_STEPS_CAP if base == WAVE_MARKOV else None  # the Markov wave reads its hold from the observation
         if not value.isdigit() or int(value) < 1 or (cap is not None and int(value) > cap):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dpr.checks import check_int
+from dpr.checks import check_int, check_number
 from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES, ParticleSwarmEnv, joint_action_bits
 
 BIN_WIDTH = 60.0  # the 2021 code's "robot diameter"
@@ -45,8 +45,7 @@ class WavePolicy:
         if action_type not in ("multibinary", "discrete", "continuous"):
             raise ValueError(f"action_type must be 'multibinary', 'discrete' or 'continuous', got {action_type!r}")
         hold_steps = check_int("hold_steps", int(hold_steps) if isinstance(hold_steps, np.integer) else hold_steps, 1)
-        if not bin_width > 0:
-            raise ValueError(f"bin_width must be > 0, got {bin_width}")
+        bin_width = check_number("bin_width", bin_width, above=0)
         if start_side not in START_SIDES:
             raise ValueError(f"start_side must be one of {START_SIDES}, got {start_side!r}")
         self.n_robots = n_robots

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from dpr.checks import ParameterError, check_int, check_seeds
+from dpr.checks import ParameterError, check_int, check_number, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.envs.particle_env import HELD_STEPS_CAP
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
@@ -100,14 +100,9 @@ class PipelineConfig:
         for hold in holds:
             check_int("teacher_holds", hold, 1, HELD_STEPS_CAP)
         widths = self.teacher_bin_widths
-        if (
-            not isinstance(widths, list)
-            or not widths
-            or len(set(widths)) < len(widths)
-            or not all(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 < w < float("inf") for w in widths)
-        ):
+        if not isinstance(widths, list) or not widths or len(set(widths)) < len(widths):
             raise ParameterError("teacher_bin_widths", f"expected a list of different widths > 0, got {widths!r}")
-        self.teacher_bin_widths = [float(width) for width in widths]
+        self.teacher_bin_widths = [check_number("teacher_bin_widths", width, above=0) for width in widths]
         if len(self.teachers()) > 1 and not (self.validation_seeds or self.teacher_seeds):
             raise ParameterError(
                 "validation_seeds", "several teacher_holds or teacher_bin_widths need validation seeds to choose one"
