@@ -32,7 +32,7 @@ def test_the_merged_record_holds_every_task_and_resumes_as_finished(tool, runs, 
     assert tool.main([str(out), *map(str, runs)]) == 0
     saved = yaml.safe_load((out / "pipeline.yaml").read_text())
     assert saved["config"]["tasks"] == ["navigation", "gate"]  # the envs' order, not the runs'
-    assert saved["merged_from"] == [str(run) for run in runs]
+    assert saved["merged_from"] == {"navigation": "navigation", "gate": "gate"}
     choices = yaml.safe_load((out / "choices.yaml").read_text())
     for run in runs:
         assert set(yaml.safe_load((run / "choices.yaml").read_text())).issubset(choices)
@@ -49,6 +49,8 @@ def test_the_merged_record_holds_every_task_and_resumes_as_finished(tool, runs, 
     run_pipeline(config, out, show_progress=False, log=lines.append)
     assert all("skipped" in line or "done in" in line for line in lines), lines
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    tool.merge(tmp_path / "again", [out])  # a merged record merged again names the folders its tasks ran in
+    assert yaml.safe_load((tmp_path / "again" / "pipeline.yaml").read_text())["merged_from"] == saved["merged_from"]
 
 
 def test_runs_that_cannot_be_merged_are_refused_before_writing(tool, runs, tmp_path, capsys):

@@ -7,9 +7,10 @@ This tool checks that the runs' settings agree on everything but their tasks, an
 ``pipeline.yaml`` (the settings with every task), ``choices.yaml`` (every choice), ``eval/`` (every validation
 and test evaluation), the canonical models ``models/<task>-<method>.zip``, and ``report/`` written from the test
 evaluations as the pipeline writes it. The pipeline resumes that folder as a finished run: the same command with
-``--tasks`` naming all its tasks only reprints the report. Datasets, run folders and training runs' models stay
-where they are. A task that is not finished in its run (its canonical models and test evaluations), or that two
-runs hold, is refused.
+``--tasks`` naming all its tasks only reprints the report. ``merged_from`` in its ``pipeline.yaml`` names the run
+folder each task came from (a merged record merged again keeps its tasks' first folders). Datasets, run folders
+and training runs' models stay where they are. A task that is not finished in its run (its canonical models and
+test evaluations), or that two runs hold, is refused.
 
     python tools/merge_runs.py runs/full-bins-all runs/full-bins runs/full-bins-manip
 """
@@ -37,6 +38,12 @@ def _settings(run: Path) -> dict:
     return yaml.safe_load(path.read_text())
 
 
+def _first_folder(entry: dict, run: Path, task: str) -> str:
+    """The name of the folder ``task`` was run in: the record's own ``merged_from`` if it is a merge, else its name."""
+    earlier = entry.get("merged_from")
+    return earlier[task] if isinstance(earlier, dict) and task in earlier else run.name
+
+
 def merge(out: Path, runs: list[Path]) -> PipelineConfig:
     """Write the merged record of ``runs`` into the new folder ``out``; returns its settings."""
     if out.exists():
@@ -49,11 +56,12 @@ def merge(out: Path, runs: list[Path]) -> PipelineConfig:
         if differ:
             raise ValueError(f"{run}: other settings than {runs[0]} ({', '.join(differ)}); only the tasks may differ")
     owner: dict[str, Path] = {}
-    for run, config in zip(runs, configs):
+    folders: dict[str, str] = {}
+    for run, config, entry in zip(runs, configs, saved):
         for task in config.tasks:
             if task in owner:
                 raise ValueError(f"{task}: run in both {owner[task]} and {run}; merge each task once")
-            owner[task] = run
+            owner[task], folders[task] = run, _first_folder(entry, run, task)
     tasks = [task for task in ENV_IDS if task in owner]
     merged = PipelineConfig(**{**asdict(configs[0]), "tasks": tasks})
     choices: dict = {}
@@ -74,7 +82,7 @@ def merge(out: Path, runs: list[Path]) -> PipelineConfig:
         shutil.copyfile(source, target)
     started = min(str(entry.get("started", "")) for entry in saved)
     record = {"config": asdict(merged), "rl_steps": merged.rl_steps, "started": started}
-    record["merged_from"] = [str(run) for run in runs]
+    record["merged_from"] = {task: folders[task] for task in tasks}
     (out / "pipeline.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
     (out / "choices.yaml").write_text(yaml.safe_dump(choices, sort_keys=True))
     evaluations = report_evaluations(merged, out)
