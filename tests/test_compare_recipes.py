@@ -51,12 +51,13 @@ def test_the_rule_is_the_mean_of_the_per_task_iqm_ratios(tool, tmp_path, capsys)
 
 
 def test_the_two_records_compare_and_no_decision_comes_from_unfinished_tasks(tool, tmp_path, capsys):
-    """The record of the recipe in force against the earlier one gives the ratios RESULTS.md quotes; a candidate
-    with one task finished gets its rows and no verdict."""
-    _, mean = tool.compare(
-        RECORDS / "full-hold10", RECORDS / "full", ["navigation", "gate", "unresponsive", "manipulation"], "bc-ppo"
-    )
+    """Each record against the one before it gives the ratio RESULTS.md quotes for its adoption; a candidate with
+    one task finished gets its rows and no verdict."""
+    tasks = ["navigation", "gate", "unresponsive", "manipulation"]
+    _, mean = tool.compare(RECORDS / "full-hold10", RECORDS / "full", tasks, "bc-ppo")
     assert mean == pytest.approx(1.065, abs=0.001)
+    _, mean = tool.compare(RECORDS / "full", RECORDS / "full-bins", tasks, "bc-ppo")
+    assert mean == pytest.approx(1.202, abs=0.001)
     partial = _copy_validation("full", tmp_path / "partial", ["navigation"])
     assert tool.main([str(RECORDS / "full"), str(partial)]) == 0
     out = capsys.readouterr().out

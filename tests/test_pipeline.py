@@ -260,8 +260,13 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
 @pytest.mark.parametrize(
     "record, flags",
     [
-        ("full", []),
-        ("full-hold10", ["--teacher-holds", "10", "--action-repeat", "10", "--finetune-hyperparam", "gamma=0.904"]),
+        ("full-bins", []),
+        ("full", ["--teacher-bin-widths", "60", "--teacher-seeds", "none"]),
+        (
+            "full-hold10",
+            ["--teacher-holds", "10", "--action-repeat", "10", "--finetune-hyperparam", "gamma=0.904"]
+            + ["--teacher-bin-widths", "60", "--teacher-seeds", "none"],
+        ),
     ],
 )
 def test_each_record_resumes_with_the_flags_results_md_gives(record, flags):

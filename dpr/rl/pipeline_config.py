@@ -206,9 +206,11 @@ PRESETS: dict[str, PipelineConfig] = {
         train_seeds=[0, 1, 2],
         validation_seeds=list(range(200, 220)),
         test_seeds=list(range(300, 350)),
-        # each task's teacher chosen among these holds on the validation seeds, its learners deciding once per
-        # phase (RESULTS.md, "The teacher's tempo")
+        # each task's teacher chosen among these holds and bin widths on 80 seeds of its own, its learners deciding
+        # once per phase (docs/learning.md, "The teacher's tempo" and "Narrower bins")
         teacher_holds=[6, 7, 8, 10, 12],
+        teacher_bin_widths=[50.0, 60.0],
+        teacher_seeds=list(range(200, 280)),
         action_repeat=PER_PHASE,
     ),
 }
