@@ -327,9 +327,13 @@ def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds
     run there (not the best), and the report's interval rows hold every run on the test seeds."""
     settings = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
     out = tmp_path / "run"
+    lines: list[str] = []
     with pytest.MonkeyPatch.context() as patch:
         shrink_rollouts(patch, TINY_PPO)
-        report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
+        report = run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append)
+    trained = [line.split(": ")[2].split(" (")[0] for line in lines if "physics steps" in line]
+    # every seed's fine-tuning before any run from scratch, so the headline method's runs are done first
+    assert trained == [f"{method}, seed {seed}" for method in ("bc-ppo", "ppo") for seed in (0, 1, 2)]
     choices = yaml.safe_load((out / "choices.yaml").read_text())
     for method in METHODS[1:]:
         medians = choices[f"navigation-{method}"]["validation_medians"]

@@ -8,8 +8,9 @@ For each task, and each training seed ``s`` of ``train_seeds``:
 2. ``models/<task>-bc-seed<s>.zip``: behaviour cloning of those demonstrations into a PPO actor-critic;
 3. ``models/<task>-bc-<algo>-seed<s>.zip``: fine-tuning of that clone with each of ``finetune_algos``
    (a critic warm-up, then ``finetune_steps`` steps of the ``finetune`` hyperparameters);
-4. ``models/<task>-<algo>-seed<s>.zip``: each of ``scratch_algos`` trained from scratch for as many env steps as
-   the fine-tuned models used in all (demonstration frames + warm-up + fine-tuning), so the comparison is fair;
+4. ``models/<task>-<algo>-seed<s>.zip``, once every seed has done 2-3: each of ``scratch_algos`` trained from
+   scratch for as many env steps as the fine-tuned models used in all (demonstration frames + warm-up +
+   fine-tuning), so the comparison is fair;
 5. ``eval/validation/<task>-<method>-seed<s>.json`` on the validation seeds, which make every choice: a method's
    canonical model ``models/<task>-<method>.zip`` is its *median* training run there (not the best), written
    to ``choices.yaml`` with every run's validation median;
@@ -134,8 +135,10 @@ def run_pipeline(
             log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
         else:
             _demonstrations(config, task, teacher, dataset, show_progress, log)
-            for seed in config.train_seeds:
-                _train_runs(config, task, teacher.hold, dataset, seed, out, show_progress, log)
+            # every seed's clone and fine-tuning before any run from scratch: the headline method's runs end first
+            for from_scratch in (False, True):
+                for seed in config.train_seeds:
+                    _train_runs(config, task, teacher.hold, dataset, seed, out, show_progress, log, from_scratch)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method, seed in _test_runs(config):
             _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
@@ -311,14 +314,16 @@ def _train_runs(
     out: Path,
     show_progress: bool,
     log: Callable[[str], None],
+    from_scratch: bool,
 ) -> None:
-    """Training seed ``seed``'s clone, its fine-tuned models and the models trained from scratch."""
+    """Training seed ``seed``'s clone and its fine-tuned models, or (``from_scratch``) its models trained from
+    scratch."""
     from dpr.imitation.bc import behaviour_clone
     from dpr.rl.train import TrainConfig, train
 
     env_id = ENV_IDS[task]
     bc_model = _model_path(out, task, "bc", seed)
-    if _stage(bc_model, f"{task}: behaviour cloning, seed {seed}", log):
+    if not from_scratch and _stage(bc_model, f"{task}: behaviour cloning, seed {seed}", log):
         result = behaviour_clone(
             dataset,
             env_id,
@@ -331,7 +336,7 @@ def _train_runs(
         )
         _copy_new(result.model_path, bc_model)
     repeat = config.decision_steps(hold)  # budgets are physics steps; TrainConfig counts env steps (decisions)
-    runs: list[tuple[str, dict[str, Any]]] = [
+    finetune_runs: list[tuple[str, dict[str, Any]]] = [
         (
             f"bc-{algo}",
             {
@@ -345,8 +350,9 @@ def _train_runs(
             },
         )
         for algo in config.finetune_algos
-    ] + [(algo, {"algo": algo, "timesteps": config.rl_steps // repeat}) for algo in config.scratch_algos]
-    for method, settings in runs:
+    ]
+    scratch_runs = [(algo, {"algo": algo, "timesteps": config.rl_steps // repeat}) for algo in config.scratch_algos]
+    for method, settings in scratch_runs if from_scratch else finetune_runs:
         model = _model_path(out, task, method, seed)
         warmup = f" after {config.critic_warmup} warm-up steps" if "init_from" in settings else ""
         physics = settings["timesteps"] * repeat
