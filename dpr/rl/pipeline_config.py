@@ -94,15 +94,14 @@ class PipelineConfig:
             check_int(name, getattr(self, name), 1)
         for name in ("critic_warmup", "demo_seed"):
             check_int(name, getattr(self, name), 0)
-        holds = self.teacher_holds
-        if not isinstance(holds, list) or not holds or len(set(holds)) < len(holds):
-            raise ParameterError("teacher_holds", f"expected a list of different holds, got {holds!r}")
-        for hold in holds:
-            check_int("teacher_holds", hold, 1, HELD_STEPS_CAP)
-        widths = self.teacher_bin_widths
-        if not isinstance(widths, list) or not widths or len(set(widths)) < len(widths):
-            raise ParameterError("teacher_bin_widths", f"expected a list of different widths > 0, got {widths!r}")
-        self.teacher_bin_widths = [check_number("teacher_bin_widths", width, above=0) for width in widths]
+        for name, what in (("teacher_holds", "holds"), ("teacher_bin_widths", "widths > 0")):
+            values = getattr(self, name)  # every pair is a candidate teacher: a repeat would score one twice
+            if not isinstance(values, list) or not values or len(set(values)) < len(values):
+                raise ParameterError(name, f"expected a list of different {what}, got {values!r}")
+        holds = [check_int("teacher_holds", hold, 1, HELD_STEPS_CAP) for hold in self.teacher_holds]
+        self.teacher_bin_widths = [
+            check_number("teacher_bin_widths", width, above=0) for width in self.teacher_bin_widths
+        ]
         if len(self.teachers()) > 1 and not (self.validation_seeds or self.teacher_seeds):
             raise ParameterError(
                 "validation_seeds", "several teacher_holds or teacher_bin_widths need validation seeds to choose one"
