@@ -322,37 +322,40 @@ def _train_runs(
     from dpr.rl.train import TrainConfig, train
 
     env_id = ENV_IDS[task]
-    bc_model = _model_path(out, task, "bc", seed)
-    if not from_scratch and _stage(bc_model, f"{task}: behaviour cloning, seed {seed}", log):
-        result = behaviour_clone(
-            dataset,
-            env_id,
-            algo=BC_ALGO,
-            epochs=config.bc_epochs,
-            seed=seed,
-            out=fresh_path(out / "runs" / f"{task}-bc-seed{seed}"),
-            show_progress=show_progress,
-            log=log,
-        )
-        _copy_new(result.model_path, bc_model)
     repeat = config.decision_steps(hold)  # budgets are physics steps; TrainConfig counts env steps (decisions)
-    finetune_runs: list[tuple[str, dict[str, Any]]] = [
-        (
-            f"bc-{algo}",
-            {
-                "algo": algo,
-                "preset": FINETUNE_PRESET,
-                "timesteps": config.finetune_steps // repeat,
-                "init_from": str(bc_model),
-                "critic_warmup": config.critic_warmup // repeat,
-                "anchor_datasets": [str(dataset)] if config.anchor else [],
-                "hyperparams": config.finetune_hyperparams_at(hold),
-            },
-        )
-        for algo in config.finetune_algos
-    ]
-    scratch_runs = [(algo, {"algo": algo, "timesteps": config.rl_steps // repeat}) for algo in config.scratch_algos]
-    for method, settings in scratch_runs if from_scratch else finetune_runs:
+    runs: list[tuple[str, dict[str, Any]]]
+    if from_scratch:
+        runs = [(algo, {"algo": algo, "timesteps": config.rl_steps // repeat}) for algo in config.scratch_algos]
+    else:
+        bc_model = _model_path(out, task, "bc", seed)
+        if _stage(bc_model, f"{task}: behaviour cloning, seed {seed}", log):
+            result = behaviour_clone(
+                dataset,
+                env_id,
+                algo=BC_ALGO,
+                epochs=config.bc_epochs,
+                seed=seed,
+                out=fresh_path(out / "runs" / f"{task}-bc-seed{seed}"),
+                show_progress=show_progress,
+                log=log,
+            )
+            _copy_new(result.model_path, bc_model)
+        runs = [
+            (
+                f"bc-{algo}",
+                {
+                    "algo": algo,
+                    "preset": FINETUNE_PRESET,
+                    "timesteps": config.finetune_steps // repeat,
+                    "init_from": str(bc_model),
+                    "critic_warmup": config.critic_warmup // repeat,
+                    "anchor_datasets": [str(dataset)] if config.anchor else [],
+                    "hyperparams": config.finetune_hyperparams_at(hold),
+                },
+            )
+            for algo in config.finetune_algos
+        ]
+    for method, settings in runs:
         model = _model_path(out, task, method, seed)
         warmup = f" after {config.critic_warmup} warm-up steps" if "init_from" in settings else ""
         physics = settings["timesteps"] * repeat
