@@ -50,7 +50,7 @@ def test_the_rule_is_the_mean_of_the_per_task_iqm_ratios(tool, tmp_path, capsys)
     assert "-> keep the current recipe" in capsys.readouterr().out  # 1/1.1 < 1
 
 
-def test_the_two_records_compare_and_no_decision_comes_from_unfinished_tasks(tool, tmp_path, capsys):
+def test_the_records_compare_and_no_decision_comes_from_unfinished_tasks(tool, tmp_path, capsys):
     """Each record against the one before it gives the ratio RESULTS.md quotes for its adoption; a candidate with
     one task finished gets its rows and no verdict."""
     tasks = ["navigation", "gate", "unresponsive", "manipulation"]
@@ -58,6 +58,8 @@ def test_the_two_records_compare_and_no_decision_comes_from_unfinished_tasks(too
     assert mean == pytest.approx(1.065, abs=0.001)
     _, mean = tool.compare(RECORDS / "full", RECORDS / "full-bins", tasks, "bc-ppo")
     assert mean == pytest.approx(1.202, abs=0.001)
+    _, mean = tool.compare(RECORDS / "full-bins", RECORDS / "full-ft600", tasks, "bc-ppo")
+    assert mean == pytest.approx(1.060, abs=0.001)
     partial = _copy_validation("full", tmp_path / "partial", ["navigation"])
     assert tool.main([str(RECORDS / "full"), str(partial)]) == 0
     out = capsys.readouterr().out

@@ -260,12 +260,13 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
 @pytest.mark.parametrize(
     "record, flags",
     [
-        ("full-bins", []),
-        ("full", ["--teacher-bin-widths", "60", "--teacher-seeds", "none"]),
+        ("full-ft600", []),
+        ("full-bins", ["--finetune-steps", "300000"]),
+        ("full", ["--finetune-steps", "300000", "--teacher-bin-widths", "60", "--teacher-seeds", "none"]),
         (
             "full-hold10",
-            ["--teacher-holds", "10", "--action-repeat", "10", "--finetune-hyperparam", "gamma=0.904"]
-            + ["--teacher-bin-widths", "60", "--teacher-seeds", "none"],
+            ["--finetune-steps", "300000", "--teacher-holds", "10", "--action-repeat", "10"]
+            + ["--finetune-hyperparam", "gamma=0.904", "--teacher-bin-widths", "60", "--teacher-seeds", "none"],
         ),
     ],
 )
