@@ -201,7 +201,7 @@ PRESETS: dict[str, PipelineConfig] = {
     "full": PipelineConfig(
         tasks=list(ENV_IDS),
         episodes=80,
-        finetune_steps=600_000,  # twice 300,000: adopted on validation seeds (docs/learning.md, "Longer fine-tuning")
+        finetune_steps=600_000,  # twice 300,000: adopted on validation seeds (docs/learning.md, "The 600k record")
         train_seeds=[0, 1, 2],
         validation_seeds=list(range(200, 220)),
         test_seeds=list(range(300, 350)),
