@@ -1,0 +1,172 @@
+#!/usr/bin/env python
+"""The headline's tables, written from a full-preset record, and a check that the docs quote them.
+
+A record (``docs/results/<name>``: ``pipeline.yaml``, ``choices.yaml``, ``eval/``, ``report/``) is the source of
+every headline figure. RESULTS.md quotes its interval table and the canonical models' test medians; models/README.md
+quotes each canonical model's chosen run, test median and interval; models/card.yaml names each chosen run's seed.
+This tool prints those rows from the record, so that adopting a new record means pasting them, and ``--check``
+lists every row the docs lack or misquote (exit status 1), which the tests run on the headline record.
+
+    python tools/record_tables.py                        # the headline record's rows
+    python tools/record_tables.py docs/results/full-bins
+    python tools/record_tables.py --check                # do RESULTS.md, models/README.md and card.yaml agree?
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import yaml
+
+from dpr.envs import ENV_IDS
+from dpr.rl.report import load_evaluation, task_name
+
+ROOT = Path(__file__).resolve().parents[1]
+HEADLINE_RECORD = ROOT / "docs" / "results" / "full-ft600"  # the record the full preset's headline comes from
+LEARNED = ("bc", "bc-ppo", "ppo")
+HEADLINE = "bc-ppo"  # its cells are bold in RESULTS.md's tables
+METHOD_NAMES = {"wave": "wave", "bc": "BC", "bc-ppo": "BC→PPO", "ppo": "PPO from scratch"}
+INTERVAL_HEADER = "| task | method | runs × seeds |"
+
+
+class Record:
+    """One record's choices, test medians and report, read once."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+        for part in ("choices.yaml", "eval/test", "report/results.md"):
+            if not (self.folder / part).exists():
+                raise FileNotFoundError(f"{self.folder / part}: missing; expected a finished `dpr pipeline` record")
+        self.choices = yaml.safe_load((self.folder / "choices.yaml").read_text())
+        self.tasks = [task for task in ENV_IDS if f"{task}-{HEADLINE}" in self.choices]
+
+    def test_median(self, task: str, method: str, seed: int | None = None) -> float:
+        name = f"{task}-{method}" + ("" if seed is None else f"-seed{seed}")
+        evaluation = load_evaluation(self.folder / "eval" / "test" / f"{name}.json")
+        return float(evaluation["summary"]["projected_displacement"]["median"])
+
+    def chosen(self, task: str, method: str) -> tuple[int, dict[int, float]]:
+        """The chosen training seed of a method and every run's validation median."""
+        choice = self.choices[f"{task}-{method}"]
+        return int(choice["chosen_seed"]), {int(s): float(v) for s, v in choice["validation_medians"].items()}
+
+    def interval_rows(self) -> list[list[str]]:
+        """The cells of the report's interval table, one list per row."""
+        lines = (self.folder / "report" / "results.md").read_text().splitlines()
+        start = next(i for i, line in enumerate(lines) if line.startswith(INTERVAL_HEADER))
+        rows = []
+        for line in lines[start + 2 :]:
+            if not line.startswith("|"):
+                break
+            rows.append([cell.strip() for cell in line.strip("|").split("|")])
+        return rows
+
+
+def _teacher_name(record: Record, task: str) -> str:
+    teacher = record.choices[f"{task}-teacher"]
+    return f"teacher (hold {teacher['hold_steps']}, bins {teacher['bin_width']:g})"
+
+
+def headline_rows(record: Record) -> list[str]:
+    """RESULTS.md's headline table: the report's interval rows, named as RESULTS.md names them."""
+    tasks = {task_name(ENV_IDS[task]): task for task in record.tasks}
+    rows = []
+    for cells in record.interval_rows():
+        task = tasks.get(cells[0])
+        if task is None:
+            continue
+        method = cells[1]
+        cells[1] = _teacher_name(record, task) if method == "teacher" else METHOD_NAMES[method]
+        if method == HEADLINE:
+            cells[5] = f"**{cells[5]}**"
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows
+
+
+def canonical_rows(record: Record) -> list[str]:
+    """RESULTS.md's table of the canonical models' test medians, as % of the wave's, and every BC→PPO run's."""
+    rows = []
+    for task in record.tasks:
+        wave = record.test_median(task, "wave")
+        cells = []
+        for method in LEARNED:
+            seed, _ = record.chosen(task, method)
+            median = record.test_median(task, method, seed)
+            percent = f"{100 * median / wave:.0f}%"
+            cells.append(f"{median:.1f}, {f'**{percent}**' if method == HEADLINE else percent} ({seed})")
+        _, runs = record.chosen(task, HEADLINE)
+        every_run = ", ".join(f"{100 * record.test_median(task, HEADLINE, s) / wave:.0f}%" for s in sorted(runs))
+        rows.append(f"| {task_name(ENV_IDS[task])} | " + " | ".join(cells) + f" | {every_run} |")
+    return rows
+
+
+def model_card_cells(record: Record) -> dict[str, str]:
+    """models/README.md: file -> the last three cells of its row (chosen run, its test median, the method's IQM
+    % of the wave)."""
+    ratios = {(cells[0], cells[1]): cells[5] for cells in record.interval_rows()}
+    cells = {}
+    for task in record.tasks:
+        wave = record.test_median(task, "wave")
+        for method in LEARNED:
+            seed, medians = record.chosen(task, method)
+            median = record.test_median(task, method, seed)
+            validation = " / ".join(f"{medians[s]:.1f}" for s in sorted(medians))
+            ratio = ratios[(task_name(ENV_IDS[task]), method)]
+            cells[f"{task}-{method}.zip"] = (
+                f"| seed {seed} ({validation}) | {median:.1f} ({100 * median / wave:.0f}%) | {ratio} |"
+            )
+    return cells
+
+
+def card_seeds(record: Record) -> dict[str, int]:
+    """models/card.yaml: file -> the training seed its ``made_by`` must name."""
+    return {f"{task}-{method}.zip": record.chosen(task, method)[0] for task in record.tasks for method in LEARNED}
+
+
+def check(record: Record, root: Path = ROOT) -> list[str]:
+    """Every place where RESULTS.md, models/README.md or models/card.yaml disagree with ``record``."""
+    problems = []
+    results = (root / "RESULTS.md").read_text().splitlines()
+    for row in headline_rows(record) + canonical_rows(record):
+        if row not in results:
+            problems.append(f"RESULTS.md lacks the row {row}")
+    readme = (root / "models" / "README.md").read_text().splitlines()
+    for file, tail in model_card_cells(record).items():
+        rows = [line for line in readme if line.startswith(f"| `{file}` |")]
+        if len(rows) != 1 or not rows[0].endswith(tail):
+            problems.append(f"models/README.md: the row of {file} should end {tail}, found {rows or 'no row'}")
+    card = yaml.safe_load((root / "models" / "card.yaml").read_text())
+    made_by = {entry["file"]: entry.get("made_by", "") for entry in card["models"]}
+    for file, seed in card_seeds(record).items():
+        if not made_by.get(file, "").endswith(f"(seed {seed})"):
+            problems.append(
+                f"models/card.yaml: made_by of {file} should end (seed {seed}), found {made_by.get(file)!r}"
+            )
+    return problems
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("record", nargs="?", type=Path, default=HEADLINE_RECORD, help="a finished full-preset record")
+    parser.add_argument("--check", action="store_true", help="list where the docs disagree with the record")
+    args = parser.parse_args(argv)
+    record = Record(args.record)
+    if args.check:
+        problems = check(record)
+        print("\n".join(problems) or f"RESULTS.md, models/README.md and models/card.yaml agree with {args.record}")
+        return 1 if problems else 0
+    print(f"RESULTS.md, headline table:\n{INTERVAL_HEADER} ...")
+    print("\n".join(headline_rows(record)))
+    print("\nRESULTS.md, canonical models:")
+    print("\n".join(canonical_rows(record)))
+    print("\nmodels/README.md, last three cells of each row:")
+    print("\n".join(f"`{file}` {tail}" for file, tail in model_card_cells(record).items()))
+    print("\nmodels/card.yaml, made_by ends:")
+    print("\n".join(f"{file}: (seed {seed})" for file, seed in card_seeds(record).items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
