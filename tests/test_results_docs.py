@@ -1,4 +1,5 @@
-"""tools/record_tables.py: RESULTS.md, models/README.md and models/card.yaml quote the headline record."""
+"""tools/record_tables.py: RESULTS.md, models/README.md, models/card.yaml and docs/learning.md quote the headline
+record."""
 
 import shutil
 from pathlib import Path
@@ -24,10 +25,11 @@ def test_the_docs_quote_the_headline_record(tool, record):
     assert tool.main(["--check"]) == 0
     assert len(tool.headline_rows(record)) == 4 * 5  # wave, teacher and three learned methods per task
     assert len(tool.model_card_cells(record)) == 12
+    assert len(tool.shipped_rows(record)) == 4 * 4  # the wave and three shipped models per task
 
 
 def _docs_copy(dest: Path) -> Path:
-    for name in ("RESULTS.md", "models/README.md", "models/card.yaml"):
+    for name in ("RESULTS.md", "models/README.md", "models/card.yaml", "docs/learning.md"):
         (dest / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(ROOT / name, dest / name)
     return dest
@@ -48,11 +50,16 @@ def test_a_misquoted_figure_is_named(tool, record, tmp_path):
         "PPO 600k physics steps; median of training seeds 0-2 (seed 1)",
         "PPO 600k physics steps; median of training seeds 0-2 (seed 0)",
     )
+    _replace_once(docs / "docs/learning.md", "| Gate | shipped bc-ppo | 72.7 |", "| Gate | shipped bc-ppo | 77.2 |")
     problems = tool.check(record, docs)
-    assert len(problems) == 3, problems
+    assert len(problems) == 4, problems
     assert problems[0].startswith("RESULTS.md lacks the row | Unresponsive | BC→PPO |")
     assert "unresponsive-bc-ppo.zip" in problems[1] and "33.9 (110%)" in problems[1]
-    assert problems[2].startswith("models/card.yaml: made_by of navigation-bc-ppo.zip should end (seed 1)")
+    assert problems[2] == (
+        "docs/learning.md (make run's table) lacks the row "
+        "| Gate | shipped bc-ppo | 72.7 | 33.1 | 80.7 | 64.9 ± 17.6 | 142% |"
+    )
+    assert problems[3].startswith("models/card.yaml: made_by of navigation-bc-ppo.zip should end (seed 1)")
 
 
 def test_a_folder_that_is_not_a_record_is_refused(tool, tmp_path):

@@ -3,13 +3,15 @@
 
 A record (``docs/results/<name>``: ``pipeline.yaml``, ``choices.yaml``, ``eval/``, ``report/``) is the source of
 every headline figure. RESULTS.md quotes its interval table and the canonical models' test medians; models/README.md
-quotes each canonical model's chosen run, test median and interval; models/card.yaml names each chosen run's seed.
+quotes each canonical model's chosen run, test median and interval; models/card.yaml names each chosen run's seed;
+docs/learning.md shows what `make run` prints for the shipped models, which are the record's test episodes on the
+small preset's five test seeds.
 This tool prints those rows from the record, so that adopting a new record means pasting them, and ``--check``
 lists every row the docs lack or misquote (exit status 1), which the tests run on the headline record.
 
     python tools/record_tables.py                        # the headline record's rows
     python tools/record_tables.py docs/results/full-bins
-    python tools/record_tables.py --check                # do RESULTS.md, models/README.md and card.yaml agree?
+    python tools/record_tables.py --check                # do the docs agree with the headline record?
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from dpr.envs import ENV_IDS
+from dpr.rl.pipeline_config import PipelineConfig
 from dpr.rl.report import load_evaluation, task_name
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,9 +46,12 @@ class Record:
         self.choices = yaml.safe_load((self.folder / "choices.yaml").read_text())
         self.tasks = [task for task in ENV_IDS if f"{task}-{HEADLINE}" in self.choices]
 
-    def test_median(self, task: str, method: str, seed: int | None = None) -> float:
+    def test_evaluation(self, task: str, method: str, seed: int | None = None) -> dict:
         name = f"{task}-{method}" + ("" if seed is None else f"-seed{seed}")
-        evaluation = load_evaluation(self.folder / "eval" / "test" / f"{name}.json")
+        return load_evaluation(self.folder / "eval" / "test" / f"{name}.json")
+
+    def test_median(self, task: str, method: str, seed: int | None = None) -> float:
+        evaluation = self.test_evaluation(task, method, seed)
         return float(evaluation["summary"]["projected_displacement"]["median"])
 
     def chosen(self, task: str, method: str) -> tuple[int, dict[int, float]]:
@@ -120,6 +127,26 @@ def model_card_cells(record: Record) -> dict[str, str]:
     return cells
 
 
+def shipped_rows(record: Record, seeds: list[int] | None = None) -> list[str]:
+    """What `make run` prints for the wave and the shipped canonical models (``shipped <method>``): their
+    episodes in the record on ``seeds`` (default: the small preset's test seeds), as `dpr report` writes a row."""
+    seeds = set(PipelineConfig().test_seeds if seeds is None else seeds)
+    rows = []
+    for task in record.tasks:
+        runs = [("wave", record.test_evaluation(task, "wave"))]
+        runs += [(f"shipped {m}", record.test_evaluation(task, m, record.chosen(task, m)[0])) for m in LEARNED]
+        wave = None
+        for label, evaluation in runs:
+            values = np.array([e["projected_displacement"] for e in evaluation["episodes"] if e["seed"] in seeds])
+            median = float(np.median(values))
+            wave = median if wave is None else wave
+            rows.append(
+                f"| {task_name(ENV_IDS[task])} | {label} | {median:.1f} | {values.min():.1f} | {values.max():.1f} | "
+                f"{values.mean():.1f} ± {values.std():.1f} | {100 * median / wave:.0f}% |"
+            )
+    return rows
+
+
 def card_seeds(record: Record) -> dict[str, int]:
     """models/card.yaml: file -> the training seed its ``made_by`` must name."""
     return {f"{task}-{method}.zip": record.chosen(task, method)[0] for task in record.tasks for method in LEARNED}
@@ -137,6 +164,10 @@ def check(record: Record, root: Path = ROOT) -> list[str]:
         rows = [line for line in readme if line.startswith(f"| `{file}` |")]
         if len(rows) != 1 or not rows[0].endswith(tail):
             problems.append(f"models/README.md: the row of {file} should end {tail}, found {rows or 'no row'}")
+    learning = (root / "docs" / "learning.md").read_text().splitlines()
+    for row in shipped_rows(record):
+        if row not in learning:
+            problems.append(f"docs/learning.md (make run's table) lacks the row {row}")
     card = yaml.safe_load((root / "models" / "card.yaml").read_text())
     made_by = {entry["file"]: entry.get("made_by", "") for entry in card["models"]}
     for file, seed in card_seeds(record).items():
@@ -155,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     record = Record(args.record)
     if args.check:
         problems = check(record)
-        print("\n".join(problems) or f"RESULTS.md, models/README.md and models/card.yaml agree with {args.record}")
+        print("\n".join(problems) or f"the docs agree with {args.record}")
         return 1 if problems else 0
     print(f"RESULTS.md, headline table:\n{INTERVAL_HEADER} ...")
     print("\n".join(headline_rows(record)))
@@ -163,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(canonical_rows(record)))
     print("\nmodels/README.md, last three cells of each row:")
     print("\n".join(f"`{file}` {tail}" for file, tail in model_card_cells(record).items()))
+    print("\ndocs/learning.md, make run's wave and shipped rows:")
+    print("\n".join(shipped_rows(record)))
     print("\nmodels/card.yaml, made_by ends:")
     print("\n".join(f"{file}: (seed {seed})" for file, seed in card_seeds(record).items()))
     return 0
