@@ -36,7 +36,7 @@ INTERVAL_HEADER = "| task | method | runs × seeds |"
 
 
 class Record:
-    """One record's choices, test medians and report, read once."""
+    """One record: its choices, its test evaluations and its report."""
 
     def __init__(self, folder: Path):
         self.folder = Path(folder)
