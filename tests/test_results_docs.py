@@ -65,3 +65,11 @@ def test_a_misquoted_figure_is_named(tool, record, tmp_path):
 def test_a_folder_that_is_not_a_record_is_refused(tool, tmp_path):
     with pytest.raises(FileNotFoundError, match="choices.yaml: missing"):
         tool.Record(tmp_path)
+
+
+@pytest.mark.parametrize("name", ["full-bins", "full", "full-hold10"])
+def test_the_earlier_records_print_their_tables_too(tool, name):
+    record = tool.Record(ROOT / "docs" / "results" / name)
+    assert record.tasks == ["navigation", "gate", "unresponsive", "manipulation"]
+    assert len(tool.canonical_rows(record)) == 4
+    assert {row.split(" | ")[1] for row in tool.headline_rows(record)} >= {"wave", "BC", "BC→PPO", "PPO from scratch"}

@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from dpr.envs import ENV_IDS
+from dpr.policies.wave import BIN_WIDTH
 from dpr.rl.pipeline_config import PipelineConfig
 from dpr.rl.report import load_evaluation, task_name
 
@@ -72,8 +73,8 @@ class Record:
 
 
 def _teacher_name(record: Record, task: str) -> str:
-    teacher = record.choices[f"{task}-teacher"]
-    return f"teacher (hold {teacher['hold_steps']}, bins {teacher['bin_width']:g})"
+    teacher = record.choices[f"{task}-teacher"]  # records before the bin-width choice name only the hold
+    return f"teacher (hold {teacher['hold_steps']}, bins {teacher.get('bin_width', BIN_WIDTH):g})"
 
 
 def headline_rows(record: Record) -> list[str]:
