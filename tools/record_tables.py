@@ -20,13 +20,12 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from dpr.envs import ENV_IDS
 from dpr.policies.wave import BIN_WIDTH
 from dpr.rl.pipeline_config import PipelineConfig
-from dpr.rl.report import load_evaluation, task_name
+from dpr.rl.report import load_evaluation, results_table, task_name
 
 ROOT = Path(__file__).resolve().parents[1]
 HEADLINE_RECORD = ROOT / "docs" / "results" / "full-ft600"  # the record the full preset's headline comes from
@@ -46,10 +45,13 @@ class Record:
                 raise FileNotFoundError(f"{self.folder / part}: missing; expected a finished `dpr pipeline` record")
         self.choices = yaml.safe_load((self.folder / "choices.yaml").read_text())
         self.tasks = [task for task in ENV_IDS if f"{task}-{HEADLINE}" in self.choices]
+        self._test: dict[str, dict] = {}  # every table reads the wave's and the chosen runs' files: read each once
 
     def test_evaluation(self, task: str, method: str, seed: int | None = None) -> dict:
         name = f"{task}-{method}" + ("" if seed is None else f"-seed{seed}")
-        return load_evaluation(self.folder / "eval" / "test" / f"{name}.json")
+        if name not in self._test:
+            self._test[name] = load_evaluation(self.folder / "eval" / "test" / f"{name}.json")
+        return self._test[name]
 
     def test_median(self, task: str, method: str, seed: int | None = None) -> float:
         evaluation = self.test_evaluation(task, method, seed)
@@ -68,8 +70,13 @@ class Record:
         for line in lines[start + 2 :]:
             if not line.startswith("|"):
                 break
-            rows.append([cell.strip() for cell in line.strip("|").split("|")])
+            rows.append(_cells(line))
         return rows
+
+
+def _cells(row: str) -> list[str]:
+    """The cells of a markdown table row."""
+    return [cell.strip() for cell in row.strip("|").split("|")]
 
 
 def _teacher_name(record: Record, task: str) -> str:
@@ -129,23 +136,20 @@ def model_card_cells(record: Record) -> dict[str, str]:
 
 
 def shipped_rows(record: Record, seeds: list[int] | None = None) -> list[str]:
-    """What `make run` prints for the wave and the shipped canonical models (``shipped <method>``): their
-    episodes in the record on ``seeds`` (default: the small preset's test seeds), as `dpr report` writes a row."""
+    """What `make run` prints for the wave and the shipped canonical models (``shipped <method>``): `dpr report`'s
+    rows of their episodes in the record on ``seeds`` (default: the small preset's test seeds), without the
+    success, n and seeds columns, which docs/learning.md leaves out."""
     seeds = set(PipelineConfig().test_seeds if seeds is None else seeds)
-    rows = []
+    evaluations = []
     for task in record.tasks:
         runs = [("wave", record.test_evaluation(task, "wave"))]
         runs += [(f"shipped {m}", record.test_evaluation(task, m, record.chosen(task, m)[0])) for m in LEARNED]
-        wave = None
         for label, evaluation in runs:
-            values = np.array([e["projected_displacement"] for e in evaluation["episodes"] if e["seed"] in seeds])
-            median = float(np.median(values))
-            wave = median if wave is None else wave
-            rows.append(
-                f"| {task_name(ENV_IDS[task])} | {label} | {median:.1f} | {values.min():.1f} | {values.max():.1f} | "
-                f"{values.mean():.1f} ± {values.std():.1f} | {100 * median / wave:.0f}% |"
-            )
-    return rows
+            episodes = [episode for episode in evaluation["episodes"] if episode["seed"] in seeds]
+            evaluations.append({**evaluation, "label": label, "episodes": episodes})
+    rows = results_table(evaluations).splitlines()[2:]
+    # columns 6-8 are success, n and seeds
+    return ["| " + " | ".join(cells[:6] + cells[9:]) + " |" for cells in map(_cells, rows)]
 
 
 def card_seeds(record: Record) -> dict[str, int]:
