@@ -1,6 +1,7 @@
 """tools/record_tables.py: RESULTS.md, models/README.md, models/card.yaml and docs/learning.md quote the headline
 record."""
 
+import re
 import shutil
 from pathlib import Path
 
@@ -28,8 +29,11 @@ def test_the_docs_quote_the_headline_record(tool, record):
     assert len(tool.shipped_rows(record)) == 4 * 4  # the wave and three shipped models per task
 
 
+DOCS = ("RESULTS.md", "models/README.md", "models/card.yaml", "docs/learning.md")
+
+
 def _docs_copy(dest: Path) -> Path:
-    for name in ("RESULTS.md", "models/README.md", "models/card.yaml", "docs/learning.md"):
+    for name in DOCS:
         (dest / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(ROOT / name, dest / name)
     return dest
@@ -41,25 +45,50 @@ def _replace_once(path: Path, old: str, new: str) -> None:
     path.write_text(text.replace(old, new))
 
 
+def _misquoted(row: str) -> str:
+    """``row`` with its first figure changed."""
+    return re.sub(r"\d", lambda digit: str((int(digit.group()) + 1) % 10), row, count=1)
+
+
 def test_a_misquoted_figure_is_named(tool, record, tmp_path):
     docs = _docs_copy(tmp_path)
-    _replace_once(docs / "RESULTS.md", "**111% [101, 120]**", "**125% [101, 120]**")
-    _replace_once(docs / "models/README.md", "33.9 (110%)", "38.5 (125%)")
-    _replace_once(
-        docs / "models/card.yaml",
-        "PPO 600k physics steps; median of training seeds 0-2 (seed 1)",
-        "PPO 600k physics steps; median of training seeds 0-2 (seed 0)",
-    )
-    _replace_once(docs / "docs/learning.md", "| Gate | shipped bc-ppo | 72.7 |", "| Gate | shipped bc-ppo | 77.2 |")
+    headline = next(row for row in tool.headline_rows(record) if row.startswith("| Unresponsive | BC→PPO |"))
+    _replace_once(docs / "RESULTS.md", headline, _misquoted(headline))
+    tail = tool.model_card_cells(record)["unresponsive-bc-ppo.zip"]
+    _replace_once(docs / "models/README.md", tail, _misquoted(tail))
+    seed = tool.card_seeds(record)["navigation-bc-ppo.zip"]
+    made_by = next(line for line in (docs / "models/card.yaml").read_text().splitlines() if "that clone, PPO" in line)
+    _replace_once(docs / "models/card.yaml", made_by, made_by.replace(f"(seed {seed})", f"(seed {seed + 1})"))
+    shipped = next(row for row in tool.shipped_rows(record) if row.startswith("| Gate | shipped bc-ppo |"))
+    _replace_once(docs / "docs/learning.md", shipped, _misquoted(shipped))
     problems = tool.check(record, docs)
     assert len(problems) == 4, problems
-    assert problems[0].startswith("RESULTS.md lacks the row | Unresponsive | BC→PPO |")
-    assert "unresponsive-bc-ppo.zip" in problems[1] and "33.9 (110%)" in problems[1]
-    assert problems[2] == (
-        "docs/learning.md (make run's table) lacks the row "
-        "| Gate | shipped bc-ppo | 72.7 | 33.1 | 80.7 | 64.9 ± 17.6 | 142% |"
-    )
-    assert problems[3].startswith("models/card.yaml: made_by of navigation-bc-ppo.zip should end (seed 1)")
+    assert problems[0] == f"RESULTS.md lacks the row {headline}"
+    assert "unresponsive-bc-ppo.zip" in problems[1] and tail in problems[1]
+    assert problems[2] == f"docs/learning.md (make run's table) lacks the row {shipped}"
+    assert problems[3].startswith(f"models/card.yaml: made_by of navigation-bc-ppo.zip should end (seed {seed})")
+
+
+def test_write_puts_a_records_rows_in_the_docs_and_nothing_else(tool, record, tmp_path):
+    """Writing another record's rows makes the docs quote it; writing the headline's back restores every file to
+    the byte."""
+    docs = _docs_copy(tmp_path)
+    other = tool.Record(ROOT / "docs" / "results" / "full-bins")
+    tool.write(other, docs)
+    assert tool.check(other, docs) == []
+    assert len(tool.check(record, docs)) > 10
+    results = (docs / "RESULTS.md").read_text()
+    assert "fine-tuned with PPO for 600,000 physics steps" in results  # the prose is the adopter's to change
+    tool.write(record, docs)
+    for name in DOCS:
+        assert (docs / name).read_bytes() == (ROOT / name).read_bytes(), name
+
+
+def test_write_refuses_docs_without_the_tables(tool, record, tmp_path):
+    docs = _docs_copy(tmp_path)
+    (docs / "RESULTS.md").write_text("# Results\n")
+    with pytest.raises(ValueError, match="RESULTS.md: no table starting"):
+        tool.write(record, docs)
 
 
 def test_a_folder_that_is_not_a_record_is_refused(tool, tmp_path):

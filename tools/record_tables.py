@@ -6,17 +6,20 @@ every headline figure. RESULTS.md quotes its interval table and the canonical mo
 quotes each canonical model's chosen run, test median and interval; models/card.yaml names each chosen run's seed;
 docs/learning.md shows what `make run` prints for the shipped models, which are the record's test episodes on the
 small preset's five test seeds.
-This tool prints those rows from the record, so that adopting a new record means pasting them, and ``--check``
-lists every row the docs lack or misquote (exit status 1), which the tests run on the headline record.
+This tool prints those rows from the record; ``--write`` puts them in the docs in place of the rows they hold
+(the prose around them, and the recipe cells such as a model's budget, are left to the person adopting the record);
+``--check`` lists every row the docs lack or misquote (exit status 1), which the tests run on the headline record.
 
     python tools/record_tables.py                        # the headline record's rows
     python tools/record_tables.py docs/results/full-bins
+    python tools/record_tables.py docs/results/full-new --write   # adopting a record: its rows into the docs
     python tools/record_tables.py --check                # do the docs agree with the headline record?
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -33,6 +36,8 @@ LEARNED = ("bc", "bc-ppo", "ppo")
 HEADLINE = "bc-ppo"  # its cells are bold in RESULTS.md's tables
 METHOD_NAMES = {"wave": "wave", "bc": "BC", "bc-ppo": "BC→PPO", "ppo": "PPO from scratch"}
 INTERVAL_HEADER = "| task | method | runs × seeds |"
+CANONICAL_HEADER = "| task | BC (seed) |"
+MAKE_RUN_HEADER = "| task | policy | median |"
 
 
 class Record:
@@ -183,12 +188,81 @@ def check(record: Record, root: Path = ROOT) -> list[str]:
     return problems
 
 
+def _replace_table_rows(lines: list[str], header: str, rows: list[str], where: str) -> None:
+    """Replace the rows of the first table whose header line starts with ``header``."""
+    start = next((i for i, line in enumerate(lines) if line.startswith(header)), None)
+    if start is None:
+        raise ValueError(f"{where}: no table starting {header!r}")
+    end = start + 2
+    while end < len(lines) and lines[end].startswith("|"):
+        end += 1
+    lines[start + 2 : end] = rows
+
+
+def _replace_keyed_rows(lines: list[str], header: str, rows: list[str], where: str) -> None:
+    """In the first table under ``header``, replace each row whose first two cells are those of one of ``rows``."""
+    start = next((i for i, line in enumerate(lines) if line.startswith(header)), None)
+    if start is None:
+        raise ValueError(f"{where}: no table starting {header!r}")
+    new = {tuple(_cells(row)[:2]): row for row in rows}
+    end = start + 2
+    while end < len(lines) and lines[end].startswith("|"):
+        key = tuple(_cells(lines[end])[:2])
+        if key in new:
+            lines[end] = new.pop(key)
+        end += 1
+    if new:
+        raise ValueError(f"{where}: the table starting {header!r} has no row for {sorted(new)}")
+
+
+def write(record: Record, root: Path = ROOT) -> list[Path]:
+    """Put the record's rows in the docs under ``root``, in place of the rows they hold; the files written."""
+    path = root / "RESULTS.md"
+    lines = path.read_text().splitlines()
+    _replace_table_rows(lines, INTERVAL_HEADER, headline_rows(record), str(path))
+    _replace_table_rows(lines, CANONICAL_HEADER, canonical_rows(record), str(path))
+    path.write_text("\n".join(lines) + "\n")
+
+    path = root / "models" / "README.md"
+    lines = path.read_text().splitlines()
+    for file, tail in model_card_cells(record).items():
+        rows = [i for i, line in enumerate(lines) if line.startswith(f"| `{file}` |")]
+        if len(rows) != 1:
+            raise ValueError(f"{path}: expected one row of {file}, found {len(rows)}")
+        recipe = _cells(lines[rows[0]])[:3]  # file, method, data and budget: the recipe, not the record's figures
+        lines[rows[0]] = "| " + " | ".join(recipe) + " " + tail
+    path.write_text("\n".join(lines) + "\n")
+
+    path = root / "docs" / "learning.md"
+    lines = path.read_text().splitlines()
+    _replace_keyed_rows(lines, MAKE_RUN_HEADER, shipped_rows(record), str(path))
+    path.write_text("\n".join(lines) + "\n")
+
+    path = root / "models" / "card.yaml"
+    seeds, file, lines = card_seeds(record), None, path.read_text().splitlines()
+    for i, line in enumerate(lines):  # edited as text, so that the card's comments stay
+        if match := re.match(r"\s*file: (\S+)", line):
+            file = match.group(1)
+        elif line.lstrip().startswith("made_by:") and file in seeds:
+            lines[i] = re.sub(r"\(seed \d+\)\"$", f'(seed {seeds[file]})"', line)
+    path.write_text("\n".join(lines) + "\n")
+    return [root / name for name in ("RESULTS.md", "models/README.md", "docs/learning.md", "models/card.yaml")]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("record", nargs="?", type=Path, default=HEADLINE_RECORD, help="a finished full-preset record")
-    parser.add_argument("--check", action="store_true", help="list where the docs disagree with the record")
+    action = parser.add_mutually_exclusive_group()
+    action.add_argument("--check", action="store_true", help="list where the docs disagree with the record")
+    action.add_argument("--write", action="store_true", help="put the record's rows in the docs in place of theirs")
     args = parser.parse_args(argv)
     record = Record(args.record)
+    if args.write:
+        for path in write(record):
+            print(f"wrote {path.relative_to(ROOT)}")
+        problems = check(record)
+        print("\n".join(problems) or f"the docs agree with {args.record}")
+        return 1 if problems else 0
     if args.check:
         problems = check(record)
         print("\n".join(problems) or f"the docs agree with {args.record}")
