@@ -52,7 +52,7 @@ def test_the_rule_is_the_mean_of_the_per_task_iqm_ratios(tool, tmp_path, capsys)
 
 def test_the_records_compare_and_no_decision_comes_from_unfinished_tasks(tool, tmp_path, capsys):
     """Each record against the one before it gives the ratio RESULTS.md quotes for its adoption; a candidate with
-    one task finished gets its rows and no verdict."""
+    one task finished, or a task with fewer runs, gets its rows and no verdict."""
     tasks = ["navigation", "gate", "unresponsive", "manipulation"]
     _, mean = tool.compare(RECORDS / "full-hold10", RECORDS / "full", tasks, "bc-ppo")
     assert mean == pytest.approx(1.065, abs=0.001)
@@ -64,6 +64,13 @@ def test_the_records_compare_and_no_decision_comes_from_unfinished_tasks(tool, t
     assert tool.main([str(RECORDS / "full"), str(partial)]) == 0
     out = capsys.readouterr().out
     assert "| navigation | bc-ppo | 3 / 3 |" in out and "| gate |" not in out and "no decision yet" in out
+    # every task present, but one of them with two of its three runs: still no verdict
+    tasks_in_progress = _copy_validation("full", tmp_path / "in-progress", tasks, scale=1.1)
+    (tasks_in_progress / "eval" / "validation" / "gate-bc-ppo-seed2.json").unlink()
+    rows, mean = tool.compare(RECORDS / "full", tasks_in_progress, tasks, "bc-ppo")
+    assert mean is None and next(r for r in rows if r["task"] == "gate" and r["method"] == "bc-ppo")["runs"] == (3, 2)
+    assert tool.main([str(RECORDS / "full"), str(tasks_in_progress)]) == 0
+    assert "no decision yet" in capsys.readouterr().out
 
 
 def test_folders_that_cannot_be_compared_are_refused(tool, tmp_path, capsys):

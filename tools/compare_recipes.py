@@ -5,8 +5,9 @@ Each argument is a `dpr pipeline` run folder (or a record of one, such as ``docs
 and learned method both have finished, the tool pools the episodes of every training run on the validation seeds
 (``eval/validation/<task>-<method>-seed<S>.json``) and prints their IQM in each folder and the ratio, candidate over
 current. The last line applies the adoption rule of docs/learning.md: the candidate wins if the mean over tasks of
-the ``--method`` ratios (default ``bc-ppo``) is above 1. Test evaluations are never read, so running this before
-looking at a candidate's test seeds keeps them unseen. Runs scored on different validation seeds are refused.
+the ``--method`` ratios (default ``bc-ppo``) is above 1, once every task has as many runs in both folders. Test
+evaluations are never read, so running this before looking at a candidate's test seeds keeps them unseen. Runs
+scored on different validation seeds are refused.
 
     python tools/compare_recipes.py docs/results/full runs/full-bins
     python tools/compare_recipes.py docs/results/full runs/full-bins --tasks navigation --method bc
@@ -52,7 +53,7 @@ def pooled(paths: list[Path]) -> tuple[np.ndarray, list[int]]:
 
 def compare(current: Path, candidate: Path, tasks: list[str], method: str) -> tuple[list[dict], float | None]:
     """One row per (task, method) both folders hold, and the mean over ``tasks`` of ``method``'s ratios (None if a
-    task lacks it in either folder)."""
+    task lacks it in either folder, or the candidate has fewer or more of its runs than the current recipe)."""
     for folder in (current, candidate):
         if not (folder / "eval" / "validation").is_dir():
             raise ValueError(f"{folder}: no eval/validation folder; expected a `dpr pipeline` run folder")
@@ -74,7 +75,10 @@ def compare(current: Path, candidate: Path, tasks: list[str], method: str) -> tu
             }
         )
     ratios = [row["ratio"] for row in rows if row["method"] == method]
-    complete = len(ratios) == len(tasks)
+    # a task counts once the candidate has as many training runs as the current recipe: a verdict on the first
+    # runs to finish would be a choice made on part of the candidate
+    finished = all(row["runs"][0] == row["runs"][1] for row in rows if row["method"] == method)
+    complete = len(ratios) == len(tasks) and finished
     return rows, (float(np.mean(ratios)) if complete else None)
 
 
@@ -95,7 +99,10 @@ def main(argv: list[str] | None = None) -> int:
         scores = f"{row['iqm'][0]:.1f} | {row['iqm'][1]:.1f} | {row['ratio']:.2f}"
         print(f"| {row['task']} | {row['method']} | {runs} | {scores} |")
     if mean is None:
-        print(f"\n{args.method}: not every task of {args.tasks} is finished in both folders; no decision yet")
+        print(
+            f"\n{args.method}: not every task of {args.tasks} is finished in both folders with as many runs; "
+            "no decision yet"
+        )
     else:
         verdict = "adopt the candidate" if mean > 1 else "keep the current recipe"
         print(f"\nmean {args.method} ratio over {len(args.tasks)} tasks: {mean:.3f} -> {verdict}")
