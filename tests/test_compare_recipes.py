@@ -89,3 +89,18 @@ def test_folders_that_cannot_be_compared_are_refused(tool, tmp_path, capsys):
     with pytest.raises(SystemExit):
         tool.main([str(RECORDS / "full"), str(other)])
     assert "no eval/validation folder" in capsys.readouterr().err
+
+
+def test_a_candidate_run_task_by_task_is_judged_across_its_folders(tool, tmp_path, capsys):
+    """Tasks run side by side, each in a folder of its own, compare as one folder holding them all; a task in two
+    folders is refused."""
+    tasks = ["navigation", "gate", "unresponsive", "manipulation"]
+    whole = _copy_validation("full-bins", tmp_path / "whole", tasks)
+    per_task = [_copy_validation("full-bins", tmp_path / task, [task]) for task in tasks]
+    assert tool.compare(RECORDS / "full", per_task, tasks, "bc-ppo") == tool.compare(
+        RECORDS / "full", whole, tasks, "bc-ppo"
+    )
+    assert tool.main([str(RECORDS / "full"), *map(str, per_task)]) == 0
+    assert "mean bc-ppo ratio over 4 tasks: 1.202 -> adopt the candidate" in capsys.readouterr().out
+    with pytest.raises(ValueError, match=r"gate: runs in both .*whole and .*gate"):
+        tool.compare(RECORDS / "full", [whole, per_task[1]], tasks, "bc-ppo")

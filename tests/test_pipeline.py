@@ -335,6 +335,10 @@ def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds
     trained = [line.split(": ")[2].split(" (")[0] for line in lines if "physics steps" in line]
     # every seed's fine-tuning before any run from scratch, so the headline method's runs are done first
     assert trained == [f"{method}, seed {seed}" for method in ("bc-ppo", "ppo") for seed in (0, 1, 2)]
+    # and scored on the validation seeds before it too, so that a candidate recipe can be judged meanwhile
+    first_scratch = next(i for i, line in enumerate(lines) if ": ppo, seed 0 (" in line)
+    scored = [line.split(": ")[1] for line in lines[:first_scratch] if "evaluate on the validation seeds" in line]
+    assert scored == [f"navigation-{method}-seed{seed}" for method in ("bc", "bc-ppo") for seed in (0, 1, 2)]
     choices = yaml.safe_load((out / "choices.yaml").read_text())
     for method in METHODS[1:]:
         medians = choices[f"navigation-{method}"]["validation_medians"]

@@ -11,6 +11,10 @@ scored on different validation seeds are refused.
 
     python tools/compare_recipes.py docs/results/full runs/full-bins
     python tools/compare_recipes.py docs/results/full runs/full-bins --tasks navigation --method bc
+    python tools/compare_recipes.py docs/results/full-bins runs/cand-navigation runs/cand-gate ...
+
+The pipeline scores each fine-tuned run on the validation seeds before its runs from scratch start, so a
+candidate run task by task can be judged as soon as its fine-tuning is done.
 """
 
 from __future__ import annotations
@@ -29,13 +33,20 @@ from dpr.rl.statistics import iqm
 RUN_FILE = re.compile(r"(?P<task>[a-z]+)-(?P<method>[a-z0-9-]+)-seed(?P<seed>\d+)\.json")
 
 
-def validation_runs(folder: Path) -> dict[tuple[str, str], list[Path]]:
-    """(task, method) -> the validation evaluations of its training runs in the run folder ``folder``."""
+def validation_runs(*folders: Path) -> dict[tuple[str, str], list[Path]]:
+    """(task, method) -> the validation evaluations of its training runs in the run folders ``folders`` (a
+    recipe's tasks run side by side, each in a folder of its own); a task in two of them is refused."""
     runs: dict[tuple[str, str], list[Path]] = {}
-    for path in sorted((folder / "eval" / "validation").glob("*-seed*.json")):
-        match = RUN_FILE.fullmatch(path.name)
-        if match and match["task"] in ENV_IDS:
-            runs.setdefault((match["task"], match["method"]), []).append(path)
+    owner: dict[str, Path] = {}
+    for folder in folders:
+        if not (folder / "eval" / "validation").is_dir():
+            raise ValueError(f"{folder}: no eval/validation folder; expected a `dpr pipeline` run folder")
+        for path in sorted((folder / "eval" / "validation").glob("*-seed*.json")):
+            match = RUN_FILE.fullmatch(path.name)
+            if match and match["task"] in ENV_IDS:
+                if owner.setdefault(match["task"], folder) != folder:
+                    raise ValueError(f"{match['task']}: runs in both {owner[match['task']]} and {folder}")
+                runs.setdefault((match["task"], match["method"]), []).append(path)
     return runs
 
 
@@ -51,13 +62,14 @@ def pooled(paths: list[Path]) -> tuple[np.ndarray, list[int]]:
     return np.array(values), seeds
 
 
-def compare(current: Path, candidate: Path, tasks: list[str], method: str) -> tuple[list[dict], float | None]:
-    """One row per (task, method) both folders hold, and the mean over ``tasks`` of ``method``'s ratios (None if a
-    task lacks it in either folder, or the candidate has fewer or more of its runs than the current recipe)."""
-    for folder in (current, candidate):
-        if not (folder / "eval" / "validation").is_dir():
-            raise ValueError(f"{folder}: no eval/validation folder; expected a `dpr pipeline` run folder")
-    before, after = validation_runs(current), validation_runs(candidate)
+def compare(
+    current: Path, candidate: Path | list[Path], tasks: list[str], method: str
+) -> tuple[list[dict], float | None]:
+    """One row per (task, method) both recipes hold, and the mean over ``tasks`` of ``method``'s ratios (None if a
+    task lacks it in either, or the candidate has fewer or more of its runs than the current recipe). The candidate
+    is one run folder or several, each holding some of its tasks."""
+    candidates = [candidate] if isinstance(candidate, Path) else list(candidate)
+    before, after = validation_runs(current), validation_runs(*candidates)
     rows = []
     for key in sorted(set(before) & set(after), key=lambda key: (list(ENV_IDS).index(key[0]), key[1])):
         if key[0] not in tasks:
@@ -85,7 +97,9 @@ def compare(current: Path, candidate: Path, tasks: list[str], method: str) -> tu
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("current", type=Path, help="run folder of the recipe in force (e.g. docs/results/full)")
-    parser.add_argument("candidate", type=Path, help="run folder of the candidate recipe")
+    parser.add_argument(
+        "candidate", type=Path, nargs="+", help="run folder of the candidate recipe, or one per task run side by side"
+    )
     parser.add_argument("--tasks", nargs="+", default=list(ENV_IDS), choices=list(ENV_IDS))
     parser.add_argument("--method", default="bc-ppo", help="the method the rule compares (default bc-ppo)")
     args = parser.parse_args(argv)

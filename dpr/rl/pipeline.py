@@ -135,10 +135,14 @@ def run_pipeline(
             log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
         else:
             _demonstrations(config, task, teacher, dataset, show_progress, log)
-            # every seed's clone and fine-tuning before any run from scratch: the headline method's runs end first
+            # every seed's clone and fine-tuning before any run from scratch: the headline method's runs end first,
+            # and are scored on the validation seeds then, so that a candidate recipe can be judged on them
+            # (tools/compare_recipes.py) while its runs from scratch go on
             for from_scratch in (False, True):
                 for seed in config.train_seeds:
                     _train_runs(config, task, teacher.hold, dataset, seed, out, show_progress, log, from_scratch)
+                if not from_scratch:
+                    _validate_runs(config, task, config.cloned_methods(), out, show_progress, log)
         _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
         for method, seed in _test_runs(config):
             _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
@@ -447,6 +451,27 @@ def _evaluate_policy(
     return path
 
 
+def _validate_runs(
+    config: PipelineConfig,
+    task: str,
+    methods: list[str],
+    out: Path,
+    show_progress: bool,
+    log: Callable[[str], None],
+) -> dict[str, dict[int, float]]:
+    """Score every training run of ``methods`` on the validation seeds (each file is made once): method -> training
+    seed -> its median. One training seed is no choice, so nothing is scored then."""
+    if len(config.train_seeds) == 1:
+        return {}
+    medians: dict[str, dict[int, float]] = {}
+    for method in methods:
+        medians[method] = {}
+        for seed in config.train_seeds:
+            path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
+            medians[method][seed] = _median_displacement(path)
+    return medians
+
+
 def _choose_canonical_models(
     config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
 ) -> None:
@@ -465,10 +490,7 @@ def _choose_canonical_models(
             (chosen,) = config.train_seeds
             medians = {chosen: None}
         else:
-            medians = {}
-            for seed in config.train_seeds:
-                path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
-                medians[seed] = _median_displacement(path)
+            medians = _validate_runs(config, task, [method], out, show_progress, log)[method]
             ranked = sorted(medians, key=lambda seed: (medians[seed], seed))
             chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
         choices[key] = {"chosen_seed": chosen, "validation_medians": medians}

@@ -186,7 +186,11 @@ class PipelineConfig:
 
     def learned_methods(self) -> list[str]:
         """Names of the methods trained once per training seed."""
-        return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos), *self.scratch_algos]
+        return [*self.cloned_methods(), *self.scratch_algos]
+
+    def cloned_methods(self) -> list[str]:
+        """The learned methods that start from the demonstrations: the clone and its fine-tuned versions."""
+        return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos)]
 
 
 def saved_settings(saved: dict[str, Any]) -> dict[str, Any]:
