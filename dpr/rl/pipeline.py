@@ -11,9 +11,10 @@ For each task, and each training seed ``s`` of ``train_seeds``:
 4. ``models/<task>-<algo>-seed<s>.zip``, once every seed has done 2-3: each of ``scratch_algos`` trained from
    scratch for as many env steps as the fine-tuned models used in all (demonstration frames + warm-up +
    fine-tuning), so the comparison is fair;
-5. ``eval/validation/<task>-<method>-seed<s>.json`` on the validation seeds, which make every choice: a method's
-   canonical model ``models/<task>-<method>.zip`` is its *median* training run there (not the best), written
-   to ``choices.yaml`` with every run's validation median;
+5. ``eval/validation/<task>-<method>-seed<s>.json`` on the validation seeds, which make every choice (the clones
+   and fine-tuned runs are scored as soon as every seed has done 2-3, before step 4): a method's canonical model
+   ``models/<task>-<method>.zip`` is its *median* training run there (not the best), written to ``choices.yaml``
+   with every run's validation median;
 6. ``eval/test/<task>-<method>-seed<s>.json``: the wave policy and every run on the test seeds, which no choice
    ever saw (demonstrations use seeds from ``demo_seed``, RL its own seeded resets; all three sets are disjoint);
 7. ``report/``: the table, interval estimates over test seeds x training runs, and figures (:mod:`dpr.rl.report`).
