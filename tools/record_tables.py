@@ -69,19 +69,26 @@ class Record:
 
     def interval_rows(self) -> list[list[str]]:
         """The cells of the report's interval table, one list per row."""
-        lines = (self.folder / "report" / "results.md").read_text().splitlines()
-        start = next(i for i, line in enumerate(lines) if line.startswith(INTERVAL_HEADER))
-        rows = []
-        for line in lines[start + 2 :]:
-            if not line.startswith("|"):
-                break
-            rows.append(_cells(line))
-        return rows
+        path = self.folder / "report" / "results.md"
+        lines = path.read_text().splitlines()
+        return [_cells(line) for line in lines[slice(*_table_body(lines, INTERVAL_HEADER, path))]]
 
 
 def _cells(row: str) -> list[str]:
     """The cells of a markdown table row."""
     return [cell.strip() for cell in row.strip("|").split("|")]
+
+
+def _table_body(lines: list[str], header: str, where: Path) -> tuple[int, int]:
+    """The first and one-past-last line of the rows of the first table whose header line starts with ``header``
+    (after the header and its separator line)."""
+    start = next((i for i, line in enumerate(lines) if line.startswith(header)), None)
+    if start is None:
+        raise ValueError(f"{where}: no table starting {header!r}")
+    end = start + 2
+    while end < len(lines) and lines[end].startswith("|"):
+        end += 1
+    return start + 2, end
 
 
 def _teacher_name(record: Record, task: str) -> str:
@@ -188,29 +195,11 @@ def check(record: Record, root: Path = ROOT) -> list[str]:
     return problems
 
 
-def _replace_table_rows(lines: list[str], header: str, rows: list[str], where: str) -> None:
-    """Replace the rows of the first table whose header line starts with ``header``."""
-    start = next((i for i, line in enumerate(lines) if line.startswith(header)), None)
-    if start is None:
-        raise ValueError(f"{where}: no table starting {header!r}")
-    end = start + 2
-    while end < len(lines) and lines[end].startswith("|"):
-        end += 1
-    lines[start + 2 : end] = rows
-
-
-def _replace_keyed_rows(lines: list[str], header: str, rows: list[str], where: str) -> None:
+def _replace_keyed_rows(lines: list[str], header: str, rows: list[str], where: Path) -> None:
     """In the first table under ``header``, replace each row whose first two cells are those of one of ``rows``."""
-    start = next((i for i, line in enumerate(lines) if line.startswith(header)), None)
-    if start is None:
-        raise ValueError(f"{where}: no table starting {header!r}")
     new = {tuple(_cells(row)[:2]): row for row in rows}
-    end = start + 2
-    while end < len(lines) and lines[end].startswith("|"):
-        key = tuple(_cells(lines[end])[:2])
-        if key in new:
-            lines[end] = new.pop(key)
-        end += 1
+    for i in range(*_table_body(lines, header, where)):
+        lines[i] = new.pop(tuple(_cells(lines[i])[:2]), lines[i])
     if new:
         raise ValueError(f"{where}: the table starting {header!r} has no row for {sorted(new)}")
 
@@ -219,8 +208,8 @@ def write(record: Record, root: Path = ROOT) -> list[Path]:
     """Put the record's rows in the docs under ``root``, in place of the rows they hold; the files written."""
     path = root / "RESULTS.md"
     lines = path.read_text().splitlines()
-    _replace_table_rows(lines, INTERVAL_HEADER, headline_rows(record), str(path))
-    _replace_table_rows(lines, CANONICAL_HEADER, canonical_rows(record), str(path))
+    lines[slice(*_table_body(lines, INTERVAL_HEADER, path))] = headline_rows(record)
+    lines[slice(*_table_body(lines, CANONICAL_HEADER, path))] = canonical_rows(record)
     path.write_text("\n".join(lines) + "\n")
 
     path = root / "models" / "README.md"
@@ -235,7 +224,7 @@ def write(record: Record, root: Path = ROOT) -> list[Path]:
 
     path = root / "docs" / "learning.md"
     lines = path.read_text().splitlines()
-    _replace_keyed_rows(lines, MAKE_RUN_HEADER, shipped_rows(record), str(path))
+    _replace_keyed_rows(lines, MAKE_RUN_HEADER, shipped_rows(record), path)
     path.write_text("\n".join(lines) + "\n")
 
     path = root / "models" / "card.yaml"
@@ -260,10 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.write:
         for path in write(record):
             print(f"wrote {path.relative_to(ROOT)}")
-        problems = check(record)
-        print("\n".join(problems) or f"the docs agree with {args.record}")
-        return 1 if problems else 0
-    if args.check:
+    if args.write or args.check:
         problems = check(record)
         print("\n".join(problems) or f"the docs agree with {args.record}")
         return 1 if problems else 0
