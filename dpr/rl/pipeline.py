@@ -459,18 +459,18 @@ def _validate_runs(
     out: Path,
     show_progress: bool,
     log: Callable[[str], None],
-) -> dict[str, dict[int, float]]:
+) -> dict[str, dict[int, Path]]:
     """Score every training run of ``methods`` on the validation seeds (each file is made once): method -> training
-    seed -> its median. One training seed is no choice, so nothing is scored then."""
+    seed -> its evaluation. One training seed is no choice, so nothing is scored then."""
     if len(config.train_seeds) == 1:
         return {}
-    medians: dict[str, dict[int, float]] = {}
-    for method in methods:
-        medians[method] = {}
-        for seed in config.train_seeds:
-            path = _evaluate(config, task, method, seed, "validation", out, show_progress, log)
-            medians[method][seed] = _median_displacement(path)
-    return medians
+    return {
+        method: {
+            seed: _evaluate(config, task, method, seed, "validation", out, show_progress, log)
+            for seed in config.train_seeds
+        }
+        for method in methods
+    }
 
 
 def _choose_canonical_models(
@@ -491,7 +491,8 @@ def _choose_canonical_models(
             (chosen,) = config.train_seeds
             medians = {chosen: None}
         else:
-            medians = _validate_runs(config, task, [method], out, show_progress, log)[method]
+            evaluations = _validate_runs(config, task, [method], out, show_progress, log)[method]
+            medians = {seed: _median_displacement(path) for seed, path in evaluations.items()}
             ranked = sorted(medians, key=lambda seed: (medians[seed], seed))
             chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
         choices[key] = {"chosen_seed": chosen, "validation_medians": medians}
