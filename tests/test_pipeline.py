@@ -247,9 +247,8 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     run_pipeline(PipelineConfig(**PIPELINE), out, show_progress=False, log=lines.append)  # would train for long
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
     skipped = [line for line in lines if line.endswith("skipped")]
-    assert (
-        len(skipped) == 1 + 4 + 1
-    )  # the task's training (its models and test evaluations exist), four evaluations, report
+    # the task's runs (their canonical models and test evaluations exist), the wave's evaluation, the report
+    assert len(skipped) == 1 + 1 + 1
     with pytest.raises(ValueError, match="^out: .* holds a pipeline run with other settings"):
         run_pipeline(PipelineConfig(**{**PIPELINE, "finetune_steps": 128}), out, **QUIET)
     with pytest.raises(ValueError, match="holds a pipeline run with other settings"):
@@ -299,7 +298,7 @@ def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path
         run_pipeline(PipelineConfig(**PIPELINE), old, **QUIET)  # anchor=True differs from the old default
     lines = []
     run_pipeline(PipelineConfig(**{**PIPELINE, "anchor": False}), old, show_progress=False, log=lines.append)
-    assert sum(line.endswith("skipped") for line in lines) == 1 + 4 + 1
+    assert sum(line.endswith("skipped") for line in lines) == 1 + 1 + 1
 
 
 def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipeline, tmp_path):
@@ -323,22 +322,62 @@ def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipel
     assert (record / "report" / "results.md").read_text() == original.replace(str(pipeline[0]), str(record))
 
 
-def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(tmp_path):
-    """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
-    run there (not the best), and the report's interval rows hold every run on the test seeds."""
-    settings = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
-    out = tmp_path / "run"
+THREE_SEEDS = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
+
+
+def _run_tiny(settings, out):
+    """Run (or resume) a tiny pipeline into ``out``; returns its report folder and log lines."""
     lines: list[str] = []
     with pytest.MonkeyPatch.context() as patch:
         shrink_rollouts(patch, TINY_PPO)
         report = run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append)
+    return report, lines
+
+
+@pytest.fixture(scope="module")
+def three_seeds(tmp_path_factory):
+    """A tiny pipeline run with three training seeds: (its folder, report, log lines)."""
+    out = tmp_path_factory.mktemp("three_seeds") / "run"
+    return out, *_run_tiny(THREE_SEEDS, out)
+
+
+def _evaluations_only(run, tmp_path):
+    """A copy of the run folder ``run`` kept as a record is: without its datasets, run folders, report and training
+    runs' models."""
+    import shutil
+
+    record = tmp_path / "record"
+    shutil.copytree(run, record)
+    for folder in ("datasets", "runs", "report"):
+        shutil.rmtree(record / folder)
+    for model in (record / "models").glob("*-seed*.zip"):
+        model.unlink()
+    return record
+
+
+def _trained(lines):
+    """The runs a pipeline log says were trained (not skipped): "<method>, seed <s>"."""
+    stages = [
+        line.split(": ")[2] for line in lines if " -> " in line and ("physics steps" in line or "cloning" in line)
+    ]
+    return [stage.split(" (")[0].replace("behaviour cloning", "bc").split(" -> ")[0] for stage in stages]
+
+
+def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(three_seeds):
+    """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
+    run there (not the best), and the report's interval rows hold every run on the test seeds."""
+    out, report, lines = three_seeds
     trained = [line.split(": ")[2].split(" (")[0] for line in lines if "physics steps" in line]
     # every seed's fine-tuning before any run from scratch, so the headline method's runs are done first
     assert trained == [f"{method}, seed {seed}" for method in ("bc-ppo", "ppo") for seed in (0, 1, 2)]
-    # and scored on the validation seeds before it too, so that a candidate recipe can be judged meanwhile
+    # and scored on the validation seeds, chosen from and tested before it too, so that a candidate recipe can be
+    # judged meanwhile, and their models are no longer needed once their group is done
     first_scratch = next(i for i, line in enumerate(lines) if ": ppo, seed 0 (" in line)
-    scored = [line.split(": ")[1] for line in lines[:first_scratch] if "evaluate on the validation seeds" in line]
-    assert scored == [f"navigation-{method}-seed{seed}" for method in ("bc", "bc-ppo") for seed in (0, 1, 2)]
+    cloned_runs = [f"navigation-{method}-seed{seed}" for method in ("bc", "bc-ppo") for seed in (0, 1, 2)]
+    for split in ("validation", "test"):
+        scored = [line.split(": ")[1] for line in lines[:first_scratch] if f"evaluate on the {split} seeds" in line]
+        assert scored == cloned_runs
+    assert sum("the median run is seed" in line for line in lines[:first_scratch]) == 2
     choices = yaml.safe_load((out / "choices.yaml").read_text())
     for method in METHODS[1:]:
         medians = choices[f"navigation-{method}"]["validation_medians"]
@@ -372,3 +411,46 @@ def test_canonical_models_are_slim_copies_that_act_as_their_run(pipeline):
     )
     for name, tensor in full.policy.state_dict().items():
         assert (slim.policy.state_dict()[name] == tensor).all(), name
+
+
+def test_a_record_with_evaluations_only_resumes_training_only_what_is_missing(three_seeds, tmp_path):
+    """A record kept with its evaluations and canonical models but no training runs resumes at any stage: a run
+    is trained again only when an evaluation of it is missing, or when it is the chosen run and the canonical
+    model is missing; a retrained chosen run must reproduce its validation episodes exactly."""
+    out, report, _ = three_seeds
+    record = _evaluations_only(out, tmp_path)
+    (record / "models" / "navigation-bc-ppo.zip").unlink()  # as if the run had stopped before copying it
+    (record / "eval" / "test" / "navigation-ppo-seed1.json").unlink()  # ... or before testing this run
+    _, lines = _run_tiny(THREE_SEEDS, record)
+    chosen = yaml.safe_load((out / "choices.yaml").read_text())["navigation-bc-ppo"]["chosen_seed"]
+    assert _trained(lines) == [f"bc-ppo, seed {chosen}", f"bc, seed {chosen}", "ppo, seed 1"]
+    assert any(line.endswith(f"navigation-bc-ppo-seed{chosen}.json episode for episode") for line in lines)
+    assert yaml.safe_load((record / "choices.yaml").read_text()) == yaml.safe_load((out / "choices.yaml").read_text())
+    again, original = (load_model(run / "models" / "navigation-bc-ppo.zip")[0] for run in (record, out))
+    for name, tensor in original.policy.state_dict().items():
+        assert (again.policy.state_dict()[name] == tensor).all(), name
+    retested, tested = (
+        json.loads((run / "eval" / "test" / "navigation-ppo-seed1.json").read_text()) for run in (record, out)
+    )
+    for episode in retested["episodes"] + tested["episodes"]:
+        del episode["policy"]  # the model's path, in one folder or the other
+    assert retested["episodes"] == tested["episodes"]
+    text = (report / "results.md").read_text()
+    assert (record / "report" / "results.md").read_text() == text.replace(str(out), str(record))
+
+
+def test_a_retrained_run_that_does_not_reproduce_its_evaluation_is_refused(three_seeds, tmp_path):
+    """Training again a chosen run whose model is gone must give the run that was evaluated: if its validation
+    episodes differ (here by 1e-9 units in one episode), the pipeline stops, naming both files, and ships nothing."""
+    out, _, _ = three_seeds
+    record = _evaluations_only(out, tmp_path)
+    (record / "models" / "navigation-bc.zip").unlink()
+    chosen = yaml.safe_load((out / "choices.yaml").read_text())["navigation-bc"]["chosen_seed"]
+    for seed in THREE_SEEDS["train_seeds"]:  # every run alike, so that the choice stays the same
+        validation = record / "eval" / "validation" / f"navigation-bc-seed{seed}.json"
+        payload = json.loads(validation.read_text())
+        payload["episodes"][0]["projected_displacement"] += 1e-9
+        validation.write_text(json.dumps(payload))
+    with pytest.raises(RuntimeError, match=f"navigation-bc-seed{chosen}.zip was trained again .* does not reproduce"):
+        _run_tiny(THREE_SEEDS, record)
+    assert not (record / "models" / "navigation-bc.zip").exists()

@@ -8,15 +8,14 @@ For each task, and each training seed ``s`` of ``train_seeds``:
 2. ``models/<task>-bc-seed<s>.zip``: behaviour cloning of those demonstrations into a PPO actor-critic;
 3. ``models/<task>-bc-<algo>-seed<s>.zip``: fine-tuning of that clone with each of ``finetune_algos``
    (a critic warm-up, then ``finetune_steps`` steps of the ``finetune`` hyperparameters);
-4. ``models/<task>-<algo>-seed<s>.zip``, once every seed has done 2-3: each of ``scratch_algos`` trained from
-   scratch for as many env steps as the fine-tuned models used in all (demonstration frames + warm-up +
-   fine-tuning), so the comparison is fair;
-5. ``eval/validation/<task>-<method>-seed<s>.json`` on the validation seeds, which make every choice (the clones
-   and fine-tuned runs are scored as soon as every seed has done 2-3, before step 4): a method's canonical model
-   ``models/<task>-<method>.zip`` is its *median* training run there (not the best), written to ``choices.yaml``
-   with every run's validation median;
-6. ``eval/test/<task>-<method>-seed<s>.json``: the wave policy and every run on the test seeds, which no choice
-   ever saw (demonstrations use seeds from ``demo_seed``, RL its own seeded resets; all three sets are disjoint);
+4. ``eval/validation/<task>-<method>-seed<s>.json`` on the validation seeds, which make every choice, once every
+   seed has done 2-3: a method's canonical model ``models/<task>-<method>.zip`` is its *median* training run there
+   (not the best), written to ``choices.yaml`` with every run's validation median;
+5. ``eval/test/<task>-<method>-seed<s>.json``: every run of 2-3 on the test seeds, which no choice ever saw
+   (demonstrations use seeds from ``demo_seed``, RL its own seeded resets; all three sets are disjoint);
+6. ``models/<task>-<algo>-seed<s>.zip``: each of ``scratch_algos`` trained from scratch for as many env steps as
+   the fine-tuned models used in all (demonstration frames + warm-up + fine-tuning), so the comparison is fair;
+   then scored, chosen from and tested as in 4-5; and the wave policy (and the chosen teacher) on the test seeds;
 7. ``report/``: the table, interval estimates over test seeds x training runs, and figures (:mod:`dpr.rl.report`).
 
 :data:`dpr.rl.pipeline_config.PRESETS` names whole configurations: ``small`` (``make run``: one task, one
@@ -28,7 +27,10 @@ the observation), which the Markov wave needs and which every learner gets too. 
 (fine-tuning and from scratch alike) trains with ``approach_reward`` shaping (:class:`dpr.envs.ManipulationEnv`):
 without it the ball's progress rewards catching up with the ball only on contact, and fine-tuning loses ground
 (RESULTS.md). Each stage writes into its own file or folder under ``out`` and is skipped when that already
-exists, so an interrupted pipeline resumes where it stopped and nothing written is replaced.
+exists, so an interrupted pipeline resumes where it stopped and nothing written is replaced. A training run's model
+is needed only until its evaluations exist, or when it is the chosen run and the canonical model is missing; so a
+run folder kept without its datasets, ``runs/`` and training runs' models (its ``pipeline.yaml``,
+``choices.yaml``, ``eval/`` and canonical models) resumes at any stage, training only what is still missing.
 """
 
 from __future__ import annotations
@@ -130,23 +132,27 @@ def run_pipeline(
         )
     started = time.perf_counter()
     for task in config.tasks:
-        dataset = out / "datasets" / task
-        teacher = _choose_teacher(config, task, out, show_progress, log)  # on validation seeds
+        teacher = _choose_teacher(config, task, out, show_progress, log)  # on the teacher seeds
         if _task_done(config, task, out):  # e.g. a record of it kept without its datasets and training runs
             log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
         else:
-            _demonstrations(config, task, teacher, dataset, show_progress, log)
-            # every seed's clone and fine-tuning before any run from scratch: the headline method's runs end first,
-            # and are scored on the validation seeds then, so that a candidate recipe can be judged on them
-            # (tools/compare_recipes.py) while its runs from scratch go on
-            for from_scratch in (False, True):
+            # the clone and its fine-tuned runs first, so that the headline method is done first and a candidate
+            # recipe can be judged on its validation scores (tools/compare_recipes.py) while the runs from scratch
+            # go on. Each group is trained, scored on the validation seeds, chosen from and tested before the next:
+            # a run's model is then needed only until its evaluations exist (_choose_canonical_models)
+            for methods in (config.cloned_methods(), config.scratch_algos):
                 for seed in config.train_seeds:
-                    _train_runs(config, task, teacher.hold, dataset, seed, out, show_progress, log, from_scratch)
-                if not from_scratch:
-                    _validate_runs(config, task, config.cloned_methods(), out, show_progress, log)
-        _choose_canonical_models(config, task, out, show_progress, log)  # on validation seeds, before any test
+                    for method in methods:
+                        if not _evaluated(config, task, method, seed, out):
+                            _train_run(config, task, teacher, method, seed, out, show_progress, log)
+                validations = _validate_runs(config, task, methods, out, show_progress, log)
+                _choose_canonical_models(config, task, teacher, methods, validations, out, show_progress, log)
+                for method in methods:
+                    for seed in config.train_seeds:
+                        _evaluate(config, task, method, seed, "test", out, show_progress, log)
         for method, seed in _test_runs(config):
-            _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
+            if seed is None:  # the wave and the teacher; every run was tested with its method above
+                _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
     test_evaluations = report_evaluations(config, out)  # (file, method): runs of one method share its label
     for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
         test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
@@ -181,6 +187,13 @@ def _task_done(config: PipelineConfig, task: str, out: Path) -> bool:
     return all(_model_path(out, task, method, None).exists() for method in config.learned_methods()) and all(
         _evaluation_path(out, task, method, seed, "test").exists() for method, seed in _test_runs(config)
     )
+
+
+def _evaluated(config: PipelineConfig, task: str, method: str, seed: int, out: Path) -> bool:
+    """Whether a training run has every evaluation the pipeline makes of it (on the validation seeds when there is
+    a choice to make, and on the test seeds): its model is then needed only if it becomes the canonical one."""
+    splits = ["validation", "test"] if len(config.train_seeds) > 1 else ["test"]
+    return all(_evaluation_path(out, task, method, seed, split).exists() for split in splits)
 
 
 def report_evaluations(config: PipelineConfig, out: Path) -> list[tuple[Path, str]]:
@@ -231,12 +244,15 @@ def _save_choices(out: Path, choices: dict[str, Any]) -> None:
 def _median_displacement(evaluation: Path) -> float:
     """The median projected displacement over the episodes of an evaluation file, read through the report's
     checked loader (a damaged file from an earlier run is an error naming it)."""
-    import numpy as np
-
     from dpr.rl.report import load_evaluation
 
-    episodes = load_evaluation(evaluation)["episodes"]
-    return float(np.median([episode["projected_displacement"] for episode in episodes]))
+    return _median([episode["projected_displacement"] for episode in load_evaluation(evaluation)["episodes"]])
+
+
+def _median(values: Sequence[float]) -> float:
+    import numpy as np
+
+    return float(np.median(values))
 
 
 def _choose_teacher(
@@ -310,30 +326,28 @@ def _demonstrations(
         raise KeyboardInterrupt
 
 
-def _train_runs(
+def _train_run(
     config: PipelineConfig,
     task: str,
-    hold: int,
-    dataset: Path,
+    teacher: Teacher,
+    method: str,
     seed: int,
     out: Path,
     show_progress: bool,
     log: Callable[[str], None],
-    from_scratch: bool,
-) -> None:
-    """Training seed ``seed``'s clone and its fine-tuned models, or (``from_scratch``) its models trained from
-    scratch."""
+) -> Path:
+    """Train ``method``'s run with training seed ``seed`` unless its model exists, and return the model: the clone
+    ("bc", from the demonstrations, recorded first if missing), a fine-tuning of the clone ("bc-<algo>", cloning
+    first if the clone is missing) or a run from scratch ("<algo>")."""
     from dpr.imitation.bc import behaviour_clone
     from dpr.rl.train import TrainConfig, train
 
     env_id = ENV_IDS[task]
-    repeat = config.decision_steps(hold)  # budgets are physics steps; TrainConfig counts env steps (decisions)
-    runs: list[tuple[str, dict[str, Any]]]
-    if from_scratch:
-        runs = [(algo, {"algo": algo, "timesteps": config.rl_steps // repeat}) for algo in config.scratch_algos]
-    else:
-        bc_model = _model_path(out, task, "bc", seed)
-        if _stage(bc_model, f"{task}: behaviour cloning, seed {seed}", log):
+    dataset = out / "datasets" / task
+    model = _model_path(out, task, method, seed)
+    if method == "bc":
+        if _stage(model, f"{task}: behaviour cloning, seed {seed}", log):
+            _demonstrations(config, task, teacher, dataset, show_progress, log)
             result = behaviour_clone(
                 dataset,
                 env_id,
@@ -344,44 +358,45 @@ def _train_runs(
                 show_progress=show_progress,
                 log=log,
             )
-            _copy_new(result.model_path, bc_model)
-        runs = [
-            (
-                f"bc-{algo}",
-                {
-                    "algo": algo,
-                    "preset": FINETUNE_PRESET,
-                    "timesteps": config.finetune_steps // repeat,
-                    "init_from": str(bc_model),
-                    "critic_warmup": config.critic_warmup // repeat,
-                    "anchor_datasets": [str(dataset)] if config.anchor else [],
-                    "hyperparams": config.finetune_hyperparams_at(hold),
-                },
-            )
-            for algo in config.finetune_algos
-        ]
-    for method, settings in runs:
-        model = _model_path(out, task, method, seed)
-        warmup = f" after {config.critic_warmup} warm-up steps" if "init_from" in settings else ""
-        physics = settings["timesteps"] * repeat
-        if not _stage(model, f"{task}: {method}, seed {seed} ({physics} physics steps{warmup})", log):
-            continue
-        kwargs = config.rl_env_kwargs(task, hold)
-        train_config = TrainConfig(
-            env_id=env_id,
-            n_robots=config.n_robots,
-            seed=seed,
-            n_envs=config.workers,
-            steps_per_episode=episode_steps(kwargs, config.steps),
-            env_kwargs=kwargs,
-            **settings,
-        )
-        result = train(
-            train_config, fresh_path(out / "runs" / f"{task}-{method}-seed{seed}"), show_progress=show_progress, log=log
-        )
-        if result.interrupted:
-            raise KeyboardInterrupt
-        _copy_new(result.model_path, model)
+            _copy_new(result.model_path, model)
+        return model
+    repeat = config.decision_steps(teacher.hold)  # budgets are physics steps; TrainConfig counts env steps (decisions)
+    fine_tuned = method in config.cloned_methods()
+    settings: dict[str, Any] = {
+        "algo": method.removeprefix("bc-"),
+        "timesteps": (config.finetune_steps if fine_tuned else config.rl_steps) // repeat,
+    }
+    warmup = f" after {config.critic_warmup} warm-up steps" if fine_tuned else ""
+    what = f"{task}: {method}, seed {seed} ({settings['timesteps'] * repeat} physics steps{warmup})"
+    if not _stage(model, what, log):
+        return model
+    if fine_tuned:
+        if config.anchor:
+            _demonstrations(config, task, teacher, dataset, show_progress, log)
+        settings |= {
+            "preset": FINETUNE_PRESET,
+            "init_from": str(_train_run(config, task, teacher, "bc", seed, out, show_progress, log)),
+            "critic_warmup": config.critic_warmup // repeat,
+            "anchor_datasets": [str(dataset)] if config.anchor else [],
+            "hyperparams": config.finetune_hyperparams_at(teacher.hold),
+        }
+    kwargs = config.rl_env_kwargs(task, teacher.hold)
+    train_config = TrainConfig(
+        env_id=env_id,
+        n_robots=config.n_robots,
+        seed=seed,
+        n_envs=config.workers,
+        steps_per_episode=episode_steps(kwargs, config.steps),
+        env_kwargs=kwargs,
+        **settings,
+    )
+    result = train(
+        train_config, fresh_path(out / "runs" / f"{task}-{method}-seed{seed}"), show_progress=show_progress, log=log
+    )
+    if result.interrupted:
+        raise KeyboardInterrupt
+    _copy_new(result.model_path, model)
+    return model
 
 
 def _evaluate(
@@ -474,15 +489,27 @@ def _validate_runs(
 
 
 def _choose_canonical_models(
-    config: PipelineConfig, task: str, out: Path, show_progress: bool, log: Callable[[str], None]
+    config: PipelineConfig,
+    task: str,
+    teacher: Teacher,
+    methods: list[str],
+    validations: dict[str, dict[int, Path]],
+    out: Path,
+    show_progress: bool,
+    log: Callable[[str], None],
 ) -> None:
-    """Copy each method's median training run (by its median on the validation seeds) to its canonical name,
-    without the optimizer's state (:func:`dpr.policies.sb3.save_slim_copy`: the file to ship), and record the
-    choice in ``choices.yaml``. One training seed is its own median; nothing is evaluated."""
+    """Copy each of ``methods``' median training run (by its median on the validation seeds: ``validations``, from
+    :func:`_validate_runs`) to its canonical name, without the optimizer's state
+    (:func:`dpr.policies.sb3.save_slim_copy`: the file to ship), and record the choice in ``choices.yaml``. One
+    training seed is its own median; nothing is evaluated.
+
+    A chosen run whose model is gone (a record kept with its evaluations only) is trained again, and must score
+    exactly what its evaluation file says before it becomes the canonical model: training is deterministic for a
+    given machine and library versions, and a run that differs is an error, not a silent substitute."""
     from dpr.policies.sb3 import save_slim_copy
 
     choices = _load_choices(out)
-    for method in config.learned_methods():
+    for method in methods:
         canonical = _model_path(out, task, method, None)
         key = f"{task}-{method}"
         if canonical.exists():
@@ -491,11 +518,51 @@ def _choose_canonical_models(
             (chosen,) = config.train_seeds
             medians = {chosen: None}
         else:
-            evaluations = _validate_runs(config, task, [method], out, show_progress, log)[method]
-            medians = {seed: _median_displacement(path) for seed, path in evaluations.items()}
+            medians = {seed: _median_displacement(path) for seed, path in validations[method].items()}
             ranked = sorted(medians, key=lambda seed: (medians[seed], seed))
             chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
         choices[key] = {"chosen_seed": chosen, "validation_medians": medians}
         _save_choices(out, choices)
         log(f"dpr pipeline: {key}: the median run is seed {chosen} -> {canonical}")
+        if not _model_path(out, task, method, chosen).exists():
+            _train_run(config, task, teacher, method, chosen, out, show_progress, log)
+            _check_reproduces(config, task, method, chosen, out, show_progress, log)
         save_slim_copy(_model_path(out, task, method, chosen), canonical)
+
+
+def _check_reproduces(
+    config: PipelineConfig,
+    task: str,
+    method: str,
+    seed: int,
+    out: Path,
+    show_progress: bool,
+    log: Callable[[str], None],
+) -> None:
+    """Raise unless the retrained run ``seed`` of ``method`` scores, episode for episode, what its evaluation on the
+    validation seeds (the test seeds for a single training seed) recorded."""
+    import tempfile
+
+    from dpr.rl.report import load_evaluation
+
+    split = "validation" if len(config.train_seeds) > 1 else "test"
+    recorded = _evaluation_path(out, task, method, seed, split)
+    model = _model_path(out, task, method, seed)
+    with tempfile.TemporaryDirectory() as folder:
+        again = Path(folder) / recorded.name
+        seeds = config.validation_seeds if split == "validation" else config.test_seeds
+        _evaluate_policy(
+            config, ENV_IDS[task], str(model), again, f"{recorded.stem} (retrained)", show_progress, log, seeds, split
+        )
+        scores = [
+            [episode["projected_displacement"] for episode in load_evaluation(path)["episodes"]]
+            for path in (recorded, again)
+        ]
+    if scores[0] != scores[1]:
+        raise RuntimeError(
+            f"{model} was trained again because it is the chosen run and its model was missing, but it does not "
+            f"reproduce {recorded} (median {_median(scores[1]):.2f} against {_median(scores[0]):.2f}): training is "
+            "not deterministic here (another machine or library version?). Restore the run's model, or start a new "
+            "folder"
+        )
+    log(f"dpr pipeline: {model} reproduces {recorded} episode for episode")
