@@ -26,9 +26,9 @@ from pathlib import Path
 import yaml
 
 from dpr.envs import ENV_IDS
-from dpr.rl.pipeline import report_evaluations
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
 from dpr.rl.report import write_report
+from dpr.rl.run_folder import report_evaluations
 
 
 def _settings(run: Path) -> dict:

@@ -45,7 +45,6 @@ from typing import Any
 
 import yaml
 
-from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, episode_steps
 from dpr.policies.hyperparams import FINETUNE_PRESET
@@ -58,6 +57,16 @@ from dpr.rl.pipeline_config import (
     PipelineConfig,
     Teacher,
     saved_settings,
+)
+from dpr.rl.run_folder import (
+    evaluated,
+    evaluation_path,
+    load_choices,
+    model_path,
+    report_evaluations,
+    save_choices,
+    task_done,
+    tested_runs,
 )
 from dpr.runs import fresh_path
 
@@ -133,7 +142,7 @@ def run_pipeline(
     started = time.perf_counter()
     for task in config.tasks:
         teacher = _choose_teacher(config, task, out, show_progress, log)  # on the teacher seeds
-        if _task_done(config, task, out):  # e.g. a record of it kept without its datasets and training runs
+        if task_done(config, task, out):  # e.g. a record of it kept without its datasets and training runs
             log(f"dpr pipeline: {task}: its canonical models and test evaluations exist, skipped")
         else:
             # the clone and its fine-tuned runs first, so that the headline method is done first and a candidate
@@ -143,14 +152,14 @@ def run_pipeline(
             for methods in (config.cloned_methods(), config.scratch_algos):
                 for seed in config.train_seeds:
                     for method in methods:
-                        if not _evaluated(config, task, method, seed, out):
+                        if not evaluated(config, task, method, seed, out):
                             _train_run(config, task, teacher, method, seed, out, show_progress, log)
                 validations = _validate_runs(config, task, methods, out, show_progress, log)
                 _choose_canonical_models(config, task, teacher, methods, validations, out, show_progress, log)
                 for method in methods:
                     for seed in config.train_seeds:
                         _evaluate(config, task, method, seed, "test", out, show_progress, log)
-        for method, seed in _test_runs(config):
+        for method, seed in tested_runs(config):
             if seed is None:  # the wave and the teacher; every run was tested with its method above
                 _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
     test_evaluations = report_evaluations(config, out)  # (file, method): runs of one method share its label
@@ -180,65 +189,9 @@ def run_pipeline(
     return report
 
 
-def _task_done(config: PipelineConfig, task: str, out: Path) -> bool:
-    """Whether ``task`` needs nothing more: every method's canonical model and every test evaluation exist. Its
-    demonstrations and training runs are then not needed, so a record of the run without them (the models, the
-    evaluations and ``choices.yaml``) resumes as it is."""
-    return all(_model_path(out, task, method, None).exists() for method in config.learned_methods()) and all(
-        _evaluation_path(out, task, method, seed, "test").exists() for method, seed in _test_runs(config)
-    )
-
-
-def _evaluated(config: PipelineConfig, task: str, method: str, seed: int, out: Path) -> bool:
-    """Whether a training run has every evaluation the pipeline makes of it (on the validation seeds when there is
-    a choice to make, and on the test seeds): its model is then needed only if it becomes the canonical one."""
-    splits = ["validation", "test"] if len(config.train_seeds) > 1 else ["test"]
-    return all(_evaluation_path(out, task, method, seed, split).exists() for split in splits)
-
-
-def report_evaluations(config: PipelineConfig, out: Path) -> list[tuple[Path, str]]:
-    """(file, method) of every test evaluation of ``config``'s tasks in the run folder ``out``, in the report's
-    order: per task the wave, the teacher, then each method's training runs."""
-    return [
-        (_evaluation_path(Path(out), task, method, seed, "test"), method)
-        for task in config.tasks
-        for method, seed in _test_runs(config)
-    ]
-
-
-def _test_runs(config: PipelineConfig) -> list[tuple[str, int | None]]:
-    """(method, training seed) of every test evaluation of a task: the wave and the teacher once (seed None),
-    every training run."""
-    once = (BASELINE, TEACHER)
-    return [
-        (method, seed) for method in config.methods() for seed in ([None] if method in once else config.train_seeds)
-    ]
-
-
-def _evaluation_path(out: Path, task: str, method: str, seed: int | None, split: str) -> Path:
-    """The evaluation of the wave or a method's training run (``seed``) on the ``split`` seeds."""
-    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
-    return out / "eval" / split / f"{name}.json"
-
-
-def _model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
-    """A training run's model (``seed``), or the method's canonical model (None)."""
-    return out / "models" / (f"{task}-{method}.zip" if seed is None else f"{task}-{method}-seed{seed}.zip")
-
-
 def _teacher_env_kwargs(config: PipelineConfig, teacher: Teacher) -> dict[str, Any]:
     """The env kwargs ``teacher`` is scored with: as its learners run."""
     return {"n_robots": config.n_robots, **config.learner_env_kwargs(teacher.hold)}
-
-
-def _load_choices(out: Path) -> dict[str, Any]:
-    """``choices.yaml``: every choice made on the validation seeds so far."""
-    path = out / "choices.yaml"
-    return yaml.safe_load(path.read_text()) if path.exists() else {}
-
-
-def _save_choices(out: Path, choices: dict[str, Any]) -> None:
-    atomic_write_text(out / "choices.yaml", yaml.safe_dump(choices, sort_keys=True))
 
 
 def _median_displacement(evaluation: Path) -> float:
@@ -264,14 +217,14 @@ def _choose_teacher(
     candidates = config.teachers()
     if len(candidates) == 1:
         return candidates[0]
-    choices = _load_choices(out)
+    choices = load_choices(out)
     key = f"{task}-{TEACHER}"
     if key in choices:
         return Teacher(int(choices[key]["hold_steps"]), float(choices[key].get("bin_width", Teacher().bin_width)))
     medians = {}
     seeds = config.teacher_choice_seeds()
     for teacher in candidates:
-        path = _evaluation_path(out, task, f"{TEACHER}-{teacher.stem}", None, "validation")
+        path = evaluation_path(out, task, f"{TEACHER}-{teacher.stem}", None, "validation")
         kwargs = _teacher_env_kwargs(config, teacher)
         _evaluate_policy(
             config, ENV_IDS[task], teacher.policy, path, path.stem, show_progress, log, seeds, "validation", kwargs
@@ -285,7 +238,7 @@ def _choose_teacher(
         **({} if chosen.bin_width == Teacher().bin_width else {"bin_width": chosen.bin_width}),
         "validation_medians": {teacher.hold if by_hold else teacher.stem: medians[teacher] for teacher in candidates},
     }
-    _save_choices(out, choices)
+    save_choices(out, choices)
     log(f"dpr pipeline: {key}: {chosen.policy} ({medians[chosen]:.1f} on validation seeds)")
     return chosen
 
@@ -344,7 +297,7 @@ def _train_run(
 
     env_id = ENV_IDS[task]
     dataset = out / "datasets" / task
-    model = _model_path(out, task, method, seed)
+    model = model_path(out, task, method, seed)
     if method == "bc":
         if _stage(model, f"{task}: behaviour cloning, seed {seed}", log):
             _demonstrations(config, task, teacher, dataset, show_progress, log)
@@ -412,14 +365,14 @@ def _evaluate(
 ) -> Path:
     """Evaluate the wave or ``teacher`` (``seed`` None), or a training run, on the ``split`` seeds ("test" or
     "validation"). The wave runs on the pipeline's env, the teacher as its learners run."""
-    path = _evaluation_path(out, task, method, seed, split)
+    path = evaluation_path(out, task, method, seed, split)
     own_kwargs = None  # the wave's default (_evaluate_policy), or a model's own
     if method == BASELINE:
         policy = BASELINE
     elif method == TEACHER:
         policy, own_kwargs = teacher.policy, _teacher_env_kwargs(config, teacher)
     else:
-        policy = str(_model_path(out, task, method, seed))
+        policy = str(model_path(out, task, method, seed))
     seeds = config.test_seeds if split == "test" else config.validation_seeds
     return _evaluate_policy(
         config, ENV_IDS[task], policy, path, path.stem, show_progress, log, seeds, split, own_kwargs
@@ -508,9 +461,9 @@ def _choose_canonical_models(
     given machine and library versions, and a run that differs is an error, not a silent substitute."""
     from dpr.policies.sb3 import save_slim_copy
 
-    choices = _load_choices(out)
+    choices = load_choices(out)
     for method in methods:
-        canonical = _model_path(out, task, method, None)
+        canonical = model_path(out, task, method, None)
         key = f"{task}-{method}"
         if canonical.exists():
             continue
@@ -522,12 +475,12 @@ def _choose_canonical_models(
             ranked = sorted(medians, key=lambda seed: (medians[seed], seed))
             chosen = ranked[(len(ranked) - 1) // 2]  # the median run (the lower one of an even count)
         choices[key] = {"chosen_seed": chosen, "validation_medians": medians}
-        _save_choices(out, choices)
+        save_choices(out, choices)
         log(f"dpr pipeline: {key}: the median run is seed {chosen} -> {canonical}")
-        if not _model_path(out, task, method, chosen).exists():
+        if not model_path(out, task, method, chosen).exists():
             _train_run(config, task, teacher, method, chosen, out, show_progress, log)
             _check_reproduces(config, task, method, chosen, out, show_progress, log)
-        save_slim_copy(_model_path(out, task, method, chosen), canonical)
+        save_slim_copy(model_path(out, task, method, chosen), canonical)
 
 
 def _check_reproduces(
@@ -546,8 +499,8 @@ def _check_reproduces(
     from dpr.rl.report import load_evaluation
 
     split = "validation" if len(config.train_seeds) > 1 else "test"
-    recorded = _evaluation_path(out, task, method, seed, split)
-    model = _model_path(out, task, method, seed)
+    recorded = evaluation_path(out, task, method, seed, split)
+    model = model_path(out, task, method, seed)
     with tempfile.TemporaryDirectory() as folder:
         again = Path(folder) / recorded.name
         seeds = config.validation_seeds if split == "validation" else config.test_seeds

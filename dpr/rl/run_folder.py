@@ -1,0 +1,114 @@
+"""Where a ``dpr pipeline`` run folder keeps each file, and what of a run is done: the layout that the pipeline,
+``tools/merge_runs.py`` and ``tools/keep_run.py`` share.
+
+- ``pipeline.yaml``: the settings; ``choices.yaml``: every choice made on the validation (or teacher) seeds;
+- ``models/<task>-<method>-seed<s>.zip``: a training run; ``models/<task>-<method>.zip``: the method's canonical
+  model (its median run on the validation seeds);
+- ``eval/<split>/<task>-<method>[-seed<s>].json``: an evaluation on the validation or test seeds;
+- ``datasets/``, ``runs/`` and ``report/``: the demonstrations, the training runs' own folders, the report.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dpr.atomic import atomic_write_text
+from dpr.rl.pipeline_config import BASELINE, TEACHER, PipelineConfig
+
+__all__ = [
+    "evaluated",
+    "evaluation_path",
+    "load_choices",
+    "model_path",
+    "models_still_needed",
+    "report_evaluations",
+    "save_choices",
+    "task_done",
+    "tested_runs",
+]
+
+
+def evaluation_path(out: Path, task: str, method: str, seed: int | None, split: str) -> Path:
+    """The evaluation of the wave or a method's training run (``seed``) on the ``split`` seeds."""
+    name = f"{task}-{method}" if seed is None else f"{task}-{method}-seed{seed}"
+    return out / "eval" / split / f"{name}.json"
+
+
+def model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
+    """A training run's model (``seed``), or the method's canonical model (None)."""
+    return out / "models" / (f"{task}-{method}.zip" if seed is None else f"{task}-{method}-seed{seed}.zip")
+
+
+def load_choices(out: Path) -> dict[str, Any]:
+    """``choices.yaml``: every choice made on the validation seeds so far."""
+    path = out / "choices.yaml"
+    return yaml.safe_load(path.read_text()) if path.exists() else {}
+
+
+def save_choices(out: Path, choices: dict[str, Any]) -> None:
+    atomic_write_text(out / "choices.yaml", yaml.safe_dump(choices, sort_keys=True))
+
+
+def tested_runs(config: PipelineConfig) -> list[tuple[str, int | None]]:
+    """(method, training seed) of every test evaluation of a task: the wave and the teacher once (seed None),
+    every training run."""
+    once = (BASELINE, TEACHER)
+    return [
+        (method, seed) for method in config.methods() for seed in ([None] if method in once else config.train_seeds)
+    ]
+
+
+def evaluated(config: PipelineConfig, task: str, method: str, seed: int, out: Path) -> bool:
+    """Whether a training run has every evaluation the pipeline makes of it (on the validation seeds when there is
+    a choice to make, and on the test seeds): its model is then needed only if it becomes the canonical one."""
+    splits = ["validation", "test"] if len(config.train_seeds) > 1 else ["test"]
+    return all(evaluation_path(out, task, method, seed, split).exists() for split in splits)
+
+
+def task_done(config: PipelineConfig, task: str, out: Path) -> bool:
+    """Whether ``task`` needs nothing more: every method's canonical model and every test evaluation exist. Its
+    demonstrations and training runs are then not needed, so a record of the run without them (the models, the
+    evaluations and ``choices.yaml``) resumes as it is."""
+    return all(model_path(out, task, method, None).exists() for method in config.learned_methods()) and all(
+        evaluation_path(out, task, method, seed, "test").exists() for method, seed in tested_runs(config)
+    )
+
+
+def models_still_needed(config: PipelineConfig, out: Path) -> list[Path]:
+    """The training runs' models in the run folder ``out`` that resuming it would still use: a run with an
+    evaluation still to make; any run of a method whose canonical model is missing, when its choice is not made
+    or falls on it; and a clone whose fine-tuning is still to train. Everything else a resume needs is its
+    ``pipeline.yaml``, ``choices.yaml``, ``eval/`` and canonical models (the datasets the same settings record
+    again)."""
+    out, choices = Path(out), load_choices(out)
+
+    def used(task: str, method: str, seed: int) -> bool:  # by a resume, which trains the run first if missing
+        chosen = choices.get(f"{task}-{method}", {}).get("chosen_seed")
+        unchosen = not model_path(out, task, method, None).exists() and chosen in (None, seed)
+        return unchosen or not evaluated(config, task, method, seed, out)
+
+    def trained(task: str, method: str, seed: int) -> bool:  # by a resume
+        return not model_path(out, task, method, seed).exists() and used(task, method, seed)
+
+    fine_tuned = config.cloned_methods()[1:]
+    return [
+        model_path(out, task, method, seed)
+        for task in config.tasks
+        for method in config.learned_methods()
+        for seed in config.train_seeds
+        if model_path(out, task, method, seed).exists()
+        and (used(task, method, seed) or (method == "bc" and any(trained(task, f, seed) for f in fine_tuned)))
+    ]
+
+
+def report_evaluations(config: PipelineConfig, out: Path) -> list[tuple[Path, str]]:
+    """(file, method) of every test evaluation of ``config``'s tasks in the run folder ``out``, in the report's
+    order: per task the wave, the teacher, then each method's training runs."""
+    return [
+        (evaluation_path(Path(out), task, method, seed, "test"), method)
+        for task in config.tasks
+        for method, seed in tested_runs(config)
+    ]

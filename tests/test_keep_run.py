@@ -1,0 +1,94 @@
+"""tools/keep_run.py: what a pipeline run folder needs to resume, kept small, resumes training only what is missing."""
+
+import json
+import shutil
+
+import pytest
+import yaml
+from helpers import load_tool
+from test_pipeline import THREE_SEEDS, _run_tiny, _trained
+
+from dpr.policies.sb3 import load_model
+
+
+@pytest.fixture(scope="module")
+def tool():
+    return load_tool("keep_run")
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A tiny finished pipeline run with three training seeds."""
+    out = tmp_path_factory.mktemp("keep") / "run"
+    _run_tiny(THREE_SEEDS, out)
+    return out
+
+
+def _same_weights(a, b):
+    (first, _), (second, _) = load_model(a), load_model(b)
+    return all((second.policy.state_dict()[k] == v).all() for k, v in first.policy.state_dict().items())
+
+
+def test_a_finished_run_keeps_no_training_run_and_resumes_as_finished(tool, finished, tmp_path, capsys):
+    kept = tmp_path / "kept"
+    assert tool.main([str(finished), str(kept)]) == 0
+    assert "training runs' models still needed: none" in capsys.readouterr().out
+    assert not list((kept / "models").glob("*-seed*.zip")) and not (kept / "datasets").exists()
+    assert sorted(p.name for p in (kept / "models").iterdir()) == sorted(
+        p.name for p in (finished / "models").iterdir() if "-seed" not in p.name
+    )
+    _, lines = _run_tiny(THREE_SEEDS, kept)
+    assert "dpr pipeline: navigation: its canonical models and test evaluations exist, skipped" in lines
+    assert not _trained(lines)
+
+
+def test_a_run_stopped_midway_keeps_the_models_it_still_needs_and_resumes_without_training(
+    tool, finished, tmp_path, capsys
+):
+    """Stopped before the fine-tuned runs were chosen from and before one run from scratch was tested: those runs'
+    models are kept (slim), and the kept folder resumes to the same canonical model and test scores, training
+    nothing."""
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    (run / "models" / "navigation-bc-ppo.zip").unlink()
+    choices = yaml.safe_load((run / "choices.yaml").read_text())
+    del choices["navigation-bc-ppo"]
+    (run / "choices.yaml").write_text(yaml.safe_dump(choices))
+    (run / "eval" / "test" / "navigation-ppo-seed1.json").unlink()
+    kept = tmp_path / "kept"
+    assert tool.main([str(run), str(kept)]) == 0
+    needed = ["navigation-bc-ppo-seed0.zip", "navigation-bc-ppo-seed1.zip", "navigation-bc-ppo-seed2.zip"]
+    needed.append("navigation-ppo-seed1.zip")
+    assert sorted(p.name for p in (kept / "models").glob("*-seed*.zip")) == needed
+    assert (kept / "models" / needed[0]).stat().st_size < 0.5 * (run / "models" / needed[0]).stat().st_size
+    _, lines = _run_tiny(THREE_SEEDS, kept)
+    assert not _trained(lines)
+    assert _same_weights(kept / "models" / "navigation-bc-ppo.zip", finished / "models" / "navigation-bc-ppo.zip")
+    retested, tested = (
+        json.loads((folder / "eval" / "test" / "navigation-ppo-seed1.json").read_text())["episodes"]
+        for folder in (kept, finished)
+    )
+    assert [e["projected_displacement"] for e in retested] == [e["projected_displacement"] for e in tested]
+
+
+def test_a_clone_is_kept_while_its_fine_tuning_is_still_to_train(tool, finished, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    for name in ("models/navigation-bc-ppo-seed2.zip", "eval/validation/navigation-bc-ppo-seed2.json"):
+        (run / name).unlink()
+    (run / "models" / "navigation-bc-ppo.zip").unlink()
+    kept = tmp_path / "kept"
+    assert tool.main([str(run), str(kept)]) == 0
+    assert "navigation-bc-seed2.zip" in {p.name for p in (kept / "models").iterdir()}
+    assert "navigation-bc-seed1.zip" not in {p.name for p in (kept / "models").iterdir()}
+
+
+def test_keep_run_refuses_an_existing_folder_and_a_folder_that_is_not_a_run(tool, finished, tmp_path, capsys):
+    (tmp_path / "taken").mkdir()
+    with pytest.raises(SystemExit):
+        tool.main([str(finished), str(tmp_path / "taken")])
+    assert "taken exists; what is kept goes into a new folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        tool.main([str(tmp_path), str(tmp_path / "new")])
+    assert "no pipeline.yaml; expected a `dpr pipeline` run folder" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()

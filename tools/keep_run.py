@@ -1,0 +1,71 @@
+#!/usr/bin/env python
+"""Keep what a `dpr pipeline` run folder needs to resume, small enough to commit: a run of many hours then
+outlives the machine it ran on.
+
+A run folder holds demonstrations, training-run folders and every run's model; a resume needs far less. This tool
+copies into a new folder ``pipeline.yaml``, ``choices.yaml``, ``eval/`` (every evaluation), ``report/`` if written,
+the canonical models and, as slim copies (:func:`dpr.policies.sb3.save_slim_copy`: the same policy without the
+optimizer's moments), only the training runs' models a resume would still use
+(:func:`dpr.rl.run_folder.models_still_needed`). `dpr pipeline` with the run's settings resumes the copy, training
+only what is missing; a chosen run that must be trained again has to reproduce its validation episodes exactly.
+
+    python tools/keep_run.py runs/ft1200-unresponsive docs/results/full-ft1200-partial/unresponsive
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+import yaml
+
+from dpr.policies.sb3 import save_slim_copy
+from dpr.rl.pipeline_config import PipelineConfig, saved_settings
+from dpr.rl.run_folder import models_still_needed
+
+
+def keep(run: Path, out: Path) -> list[Path]:
+    """Copy what ``run`` needs to resume into the new folder ``out``; returns the training runs' models kept."""
+    settings = run / "pipeline.yaml"
+    if not settings.is_file():
+        raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
+    if out.exists():
+        raise ValueError(f"{out} exists; what is kept goes into a new folder")
+    config = PipelineConfig(**saved_settings(yaml.safe_load(settings.read_text())["config"]))
+    runs = models_still_needed(config, run)
+    canonical = [
+        run / "models" / f"{task}-{method}.zip" for task in config.tasks for method in config.learned_methods()
+    ]
+    (out / "models").mkdir(parents=True)
+    for name in ("pipeline.yaml", "choices.yaml"):
+        if (run / name).exists():
+            shutil.copyfile(run / name, out / name)
+    for folder in ("eval", "report"):
+        if (run / folder).is_dir():
+            shutil.copytree(run / folder, out / folder)
+    for model in [path for path in canonical if path.exists()]:
+        shutil.copyfile(model, out / "models" / model.name)
+    for model in runs:
+        save_slim_copy(model, out / "models" / model.name)
+    return runs
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run", type=Path, help="a `dpr pipeline` run folder")
+    parser.add_argument("out", type=Path, help="the new folder to keep it in")
+    args = parser.parse_args(argv)
+    try:
+        runs = keep(args.run, args.out)
+    except ValueError as error:
+        parser.error(str(error))
+    size = sum(path.stat().st_size for path in args.out.rglob("*") if path.is_file())
+    kept = ", ".join(path.name for path in runs) or "none"
+    print(f"{args.out}: {size / 1e6:.1f} MB; training runs' models still needed: {kept}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
