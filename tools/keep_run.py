@@ -19,25 +19,18 @@ import shutil
 import sys
 from pathlib import Path
 
-import yaml
-
 from dpr.policies.sb3 import save_slim_copy
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
-from dpr.rl.run_folder import models_still_needed
+from dpr.rl.run_folder import model_path, models_still_needed, read_run_settings
 
 
 def keep(run: Path, out: Path) -> list[Path]:
     """Copy what ``run`` needs to resume into the new folder ``out``; returns the training runs' models kept."""
-    settings = run / "pipeline.yaml"
-    if not settings.is_file():
-        raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
+    config = PipelineConfig(**saved_settings(read_run_settings(run)["config"]))
     if out.exists():
         raise ValueError(f"{out} exists; what is kept goes into a new folder")
-    config = PipelineConfig(**saved_settings(yaml.safe_load(settings.read_text())["config"]))
     runs = models_still_needed(config, run)
-    canonical = [
-        run / "models" / f"{task}-{method}.zip" for task in config.tasks for method in config.learned_methods()
-    ]
+    canonical = [model_path(run, task, method, None) for task in config.tasks for method in config.learned_methods()]
     (out / "models").mkdir(parents=True)
     for name in ("pipeline.yaml", "choices.yaml"):
         if (run / name).exists():

@@ -28,14 +28,7 @@ import yaml
 from dpr.envs import ENV_IDS
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
 from dpr.rl.report import write_report
-from dpr.rl.run_folder import report_evaluations
-
-
-def _settings(run: Path) -> dict:
-    path = run / "pipeline.yaml"
-    if not path.is_file():
-        raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
-    return yaml.safe_load(path.read_text())
+from dpr.rl.run_folder import read_run_settings, report_evaluations
 
 
 def _first_folder(entry: dict, run: Path, task: str) -> str:
@@ -48,7 +41,7 @@ def merge(out: Path, runs: list[Path]) -> PipelineConfig:
     """Write the merged record of ``runs`` into the new folder ``out``; returns its settings."""
     if out.exists():
         raise ValueError(f"{out} exists; the merged record goes into a new folder")
-    saved = [_settings(run) for run in runs]
+    saved = [read_run_settings(run) for run in runs]
     configs = [PipelineConfig(**saved_settings(entry["config"])) for entry in saved]
     first = {**asdict(configs[0]), "tasks": None}
     for run, config in zip(runs[1:], configs[1:]):

@@ -61,6 +61,7 @@ from dpr.rl.pipeline_config import (
 from dpr.rl.run_folder import (
     evaluated,
     evaluation_path,
+    evaluation_splits,
     load_choices,
     model_path,
     report_evaluations,
@@ -373,10 +374,15 @@ def _evaluate(
         policy, own_kwargs = teacher.policy, _teacher_env_kwargs(config, teacher)
     else:
         policy = str(model_path(out, task, method, seed))
-    seeds = config.test_seeds if split == "test" else config.validation_seeds
+    seeds = _split_seeds(config, split)
     return _evaluate_policy(
         config, ENV_IDS[task], policy, path, path.stem, show_progress, log, seeds, split, own_kwargs
     )
+
+
+def _split_seeds(config: PipelineConfig, split: str) -> list[int]:
+    """The seeds of the ``split`` ("test" or "validation")."""
+    return config.test_seeds if split == "test" else config.validation_seeds
 
 
 def _evaluate_policy(
@@ -498,12 +504,12 @@ def _check_reproduces(
 
     from dpr.rl.report import load_evaluation
 
-    split = "validation" if len(config.train_seeds) > 1 else "test"
+    split = evaluation_splits(config)[0]
     recorded = evaluation_path(out, task, method, seed, split)
     model = model_path(out, task, method, seed)
     with tempfile.TemporaryDirectory() as folder:
         again = Path(folder) / recorded.name
-        seeds = config.validation_seeds if split == "validation" else config.test_seeds
+        seeds = _split_seeds(config, split)
         _evaluate_policy(
             config, ENV_IDS[task], str(model), again, f"{recorded.stem} (retrained)", show_progress, log, seeds, split
         )

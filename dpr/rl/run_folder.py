@@ -21,9 +21,11 @@ from dpr.rl.pipeline_config import BASELINE, TEACHER, PipelineConfig
 __all__ = [
     "evaluated",
     "evaluation_path",
+    "evaluation_splits",
     "load_choices",
     "model_path",
     "models_still_needed",
+    "read_run_settings",
     "report_evaluations",
     "save_choices",
     "task_done",
@@ -40,6 +42,14 @@ def evaluation_path(out: Path, task: str, method: str, seed: int | None, split: 
 def model_path(out: Path, task: str, method: str, seed: int | None) -> Path:
     """A training run's model (``seed``), or the method's canonical model (None)."""
     return out / "models" / (f"{task}-{method}.zip" if seed is None else f"{task}-{method}-seed{seed}.zip")
+
+
+def read_run_settings(run: Path) -> dict[str, Any]:
+    """A run folder's ``pipeline.yaml`` (its settings under ``config``); a folder without one is refused."""
+    path = run / "pipeline.yaml"
+    if not path.is_file():
+        raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
+    return yaml.safe_load(path.read_text())
 
 
 def load_choices(out: Path) -> dict[str, Any]:
@@ -61,11 +71,16 @@ def tested_runs(config: PipelineConfig) -> list[tuple[str, int | None]]:
     ]
 
 
+def evaluation_splits(config: PipelineConfig) -> list[str]:
+    """The seed sets every training run is evaluated on: the validation seeds when there is a choice to make (several
+    training seeds), then the test seeds."""
+    return ["validation", "test"] if len(config.train_seeds) > 1 else ["test"]
+
+
 def evaluated(config: PipelineConfig, task: str, method: str, seed: int, out: Path) -> bool:
-    """Whether a training run has every evaluation the pipeline makes of it (on the validation seeds when there is
-    a choice to make, and on the test seeds): its model is then needed only if it becomes the canonical one."""
-    splits = ["validation", "test"] if len(config.train_seeds) > 1 else ["test"]
-    return all(evaluation_path(out, task, method, seed, split).exists() for split in splits)
+    """Whether a training run has every evaluation the pipeline makes of it (:func:`evaluation_splits`): its model
+    is then needed only if it becomes the canonical one."""
+    return all(evaluation_path(out, task, method, seed, split).exists() for split in evaluation_splits(config))
 
 
 def task_done(config: PipelineConfig, task: str, out: Path) -> bool:
