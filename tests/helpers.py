@@ -157,3 +157,13 @@ def shrink_rollouts(patch, small: dict) -> None:
 def parquet_files(root: Path, folder: str) -> list[str]:
     """The parquet files of a dataset ``folder`` ("data", "meta/episodes"), relative to the dataset ``root``."""
     return sorted(str(p.relative_to(root)) for p in (root / folder).glob("*/*.parquet"))
+
+
+def assert_same_policy(path, other):
+    """The two model files hold the same policy weights, tensor for tensor."""
+    from dpr.policies.sb3 import load_model
+
+    (first, _), (second, _) = load_model(path), load_model(other)
+    weights = second.policy.state_dict()
+    for name, tensor in first.policy.state_dict().items():
+        assert (weights[name] == tensor).all(), name

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
-from helpers import TINY_PIPELINE, shrink_rollouts
+from helpers import TINY_PIPELINE, assert_same_policy, shrink_rollouts
 
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import load_model, read_model_info
@@ -301,18 +301,25 @@ def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path
     assert sum(line.endswith("skipped") for line in lines) == 1 + 1 + 1
 
 
-def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipeline, tmp_path):
-    """A finished task needs only its canonical models, test evaluations and choices: a record of the run
-    kept without the datasets, the run folders and the training runs' models resumes without training, and
-    writes the same report."""
+def _evaluations_only(run, tmp_path):
+    """A copy of the run folder ``run`` kept as a record is: without its datasets, run folders, report and training
+    runs' models."""
     import shutil
 
     record = tmp_path / "record"
-    shutil.copytree(pipeline[0], record)
+    shutil.copytree(run, record)
     for folder in ("datasets", "runs", "report"):
         shutil.rmtree(record / folder)
     for model in (record / "models").glob("*-seed*.zip"):
         model.unlink()
+    return record
+
+
+def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipeline, tmp_path):
+    """A finished task needs only its canonical models, test evaluations and choices: a record of the run
+    kept without the datasets, the run folders and the training runs' models resumes without training, and
+    writes the same report."""
+    record = _evaluations_only(pipeline[0], tmp_path)
     lines = []
     run_pipeline(PipelineConfig(**PIPELINE), record, show_progress=False, log=lines.append)
     assert "dpr pipeline: navigation: its canonical models and test evaluations exist, skipped" in lines
@@ -339,20 +346,6 @@ def three_seeds(tmp_path_factory):
     """A tiny pipeline run with three training seeds: (its folder, report, log lines)."""
     out = tmp_path_factory.mktemp("three_seeds") / "run"
     return out, *_run_tiny(THREE_SEEDS, out)
-
-
-def _evaluations_only(run, tmp_path):
-    """A copy of the run folder ``run`` kept as a record is: without its datasets, run folders, report and training
-    runs' models."""
-    import shutil
-
-    record = tmp_path / "record"
-    shutil.copytree(run, record)
-    for folder in ("datasets", "runs", "report"):
-        shutil.rmtree(record / folder)
-    for model in (record / "models").glob("*-seed*.zip"):
-        model.unlink()
-    return record
 
 
 def _trained(lines):
@@ -426,9 +419,7 @@ def test_a_record_with_evaluations_only_resumes_training_only_what_is_missing(th
     assert _trained(lines) == [f"bc-ppo, seed {chosen}", f"bc, seed {chosen}", "ppo, seed 1"]
     assert any(line.endswith(f"navigation-bc-ppo-seed{chosen}.json episode for episode") for line in lines)
     assert yaml.safe_load((record / "choices.yaml").read_text()) == yaml.safe_load((out / "choices.yaml").read_text())
-    again, original = (load_model(run / "models" / "navigation-bc-ppo.zip")[0] for run in (record, out))
-    for name, tensor in original.policy.state_dict().items():
-        assert (again.policy.state_dict()[name] == tensor).all(), name
+    assert_same_policy(record / "models" / "navigation-bc-ppo.zip", out / "models" / "navigation-bc-ppo.zip")
     retested, tested = (
         json.loads((run / "eval" / "test" / "navigation-ppo-seed1.json").read_text()) for run in (record, out)
     )
