@@ -463,8 +463,9 @@ def _choose_canonical_models(
     training seed is its own median; nothing is evaluated.
 
     A chosen run whose model is gone (a record kept with its evaluations only) is trained again, and must score
-    exactly what its evaluation file says before it becomes the canonical model: training is deterministic for a
-    given machine and library versions, and a run that differs is an error, not a silent substitute."""
+    exactly what its evaluation file says before it becomes the canonical model: training is deterministic for the
+    same library versions (on another machine of the same kind too), and a run that differs is an error, not a
+    silent substitute."""
     from dpr.policies.sb3 import save_slim_copy
 
     choices = load_choices(out)
