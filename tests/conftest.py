@@ -1,4 +1,5 @@
-"""Shared set-up for the fast test suite: headless pygame, the registered ids, small env factories."""
+"""Shared set-up for the fast test suite: headless pygame, the registered ids, small env factories, a tiny
+three-seed pipeline run."""
 
 import os
 
@@ -7,6 +8,7 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
 import gymnasium as gym  # noqa: E402
 import pytest  # noqa: E402
+from helpers import THREE_SEEDS, run_tiny  # noqa: E402
 
 import dpr  # noqa: E402,F401  (registers the ids)
 
@@ -26,3 +28,11 @@ def make_env():
     yield factory
     for env in made:
         env.close()
+
+
+@pytest.fixture(scope="session")
+def three_seeds(tmp_path_factory):
+    """A tiny pipeline run with three training seeds, for tests that read it or copy it: (its folder, report, log
+    lines)."""
+    out = tmp_path_factory.mktemp("three_seeds") / "run"
+    return out, *run_tiny(THREE_SEEDS, out)

@@ -154,6 +154,36 @@ def shrink_rollouts(patch, small: dict) -> None:
     patch.setattr(train_module, "load_hyperparams", shrunk)
 
 
+# One 32-step rollout per update, so that a few dozen steps of RL are a few updates, not a rollout of the yaml's 1024.
+TINY_PPO = {"n_steps": 32, "batch_size": 32}
+QUIET = {"show_progress": False, "log": lambda line: None}
+# A tiny one-task pipeline run, and the same with three training seeds chosen from on two validation seeds.
+PIPELINE = dict(TINY_PIPELINE, tasks=["navigation"], scratch_algos=["ppo"], test_seeds=[100], anchor=True)
+THREE_SEEDS = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
+
+
+def run_tiny(settings: dict, out: Path):
+    """Run (or resume) a tiny pipeline of ``settings`` into ``out``; returns its report folder and log lines."""
+    import pytest
+
+    from dpr.rl.pipeline import run_pipeline
+    from dpr.rl.pipeline_config import PipelineConfig
+
+    lines: list[str] = []
+    with pytest.MonkeyPatch.context() as patch:
+        shrink_rollouts(patch, TINY_PPO)
+        report = run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append)
+    return report, lines
+
+
+def trained_runs(lines: list[str]) -> list[str]:
+    """The runs a pipeline log says were trained (not skipped): "<method>, seed <s>"."""
+    stages = [
+        line.split(": ")[2] for line in lines if " -> " in line and ("physics steps" in line or "cloning" in line)
+    ]
+    return [stage.split(" (")[0].replace("behaviour cloning", "bc").split(" -> ")[0] for stage in stages]
+
+
 def parquet_files(root: Path, folder: str) -> list[str]:
     """The parquet files of a dataset ``folder`` ("data", "meta/episodes"), relative to the dataset ``root``."""
     return sorted(str(p.relative_to(root)) for p in (root / folder).glob("*/*.parquet"))

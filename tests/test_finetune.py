@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import QUIET, TINY_PPO
 from helpers import run_cli as run
 
 from dpr.datasets.collect import CollectSpec, collect
@@ -33,11 +34,7 @@ SMALL_ENV = {"n_robots": 4, "robot_model": "disk"}
 MEMORY = {"obs_last_action": True}
 ENV_KWARGS = {**SMALL_ENV, **MEMORY}
 STEPS = 40
-# One 32-step rollout per update, so that 64 steps of warm-up and 64 of fine-tuning are a few updates, not a
-# rollout of the yaml's 1024 steps.
-TINY_PPO = {"n_steps": 32, "batch_size": 32}
 PAPER_NET = [64, 128, 128, 128, 64]
-QUIET = {"show_progress": False, "log": lambda line: None}
 
 
 @pytest.fixture(scope="module")

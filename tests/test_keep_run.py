@@ -5,8 +5,7 @@ import shutil
 
 import pytest
 import yaml
-from helpers import assert_same_policy, load_tool
-from test_pipeline import THREE_SEEDS, _run_tiny, _trained
+from helpers import THREE_SEEDS, assert_same_policy, load_tool, run_tiny, trained_runs
 
 
 @pytest.fixture(scope="module")
@@ -14,12 +13,10 @@ def tool():
     return load_tool("keep_run")
 
 
-@pytest.fixture(scope="module")
-def finished(tmp_path_factory):
-    """A tiny finished pipeline run with three training seeds."""
-    out = tmp_path_factory.mktemp("keep") / "run"
-    _run_tiny(THREE_SEEDS, out)
-    return out
+@pytest.fixture
+def finished(three_seeds):
+    """A tiny finished pipeline run with three training seeds (conftest's, shared: copied before any change)."""
+    return three_seeds[0]
 
 
 def test_a_finished_run_keeps_no_training_run_and_resumes_as_finished(tool, finished, tmp_path, capsys):
@@ -30,9 +27,9 @@ def test_a_finished_run_keeps_no_training_run_and_resumes_as_finished(tool, fini
     assert sorted(p.name for p in (kept / "models").iterdir()) == sorted(
         p.name for p in (finished / "models").iterdir() if "-seed" not in p.name
     )
-    _, lines = _run_tiny(THREE_SEEDS, kept)
+    _, lines = run_tiny(THREE_SEEDS, kept)
     assert "dpr pipeline: navigation: its canonical models and test evaluations exist, skipped" in lines
-    assert not _trained(lines)
+    assert not trained_runs(lines)
 
 
 def test_a_run_stopped_midway_keeps_the_models_it_still_needs_and_resumes_without_training(
@@ -54,8 +51,8 @@ def test_a_run_stopped_midway_keeps_the_models_it_still_needs_and_resumes_withou
     needed.append("navigation-ppo-seed1.zip")
     assert sorted(p.name for p in (kept / "models").glob("*-seed*.zip")) == needed
     assert (kept / "models" / needed[0]).stat().st_size < 0.5 * (run / "models" / needed[0]).stat().st_size
-    _, lines = _run_tiny(THREE_SEEDS, kept)
-    assert not _trained(lines)
+    _, lines = run_tiny(THREE_SEEDS, kept)
+    assert not trained_runs(lines)
     assert_same_policy(kept / "models" / "navigation-bc-ppo.zip", finished / "models" / "navigation-bc-ppo.zip")
     retested, tested = (
         json.loads((folder / "eval" / "test" / "navigation-ppo-seed1.json").read_text())["episodes"]

@@ -4,8 +4,7 @@ import json
 
 import pytest
 import yaml
-from helpers import load_tool, shrink_rollouts
-from test_pipeline import PIPELINE, QUIET, TINY_PPO
+from helpers import PIPELINE, QUIET, TINY_PPO, load_tool, shrink_rollouts
 
 from dpr.rl.pipeline import run_pipeline
 from dpr.rl.pipeline_config import PipelineConfig

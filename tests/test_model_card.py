@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import TINY_PIPELINE, shrink_rollouts
+from helpers import QUIET, TINY_PIPELINE, TINY_PPO, shrink_rollouts
 from helpers import run_cli as run
 
 from dpr.checks import ParameterError
@@ -19,8 +19,6 @@ from dpr.rl.pipeline_config import PipelineConfig
 from dpr.rl.train import TrainConfig, train
 
 REPO_CARD = Path(__file__).resolve().parents[1] / "models" / "card.yaml"
-TINY_PPO = {"n_steps": 32, "batch_size": 32}
-QUIET = {"show_progress": False, "log": lambda line: None}
 
 
 def write_card(folder: Path, entries: list[dict]) -> Path:

@@ -8,16 +8,21 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
-from helpers import TINY_PIPELINE, assert_same_policy, shrink_rollouts
+from helpers import (
+    PIPELINE,
+    QUIET,
+    THREE_SEEDS,
+    TINY_PPO,
+    assert_same_policy,
+    run_tiny,
+    shrink_rollouts,
+    trained_runs,
+)
 
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import load_model, read_model_info
 from dpr.rl.pipeline import run_pipeline
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
-
-# One 32-step rollout per update, so that a few dozen steps of RL are a few updates.
-TINY_PPO = {"n_steps": 32, "batch_size": 32}
-QUIET = {"show_progress": False, "log": lambda line: None}
 
 
 @pytest.mark.parametrize(
@@ -75,7 +80,6 @@ def test_pipeline_shapes_only_manipulation_rewards():
         gym.make(ENV_IDS[task], **config.rl_env_kwargs(task, 10)).close()
 
 
-PIPELINE = dict(TINY_PIPELINE, tasks=["navigation"], scratch_algos=["ppo"], test_seeds=[100], anchor=True)
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
 
@@ -329,33 +333,6 @@ def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipel
     assert (record / "report" / "results.md").read_text() == original.replace(str(pipeline[0]), str(record))
 
 
-THREE_SEEDS = {**PIPELINE, "anchor": False, "train_seeds": [0, 1, 2], "validation_seeds": [200, 201]}
-
-
-def _run_tiny(settings, out):
-    """Run (or resume) a tiny pipeline into ``out``; returns its report folder and log lines."""
-    lines: list[str] = []
-    with pytest.MonkeyPatch.context() as patch:
-        shrink_rollouts(patch, TINY_PPO)
-        report = run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append)
-    return report, lines
-
-
-@pytest.fixture(scope="module")
-def three_seeds(tmp_path_factory):
-    """A tiny pipeline run with three training seeds: (its folder, report, log lines)."""
-    out = tmp_path_factory.mktemp("three_seeds") / "run"
-    return out, *_run_tiny(THREE_SEEDS, out)
-
-
-def _trained(lines):
-    """The runs a pipeline log says were trained (not skipped): "<method>, seed <s>"."""
-    stages = [
-        line.split(": ")[2] for line in lines if " -> " in line and ("physics steps" in line or "cloning" in line)
-    ]
-    return [stage.split(" (")[0].replace("behaviour cloning", "bc").split(" -> ")[0] for stage in stages]
-
-
 def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(three_seeds):
     """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
     run there (not the best), and the report's interval rows hold every run on the test seeds."""
@@ -414,9 +391,9 @@ def test_a_record_with_evaluations_only_resumes_training_only_what_is_missing(th
     record = _evaluations_only(out, tmp_path)
     (record / "models" / "navigation-bc-ppo.zip").unlink()  # as if the run had stopped before copying it
     (record / "eval" / "test" / "navigation-ppo-seed1.json").unlink()  # ... or before testing this run
-    _, lines = _run_tiny(THREE_SEEDS, record)
+    _, lines = run_tiny(THREE_SEEDS, record)
     chosen = yaml.safe_load((out / "choices.yaml").read_text())["navigation-bc-ppo"]["chosen_seed"]
-    assert _trained(lines) == [f"bc-ppo, seed {chosen}", f"bc, seed {chosen}", "ppo, seed 1"]
+    assert trained_runs(lines) == [f"bc-ppo, seed {chosen}", f"bc, seed {chosen}", "ppo, seed 1"]
     assert any(line.endswith(f"navigation-bc-ppo-seed{chosen}.json episode for episode") for line in lines)
     assert yaml.safe_load((record / "choices.yaml").read_text()) == yaml.safe_load((out / "choices.yaml").read_text())
     assert_same_policy(record / "models" / "navigation-bc-ppo.zip", out / "models" / "navigation-bc-ppo.zip")
@@ -443,5 +420,5 @@ def test_a_retrained_run_that_does_not_reproduce_its_evaluation_is_refused(three
         payload["episodes"][0]["projected_displacement"] += 1e-9
         validation.write_text(json.dumps(payload))
     with pytest.raises(RuntimeError, match=f"navigation-bc-seed{chosen}.zip was trained again .* does not reproduce"):
-        _run_tiny(THREE_SEEDS, record)
+        run_tiny(THREE_SEEDS, record)
     assert not (record / "models" / "navigation-bc.zip").exists()
