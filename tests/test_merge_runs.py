@@ -4,7 +4,7 @@ import json
 
 import pytest
 import yaml
-from helpers import PIPELINE, QUIET, TINY_PPO, load_tool, shrink_rollouts
+from helpers import PIPELINE, load_tool, run_tiny
 
 from dpr.rl.pipeline import run_pipeline
 from dpr.rl.pipeline_config import PipelineConfig
@@ -19,10 +19,8 @@ def tool():
 def runs(tmp_path_factory):
     """Two tiny pipeline runs of the same settings, one on Gate, one on Navigation (listed in that order)."""
     root = tmp_path_factory.mktemp("runs")
-    with pytest.MonkeyPatch.context() as patch:
-        shrink_rollouts(patch, TINY_PPO)
-        for task in ("gate", "navigation"):
-            run_pipeline(PipelineConfig(**{**PIPELINE, "anchor": False, "tasks": [task]}), root / task, **QUIET)
+    for task in ("gate", "navigation"):
+        run_tiny({**PIPELINE, "anchor": False, "tasks": [task]}, root / task)
     return root / "gate", root / "navigation"
 
 

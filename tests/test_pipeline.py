@@ -12,10 +12,8 @@ from helpers import (
     PIPELINE,
     QUIET,
     THREE_SEEDS,
-    TINY_PPO,
     assert_same_policy,
     run_tiny,
-    shrink_rollouts,
     trained_runs,
 )
 
@@ -85,12 +83,10 @@ METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory):
-    """One tiny pipeline run. PipelineConfig has no hyperparameter overrides: the yaml's 1024-step PPO rollouts
-    are shrunk to 32 steps here, so that a few dozen steps of RL are a few updates."""
+    """One tiny pipeline run (PipelineConfig has no hyperparameter overrides: run_tiny shrinks the yaml's 1024-step
+    PPO rollouts to 32 steps, so that a few dozen steps of RL are a few updates)."""
     out = tmp_path_factory.mktemp("pipeline") / "run"
-    with pytest.MonkeyPatch.context() as patch:
-        shrink_rollouts(patch, TINY_PPO)
-        report = run_pipeline(PipelineConfig(**PIPELINE), out, **QUIET)
+    report, _ = run_tiny(PIPELINE, out)
     return out, report
 
 
@@ -98,9 +94,7 @@ def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
     """RL on Manipulation, fine-tuning and from scratch, gets the approach shaping; the clone and the
     evaluations do not need it (the metric follows the ball either way)."""
     settings = {**PIPELINE, "tasks": ["manipulation"], "anchor": False, "approach_reward": 0.5}
-    with pytest.MonkeyPatch.context() as patch:
-        shrink_rollouts(patch, TINY_PPO)
-        run_pipeline(PipelineConfig(**settings), tmp_path / "run", **QUIET)
+    run_tiny(settings, tmp_path / "run")
     for method in ("bc-ppo", "ppo"):
         info = read_model_info(tmp_path / "run" / "models" / f"manipulation-{method}.zip")
         assert info.env_kwargs["approach_reward"] == 0.5, method
@@ -114,9 +108,7 @@ def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):
 
     settings = {**PIPELINE, "anchor": False, "action_repeat": 10, "steps": 60, "critic_warmup": 320}
     out = tmp_path / "run"
-    with pytest.MonkeyPatch.context() as patch:
-        shrink_rollouts(patch, TINY_PPO)
-        run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    run_tiny(settings, out)
     assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 6
     for method in METHODS[1:]:
         assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == 10
@@ -144,9 +136,7 @@ def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path, bin_w
     settings.update(validation_seeds=[200, 201], critic_warmup=100, finetune_steps=200)
     settings.update(teacher_bin_widths=bin_widths, teacher_seeds=teacher_seeds)
     out = tmp_path / "run"
-    with pytest.MonkeyPatch.context() as patch:
-        shrink_rollouts(patch, TINY_PPO)
-        report = run_pipeline(PipelineConfig(**settings), out, **QUIET)
+    report, _ = run_tiny(settings, out)
     record = yaml.safe_load((out / "choices.yaml").read_text())["navigation-teacher"]
     candidates = [Teacher(hold, width) for hold in holds for width in bin_widths]
     assert len(record["validation_medians"]) == len(candidates)
