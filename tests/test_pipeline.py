@@ -412,3 +412,38 @@ def test_a_retrained_run_that_does_not_reproduce_its_evaluation_is_refused(three
     with pytest.raises(RuntimeError, match=f"navigation-bc-seed{chosen}.zip was trained again .* does not reproduce"):
         run_tiny(THREE_SEEDS, record)
     assert not (record / "models" / "navigation-bc.zip").exists()
+
+
+def test_a_training_run_stopped_part_way_resumes_from_its_snapshot(pipeline, tmp_path, monkeypatch):
+    """A run killed mid-training goes on from its last snapshot in the same run folder (no second folder beside
+    it) and ends with the model the uninterrupted pipeline made."""
+    import shutil
+
+    from dpr.rl import resume as resume_state
+
+    out = tmp_path / "run"
+    shutil.copytree(pipeline[0], out)
+    shutil.rmtree(out / "runs" / "navigation-ppo-seed0")
+    for path in [*out.glob("models/navigation-ppo*.zip"), *out.glob("eval/**/navigation-ppo*.json")]:
+        path.unlink()
+
+    class Stop(Exception):
+        pass
+
+    save = resume_state.save_snapshot
+
+    def save_then_stop(*args, **kwargs):
+        save(*args, **kwargs)
+        raise Stop
+
+    with monkeypatch.context() as patch:
+        patch.setattr(resume_state, "SNAPSHOT_SECONDS", 0.0)
+        patch.setattr(resume_state, "save_snapshot", save_then_stop)
+        with pytest.raises(Stop):
+            run_tiny(PIPELINE, out)
+    assert resume_state.has_snapshot(out / "runs" / "navigation-ppo-seed0")
+    _, lines = run_tiny(PIPELINE, out)
+    assert trained_runs(lines) == ["ppo, seed 0"]
+    assert any("resumed at step" in line for line in lines)
+    assert sorted(p.name for p in (out / "runs").iterdir()) == sorted(p.name for p in (pipeline[0] / "runs").iterdir())
+    assert_same_policy(out / "models" / "navigation-ppo.zip", pipeline[0] / "models" / "navigation-ppo.zip")

@@ -6,8 +6,10 @@ A run folder holds demonstrations, training-run folders and every run's model; a
 copies into a new folder ``pipeline.yaml``, ``choices.yaml``, ``eval/`` (every evaluation), ``report/`` if written,
 the canonical models and, as slim copies (:func:`dpr.policies.sb3.save_slim_copy`: the same policy without the
 optimizer's moments), only the training runs' models a resume would still use
-(:func:`dpr.rl.run_folder.models_still_needed`). `dpr pipeline` with the run's settings resumes the copy, training
-only what is missing; a chosen run that must be trained again has to reproduce its validation episodes exactly.
+(:func:`dpr.rl.run_folder.models_still_needed`), and of each training run stopped part-way its ``config.yaml`` and
+last snapshot (``resume/``, :mod:`dpr.rl.resume`). `dpr pipeline` with the run's settings resumes the copy, training
+only what is missing (a stopped run from its snapshot, where its settings, paths included, are the same); a chosen
+run that must be trained again has to reproduce its validation episodes exactly.
 
     python tools/keep_run.py runs/ft1200-unresponsive docs/results/full-ft1200-partial/unresponsive
 """
@@ -21,6 +23,7 @@ from pathlib import Path
 
 from dpr.policies.sb3 import save_slim_copy
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
+from dpr.rl.resume import SNAPSHOT_DIR, has_snapshot
 from dpr.rl.run_folder import model_path, models_still_needed, read_run_settings
 
 
@@ -42,6 +45,10 @@ def keep(run: Path, out: Path) -> list[Path]:
         shutil.copyfile(model, out / "models" / model.name)
     for model in runs:
         save_slim_copy(model, out / "models" / model.name)
+    for stopped in sorted((run / "runs").glob("*")) if (run / "runs").is_dir() else []:
+        if has_snapshot(stopped) and not (stopped / "model.zip").exists():
+            shutil.copytree(stopped / SNAPSHOT_DIR, out / "runs" / stopped.name / SNAPSHOT_DIR)
+            shutil.copyfile(stopped / "config.yaml", out / "runs" / stopped.name / "config.yaml")
     return runs
 
 
@@ -56,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(error))
     size = sum(path.stat().st_size for path in args.out.rglob("*") if path.is_file())
     kept = ", ".join(path.name for path in runs) or "none"
-    print(f"{args.out}: {size / 1e6:.1f} MB; training runs' models still needed: {kept}")
+    stopped = ", ".join(path.name for path in sorted((args.out / "runs").glob("*"))) or "none"
+    print(f"{args.out}: {size / 1e6:.1f} MB; training runs' models still needed: {kept}; stopped runs kept: {stopped}")
     return 0
 
 

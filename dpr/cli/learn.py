@@ -62,6 +62,12 @@ def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> 
         help=f"override a yaml hyperparameter, e.g. {hyperparam_example} (repeatable)",
     )
     parser.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="go on with the stopped run in --out, given the same flags: from the snapshot it writes every few "
+        "minutes, to the model it would have made without the stop",
+    )
     rerun_argument(
         parser,
         "after training, roll out every checkpoint and the final model from the evaluation "
@@ -148,9 +154,15 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     _run_arguments(parser, "n_steps=256 or learning_rate=lin_1e-3")
 
 
+def _check_resume(args, parser) -> None:
+    if args.resume and args.out is None:
+        parser.error("--resume: name the stopped run's folder with --out")
+
+
 def cmd_train(args, parser) -> int:
     from dpr.rl.train import TrainConfig, train
 
+    _check_resume(args, parser)
     check_seed(args, parser)
     check_rerun_output(args, parser)
     try:
@@ -168,7 +180,7 @@ def cmd_train(args, parser) -> int:
             hyperparams=dict(args.hyperparam or []),
             eval_episodes=args.eval_episodes,
         )
-        result = train(config, args.out)
+        result = train(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error))
     return _training_done(result, args)
@@ -222,6 +234,7 @@ def cmd_finetune(args, parser) -> int:
     from dpr.policies.sb3 import model_env_kwargs, read_model_info
     from dpr.rl.train import TrainConfig, train
 
+    _check_resume(args, parser)
     check_seed(args, parser)
     check_rerun_output(args, parser)
     try:
@@ -252,7 +265,7 @@ def cmd_finetune(args, parser) -> int:
             anchor_weight=args.anchor_weight,
             anchor_decay=args.anchor_decay,
         )
-        result = train(config, args.out)
+        result = train(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, FINETUNE_FLAGS))
     return _training_done(result, args)

@@ -15,6 +15,7 @@ imports this package) must not pay for them.
 
 from __future__ import annotations
 
+import functools
 import json
 import zipfile
 from collections.abc import Callable
@@ -252,25 +253,36 @@ def load_model_policy(path: str | Path, env) -> ModelPolicy:
 
 
 def make_env_fn(env_id: str, env_kwargs: dict[str, Any], steps: int) -> Callable[[], Any]:
-    """A factory of one Monitor-wrapped env (picklable; registers the ids in a fresh process)."""
+    """A factory of one Monitor-wrapped env that logs its episode for a resume (:class:`dpr.envs.replay.ReplayLog`;
+    picklable; registers the ids in a fresh process)."""
 
     def make():
         import gymnasium as gym
         from stable_baselines3.common.monitor import Monitor
 
         import dpr  # noqa: F401
+        from dpr.envs.replay import ReplayLog
 
-        return Monitor(gym.make(env_id, max_episode_steps=steps, **env_kwargs))
+        return Monitor(ReplayLog(gym.make(env_id, max_episode_steps=steps, **env_kwargs)))
 
     return make
 
 
-def make_vec_env(env_id: str, env_kwargs: dict[str, Any], steps: int, n_envs: int):
+def make_vec_env(
+    env_id: str, env_kwargs: dict[str, Any], steps: int, n_envs: int, episodes: list[dict | None] | None = None
+):
     """``n_envs`` envs in subprocesses (forked: cheap, and the ids are already registered), or in this
-    process when there is one."""
+    process when there is one; with ``episodes`` (a resumed run's ReplayLog records, one per env) each env is
+    brought back to where its episode stood (:func:`dpr.envs.replay.replay`)."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+    from dpr.envs.replay import replay
+
+    if episodes is not None and len(episodes) != n_envs:
+        raise ValueError(f"{len(episodes)} episodes to replay for {n_envs} envs")
     fns = [make_env_fn(env_id, env_kwargs, steps) for _ in range(n_envs)]
+    if episodes is not None:
+        fns = [functools.partial(replay, fn, episode) for fn, episode in zip(fns, episodes, strict=True)]
     if n_envs > 1:
         return SubprocVecEnv(fns, start_method="fork")
     return DummyVecEnv(fns)

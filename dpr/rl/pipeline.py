@@ -27,7 +27,9 @@ the observation), which the Markov wave needs and which every learner gets too. 
 (fine-tuning and from scratch alike) trains with ``approach_reward`` shaping (:class:`dpr.envs.ManipulationEnv`):
 without it the ball's progress rewards catching up with the ball only on contact, and fine-tuning loses ground
 (RESULTS.md). Each stage writes into its own file or folder under ``out`` and is skipped when that already
-exists, so an interrupted pipeline resumes where it stopped and nothing written is replaced. A training run's model
+exists, so an interrupted pipeline resumes where it stopped and nothing written is replaced; a training run stopped
+part-way goes on from its last snapshot (:mod:`dpr.rl.resume`, at most a few minutes old) to the model it would have
+made without the stop. A training run's model
 is needed only until its evaluations exist, or when it is the chosen run and the canonical model is missing; so a
 run folder kept without its datasets, ``runs/`` and training runs' models (its ``pipeline.yaml``,
 ``choices.yaml``, ``eval/`` and canonical models) resumes at any stage, training only what is still missing.
@@ -294,7 +296,7 @@ def _train_run(
     ("bc", from the demonstrations, recorded first if missing), a fine-tuning of the clone ("bc-<algo>", cloning
     first if the clone is missing) or a run from scratch ("<algo>")."""
     from dpr.imitation.bc import behaviour_clone
-    from dpr.rl.train import TrainConfig, train
+    from dpr.rl.train import TrainConfig, resumable, train
 
     env_id = ENV_IDS[task]
     dataset = out / "datasets" / task
@@ -344,9 +346,12 @@ def _train_run(
         env_kwargs=kwargs,
         **settings,
     )
-    result = train(
-        train_config, fresh_path(out / "runs" / f"{task}-{method}-seed{seed}"), show_progress=show_progress, log=log
-    )
+    run_dir = out / "runs" / f"{task}-{method}-seed{seed}"
+    resume = resumable(run_dir, train_config)  # a run stopped part-way goes on from its last snapshot
+    if not resume and run_dir.exists():
+        log(f"dpr pipeline: {run_dir} has no snapshot of these settings to resume from; starting a new run beside it")
+    run_dir = run_dir if resume else fresh_path(run_dir)
+    result = train(train_config, run_dir, show_progress=show_progress, resume=resume, log=log)
     if result.interrupted:
         raise KeyboardInterrupt
     _copy_new(result.model_path, model)

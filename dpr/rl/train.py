@@ -36,14 +36,17 @@ from dpr.policies.sb3 import (
     INIT_PARAMETER,
     ModelInfo,
     actor_parameters,
+    algo_class,
     build_model,
     check_hyperparameters,
     load_initial_policy,
     make_vec_env,
     read_model_info,
     save_model,
+    single_thread_torch,
     write_model_info,
 )
+from dpr.rl import resume as resume_state
 
 if TYPE_CHECKING:  # the anchor imports torch and the BC loss: only runs that anchor load it
     from dpr.rl.anchor import Demonstrations
@@ -147,6 +150,38 @@ def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
     return path
 
 
+def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
+    """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
+    from."""
+    if out is None or not resume_state.has_snapshot(out):
+        raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
+    config_path = Path(out) / "config.yaml"
+    recorded = yaml.safe_load(config_path.read_text()).get("config") if config_path.is_file() else None
+    wanted = yaml.safe_load(yaml.safe_dump(asdict(config)))
+    if recorded != wanted:
+        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
+        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
+
+
+def resumable(out: str | Path, config: TrainConfig) -> bool:
+    """Whether ``out`` is a stopped run of ``config`` that ``train(config, out, resume=True)`` goes on with."""
+    try:
+        check_resumable(out, config)
+    except ParameterError:
+        return False
+    return True
+
+
+def resume_model(snapshot: resume_state.Snapshot, algo: str, env, tensorboard_log: str | None):
+    """The model of ``snapshot`` on ``env`` (rebuilt from the snapshot's episodes), its last observation kept."""
+    single_thread_torch()
+    model = algo_class(algo).load(
+        snapshot.model_path, env=env, device="cpu", force_reset=False, tensorboard_log=tensorboard_log
+    )
+    snapshot.restore_vec_env(env, "train")  # loading seeded the env anew
+    return model
+
+
 def tensorboard_available() -> bool:
     return importlib.util.find_spec("tensorboard") is not None
 
@@ -173,10 +208,10 @@ class StepUnit:
 SB3_STEPS = StepUnit()
 
 
-def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB3_STEPS):
+def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB3_STEPS, origin: int | None = None):
     """An SB3 callback showing a tqdm bar over the ``total`` steps (counted in ``unit``) of one ``learn`` call
-    (counted from where the model's step count stood, so a run after a critic warm-up starts at 0), with the mean
-    return of the last episodes."""
+    (counted from where the model's step count stood, so a run after a critic warm-up starts at 0; or from
+    ``origin``, where a resumed run's first ``learn`` call started), with the mean return of the last episodes."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class ProgressBar(BaseCallback):
@@ -184,7 +219,7 @@ def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, desc=desc, unit="step", disable=not show_progress)
-            self.first_step = self.model.num_timesteps
+            self.first_step = self.model.num_timesteps if origin is None else origin
 
         def _on_step(self) -> bool:
             self.bar.update(unit.from_sb3(self.model.num_timesteps - self.first_step) - self.bar.n)
@@ -200,9 +235,16 @@ def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB
 
 
 def _callbacks(
-    config: TrainConfig, run_dir: Path, info: ModelInfo, env_kwargs: dict, timesteps: int, show_progress: bool
+    config: TrainConfig,
+    run_dir: Path,
+    info: ModelInfo,
+    env_kwargs: dict,
+    timesteps: int,
+    show_progress: bool,
+    snapshot: resume_state.Snapshot | None = None,
 ):
-    """Progress bar, evaluation (best_model.zip) and checkpoints, each stamping its zips with ``info``."""
+    """Progress bar, evaluation (best_model.zip) and checkpoints, each stamping its zips with ``info``; resuming
+    from ``snapshot``, the evaluation env is rebuilt where it stood and the bar starts where the run was."""
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 
     class StampBest(BaseCallback):
@@ -215,21 +257,19 @@ def _callbacks(
     class StampingCheckpoints(CheckpointCallback):
         """SB3's checkpoints, each made loadable by ``dpr evaluate`` as soon as it is written."""
 
-        def __init__(self, **kwargs):
-            super().__init__(**kwargs)
-            self.stamped: set[Path] = set()
-
         def _on_step(self) -> bool:
             result = super()._on_step()
-            for path in Path(self.save_path).glob("*.zip"):
-                if path not in self.stamped:
-                    write_model_info(path, info)
-                    self.stamped.add(path)
+            if self.n_calls % self.save_freq == 0:  # SB3 has just saved (or, resumed, saved again) this file
+                write_model_info(Path(self._checkpoint_path(extension="zip")), info)
             return result
 
     per_env = max(timesteps // config.n_envs, 1)  # callbacks count vec-env steps, not env steps
-    eval_env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, 1)
-    eval_env.seed(config.seed + EVAL_SEED_OFFSET)
+    if snapshot is None:
+        eval_env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, 1)
+        eval_env.seed(config.seed + EVAL_SEED_OFFSET)
+    else:
+        eval_env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, 1, snapshot.eval_episodes)
+        snapshot.restore_vec_env(eval_env, "eval")
     evaluation = EvalCallback(
         eval_env,
         n_eval_episodes=config.eval_episodes,
@@ -244,7 +284,8 @@ def _callbacks(
         save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"), name_prefix="model", verbose=0
     )
     desc = f"{'finetune' if config.init_from else 'train'} {config.algo} {config.env_id}"
-    return CallbackList([progress_bar(desc, timesteps, show_progress), evaluation, checkpoints]), eval_env
+    bar = progress_bar(desc, timesteps, show_progress, origin=snapshot and snapshot.origin)
+    return CallbackList([bar, evaluation, checkpoints]), eval_env
 
 
 def _close_quietly(vec_env) -> None:
@@ -291,11 +332,19 @@ def train(
     out: str | Path | None = None,
     *,
     show_progress: bool = True,
+    resume: bool = False,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> TrainResult:
     """Train ``config.algo`` from scratch and save the run into ``out`` (a new or empty folder; default
-    ``runs/train/<task>-<algo>-seed<S>-<timestamp>``). Bad input raises ValueError before anything is written."""
+    ``runs/train/<task>-<algo>-seed<S>-<timestamp>``). Bad input raises ValueError before anything is written.
+
+    The run writes a snapshot of its training state into ``out/resume/`` every few minutes (:mod:`dpr.rl.resume`;
+    not for runs anchored to demonstrations). ``resume=True`` goes on from the snapshot of the stopped run in
+    ``out``, made with the same ``config`` (a ParameterError otherwise), to the model the run would have made
+    had it never stopped."""
     hyper, env_kwargs, timesteps = config.resolve()
+    if resume:
+        check_resumable(out, config)
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
     try:
         if config.init_from is not None:  # so does a missing or foreign model file
@@ -310,7 +359,8 @@ def train(
         check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
     finally:
         probe.close()
-    run_dir = prepare_run_dir(out, config)
+    run_dir = Path(out) if resume else prepare_run_dir(out, config)
+    snapshot = resume_state.load_snapshot(run_dir) if resume else None
     info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
     if tensorboard_log is None:
@@ -335,21 +385,31 @@ def train(
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     config_path = run_dir / "config.yaml"
+    if snapshot is not None:  # the stopped run's record, with this resume added
+        record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
+        resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_timesteps": snapshot.reached}
+        record["resumed"] = [*record.get("resumed", []), resumed]
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
     start = f" from {config.init_from} ({config.critic_warmup} critic warm-up steps first)" if config.init_from else ""
+    again = f", resumed at step {snapshot.reached}" if snapshot is not None else ""
     log(
-        f"dpr train: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, seed {config.seed} "
-        f"-> {run_dir}"
+        f"dpr train: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, seed {config.seed}"
+        f"{again} -> {run_dir}"
     )
 
-    env = make_vec_env(config.env_id, env_kwargs, config.steps_per_episode, config.n_envs)
+    env = make_vec_env(
+        config.env_id, env_kwargs, config.steps_per_episode, config.n_envs, snapshot and snapshot.train_episodes
+    )
     eval_env = None
     started = time.perf_counter()
     try:
-        model = build_model(hyper, env, config.seed, tensorboard_log)
-        if config.init_from is not None:
-            load_initial_policy(model, config.init_from)
-        callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress)
+        if snapshot is None:
+            model = build_model(hyper, env, config.seed, tensorboard_log)
+            if config.init_from is not None:
+                load_initial_policy(model, config.init_from)
+        else:
+            model = resume_model(snapshot, hyper.algo, env, tensorboard_log)
+        callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress, snapshot)
         if demonstrations is not None:
             from dpr.rl.anchor import demonstration_anchor
 
@@ -361,9 +421,19 @@ def train(
             # (both are Monitor-wrapped), and one env does not need a process of its own.
             warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
             try:
-                if config.critic_warmup:
-                    warm_up_critic(model, config.critic_warmup, show_progress)
-                model.learn(total_timesteps=timesteps, callback=callbacks, reset_num_timesteps=not config.critic_warmup)
+                if snapshot is None:
+                    if config.critic_warmup:
+                        warm_up_critic(model, config.critic_warmup, show_progress)
+                    origin = model.num_timesteps  # where the progress bar and the snapshots count from
+                    total, reset = timesteps, not config.critic_warmup
+                else:
+                    origin, total, reset = snapshot.origin, snapshot.total_timesteps - model.num_timesteps, False
+                if demonstrations is None:  # the anchor's own state is not in a snapshot: anchored runs keep none
+                    callbacks.callbacks.append(resume_state.snapshots(run_dir, env, eval_env, callbacks, origin))
+                if snapshot is not None:
+                    snapshot.restore_callbacks(callbacks)
+                    snapshot.restore_random_states()
+                model.learn(total_timesteps=total, callback=callbacks, reset_num_timesteps=reset)
                 interrupted = False
             except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
                 interrupted = True
@@ -380,6 +450,8 @@ def train(
         interrupted=interrupted,
     )
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    if not interrupted:
+        resume_state.drop_snapshot(run_dir)
     best = run_dir / "best_model.zip"
     log(f"dpr train: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
     return TrainResult(

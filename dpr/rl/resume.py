@@ -1,0 +1,194 @@
+"""Training runs that survive being stopped: a run folder's ``resume/`` snapshot, and resuming from it to the same
+model an uninterrupted run makes.
+
+Every :data:`SNAPSHOT_SECONDS` (at the start of a rollout, when no step is in flight) a run writes its whole
+training state into ``<run>/resume/``: the SB3 model (weights, optimizer, step count, last observation), each env's
+current episode as a :class:`dpr.envs.replay.ReplayLog` record (its random state at reset and the actions since:
+the training envs' and the evaluation env's), the pending seeds of both vector envs, the counters and results of
+the callbacks, and the torch, numpy and Python random states. :func:`dpr.rl.train.train` with ``resume=True``
+rebuilds all of it and goes on; the test ``tests/test_resume.py`` checks that the model it ends with is the one an
+uninterrupted run ends with, weight for weight. A stopped run loses at most the last :data:`SNAPSHOT_SECONDS`.
+"""
+
+from __future__ import annotations
+
+import pickle
+import random
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+SNAPSHOT_DIR = "resume"
+SNAPSHOT_SECONDS = 300.0
+MODEL_FILE = "model.zip"
+STATE_FILE = "state.pkl"
+STATE_VERSION = 1
+EVAL_ATTRIBUTES = (
+    "best_mean_reward",
+    "last_mean_reward",
+    "evaluations_results",
+    "evaluations_timesteps",
+    "evaluations_length",
+    "evaluations_successes",
+    "_is_success_buffer",
+)
+
+
+def snapshot_path(run_dir: str | Path) -> Path:
+    """Where a run folder keeps its snapshot."""
+    return Path(run_dir) / SNAPSHOT_DIR
+
+
+def has_snapshot(run_dir: str | Path) -> bool:
+    """Whether ``run_dir`` holds a complete snapshot to resume from (after putting back one that a stop between
+    :func:`save_snapshot`'s two renames left aside)."""
+    folder = snapshot_path(run_dir)
+    if not folder.exists():
+        for aside in (folder.with_name(SNAPSHOT_DIR + ".new"), folder.with_name(SNAPSHOT_DIR + ".old")):
+            if (aside / STATE_FILE).is_file():  # .new is renamed into place only once whole
+                aside.rename(folder)
+                break
+    return (folder / MODEL_FILE).is_file() and (folder / STATE_FILE).is_file()
+
+
+def _all_callbacks(callback) -> list:
+    """``callback`` and every callback inside it (lists, and the children of event callbacks), in a fixed order."""
+    from stable_baselines3.common.callbacks import CallbackList, EventCallback
+
+    found = [callback]
+    if isinstance(callback, CallbackList):
+        for child in callback.callbacks:
+            found += _all_callbacks(child)
+    elif isinstance(callback, EventCallback) and callback.callback is not None:
+        found += _all_callbacks(callback.callback)
+    return found
+
+
+def _callback_state(callback) -> list[dict[str, Any]]:
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    rows = []
+    for each in _all_callbacks(callback):
+        row = {"n_calls": each.n_calls}
+        if isinstance(each, EvalCallback):
+            row |= {name: pickle.loads(pickle.dumps(getattr(each, name))) for name in EVAL_ATTRIBUTES}
+        rows.append(row)
+    return rows
+
+
+def _episodes(vec_env) -> list[dict[str, Any] | None]:
+    return list(vec_env.env_method("episode"))
+
+
+@dataclass
+class Snapshot:
+    """A run's training state as read back from its folder (see the module's docstring)."""
+
+    model_path: Path
+    reached: int  # the model's step count when the snapshot was taken
+    total_timesteps: int  # the model's _total_timesteps: where the run's learn() call ends
+    origin: int  # the model's step count when that learn() call started (after any critic warm-up)
+    train_episodes: list
+    eval_episodes: list
+    pending: dict[str, Any]  # the vector envs' seeds and options for their next reset
+    callbacks: list[dict[str, Any]]
+    random_states: dict[str, Any]
+
+    def restore_vec_env(self, vec_env, which: str) -> None:
+        """Give ``vec_env`` (rebuilt from this snapshot's episodes) the seeds and options it had pending."""
+        vec_env._seeds, vec_env._options = pickle.loads(pickle.dumps(self.pending[which]))
+
+    def restore_callbacks(self, callback) -> None:
+        """Put the callbacks' counters and evaluation results back (``callback`` built as the run built it)."""
+        found = _all_callbacks(callback)
+        if len(found) != len(self.callbacks):
+            raise ValueError(f"the snapshot has {len(self.callbacks)} callbacks, the run {len(found)}")
+        for each, row in zip(found, self.callbacks, strict=True):
+            for name, value in row.items():
+                setattr(each, name, value)
+
+    def restore_random_states(self) -> None:
+        """The global torch, numpy and Python random states, as they were: the last thing before learning goes on
+        (loading the model reseeds them)."""
+        import numpy as np
+        import torch
+
+        torch.set_rng_state(self.random_states["torch"])
+        np.random.set_state(self.random_states["numpy"])
+        random.setstate(self.random_states["python"])
+
+
+def load_snapshot(run_dir: str | Path) -> Snapshot:
+    """The snapshot in ``run_dir`` (a ValueError naming the folder if it is missing or of another version)."""
+    folder = snapshot_path(run_dir)
+    if not has_snapshot(run_dir):
+        raise ValueError(f"{folder} holds no snapshot to resume from")
+    with open(folder / STATE_FILE, "rb") as file:
+        state = pickle.load(file)
+    if state.get("version") != STATE_VERSION:
+        raise ValueError(f"{folder / STATE_FILE} is snapshot version {state.get('version')}, expected {STATE_VERSION}")
+    del state["version"]
+    return Snapshot(model_path=folder / MODEL_FILE, **state)
+
+
+def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: int) -> None:
+    """Write the run's state into ``run_dir/resume/``, replacing the last snapshot only once the new one is whole."""
+    import numpy as np
+    import torch
+
+    folder = snapshot_path(run_dir)
+    fresh = folder.with_name(SNAPSHOT_DIR + ".new")
+    if fresh.exists():
+        shutil.rmtree(fresh)
+    fresh.mkdir()
+    model.save(fresh / MODEL_FILE)
+    state = {
+        "version": STATE_VERSION,
+        "reached": int(model.num_timesteps),
+        "total_timesteps": int(model._total_timesteps),
+        "origin": int(origin),
+        "train_episodes": _episodes(train_env),
+        "eval_episodes": _episodes(eval_env),
+        "pending": {name: (env._seeds, env._options) for name, env in (("train", train_env), ("eval", eval_env))},
+        "callbacks": _callback_state(callback),
+        "random_states": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
+    }
+    with open(fresh / STATE_FILE, "wb") as file:
+        pickle.dump(state, file)
+    old = folder.with_name(SNAPSHOT_DIR + ".old")
+    if folder.exists():
+        folder.rename(old)
+    fresh.rename(folder)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def snapshots(run_dir: Path, train_env, eval_env, callback, origin: int, every: float | None = None):
+    """An SB3 callback writing a snapshot at the start of a rollout once ``every`` seconds (default
+    :data:`SNAPSHOT_SECONDS`, read when it runs) have passed since the last one; ``callback`` is the run's whole
+    callback list, this one included."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Snapshots(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.last = time.monotonic()
+
+        def _on_rollout_start(self) -> None:
+            if time.monotonic() - self.last >= (SNAPSHOT_SECONDS if every is None else every):
+                save_snapshot(run_dir, self.model, train_env, eval_env, callback, origin)
+                self.last = time.monotonic()
+
+        def _on_step(self) -> bool:
+            return True
+
+    return Snapshots()
+
+
+def drop_snapshot(run_dir: str | Path) -> None:
+    """Remove a finished run's snapshot (its model.zip is then the run's result)."""
+    for name in (SNAPSHOT_DIR, SNAPSHOT_DIR + ".new", SNAPSHOT_DIR + ".old"):
+        path = Path(run_dir) / name
+        if path.exists():
+            shutil.rmtree(path)
