@@ -415,8 +415,9 @@ def test_a_retrained_run_that_does_not_reproduce_its_evaluation_is_refused(three
 
 
 def test_a_training_run_stopped_part_way_resumes_from_its_snapshot(pipeline, tmp_path, monkeypatch):
-    """A run killed mid-training goes on from its last snapshot in the same run folder (no second folder beside
-    it) and ends with the model the uninterrupted pipeline made."""
+    """A run killed mid-training goes on from its last snapshot in its run folder (no new folder beside it; here
+    one that an earlier attempt had started beside a first) and ends with the model the uninterrupted pipeline
+    made."""
     import shutil
 
     from dpr.rl import resume as resume_state
@@ -442,8 +443,10 @@ def test_a_training_run_stopped_part_way_resumes_from_its_snapshot(pipeline, tmp
         with pytest.raises(Stop):
             run_tiny(PIPELINE, out)
     assert resume_state.has_snapshot(out / "runs" / "navigation-ppo-seed0")
+    (out / "runs" / "navigation-ppo-seed0").rename(out / "runs" / "navigation-ppo-seed0-2")
     _, lines = run_tiny(PIPELINE, out)
     assert trained_runs(lines) == ["ppo, seed 0"]
-    assert any("resumed at step" in line for line in lines)
-    assert sorted(p.name for p in (out / "runs").iterdir()) == sorted(p.name for p in (pipeline[0] / "runs").iterdir())
+    assert any("resumed at step" in line and "navigation-ppo-seed0-2" in line for line in lines)
+    names = {p.name for p in (pipeline[0] / "runs").iterdir()} - {"navigation-ppo-seed0"}
+    assert {p.name for p in (out / "runs").iterdir()} == names | {"navigation-ppo-seed0-2"}
     assert_same_policy(out / "models" / "navigation-ppo.zip", pipeline[0] / "models" / "navigation-ppo.zip")

@@ -347,15 +347,25 @@ def _train_run(
         **settings,
     )
     run_dir = out / "runs" / f"{task}-{method}-seed{seed}"
-    resume = resumable(run_dir, train_config)  # a run stopped part-way goes on from its last snapshot
-    if not resume and run_dir.exists():
+    # a run stopped part-way goes on from its last snapshot, in its folder or in the newest one started beside it
+    stopped = [folder for folder in _run_folders(run_dir) if resumable(folder, train_config)]
+    if stopped:
+        run_dir = stopped[-1]
+    elif run_dir.exists():
         log(f"dpr pipeline: {run_dir} has no snapshot of these settings to resume from; starting a new run beside it")
-    run_dir = run_dir if resume else fresh_path(run_dir)
-    result = train(train_config, run_dir, show_progress=show_progress, resume=resume, log=log)
+        run_dir = fresh_path(run_dir)
+    result = train(train_config, run_dir, show_progress=show_progress, resume=bool(stopped), log=log)
     if result.interrupted:
         raise KeyboardInterrupt
     _copy_new(result.model_path, model)
     return model
+
+
+def _run_folders(run_dir: Path) -> list[Path]:
+    """``run_dir`` and the folders :func:`fresh_path` started beside it (``<name>-2``, ``<name>-3``...), oldest
+    first."""
+    beside = [p for p in run_dir.parent.glob(f"{run_dir.name}-*") if p.name.rsplit("-", 1)[1].isdigit()]
+    return [run_dir, *sorted(beside, key=lambda p: int(p.name.rsplit("-", 1)[1]))]
 
 
 def _evaluate(
