@@ -70,6 +70,15 @@ def _weights(path) -> dict[str, bytes]:
         return {name: archive.read(name) for name in ("policy.pth", "policy.optimizer.pth")}
 
 
+def test_dqn_runs_keep_no_snapshot(tmp_path, monkeypatch):
+    monkeypatch.setattr(resume_state, "SNAPSHOT_SECONDS", 0.0)
+    written = []
+    monkeypatch.setattr(resume_state, "save_snapshot", lambda *args, **kwargs: written.append(1))
+    config = _config(algo="dqn", timesteps=64, hyperparams={"learning_starts": 16})
+    train(config, tmp_path / "dqn", show_progress=False, log=lambda _: None)
+    assert not written
+
+
 def _evaluations(run_dir) -> dict[str, np.ndarray]:
     return dict(np.load(run_dir / "eval" / "evaluations.npz"))
 
@@ -90,9 +99,11 @@ def _stopped_after(monkeypatch, snapshots: int):
     return written
 
 
-@pytest.mark.parametrize("fine_tune", [False, True], ids=["from-scratch", "fine-tune"])
-def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, monkeypatch, fine_tune):
-    extra = {}
+@pytest.mark.parametrize(
+    "algo, fine_tune", [("ppo", False), ("ppo", True), ("a2c", False)], ids=["from-scratch", "fine-tune", "a2c"]
+)
+def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, monkeypatch, algo, fine_tune):
+    extra = {"algo": algo, "hyperparams": {"n_steps": 16}} if algo == "a2c" else {}
     if fine_tune:  # a fine-tuning after a critic warm-up, as the pipeline's: the snapshot comes after the warm-up
         start = train(_config(timesteps=64, seed=1), tmp_path / "start", show_progress=False, log=lambda _: None)
         extra = {"init_from": str(start.model_path), "critic_warmup": 32}

@@ -8,6 +8,8 @@ the training envs' and the evaluation env's), the pending seeds of both vector e
 the callbacks, and the torch, numpy and Python random states. :func:`dpr.rl.train.train` with ``resume=True``
 rebuilds all of it and goes on; the test ``tests/test_resume.py`` checks that the model it ends with is the one an
 uninterrupted run ends with, weight for weight. A stopped run loses at most the last :data:`SNAPSHOT_SECONDS`.
+Runs of :data:`SNAPSHOT_ALGOS` keep snapshots; DQN's (whose replay buffer a snapshot would have to hold) and runs
+anchored to demonstrations (whose anchor has its own state) do not, and start again when stopped.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+SNAPSHOT_ALGOS = ("ppo", "a2c")  # on-policy: nothing but the model and the envs carries over between rollouts
 SNAPSHOT_DIR = "resume"
 SNAPSHOT_SECONDS = 300.0
 MODEL_FILE = "model.zip"

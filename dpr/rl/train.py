@@ -428,7 +428,8 @@ def train(
                     total, reset = timesteps, not config.critic_warmup
                 else:
                     origin, total, reset = snapshot.origin, snapshot.total_timesteps - model.num_timesteps, False
-                if demonstrations is None:  # the anchor's own state is not in a snapshot: anchored runs keep none
+                # no snapshots of an anchor's own state, or of DQN's replay buffer: such runs keep none
+                if demonstrations is None and hyper.algo in resume_state.SNAPSHOT_ALGOS:
                     callbacks.callbacks.append(resume_state.snapshots(run_dir, env, eval_env, callbacks, origin))
                 if snapshot is not None:
                     snapshot.restore_callbacks(callbacks)
