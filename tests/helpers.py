@@ -1,5 +1,6 @@
 """Helpers shared by the test modules (tests/ is on sys.path under pytest's default import mode)."""
 
+import contextlib
 import hashlib
 import importlib.util
 import sys
@@ -197,3 +198,47 @@ def assert_same_policy(path, other):
     weights = second.policy.state_dict()
     for name, tensor in first.policy.state_dict().items():
         assert (weights[name] == tensor).all(), name
+
+
+class Stop(Exception):
+    """Stands for a training process being killed."""
+
+
+@contextlib.contextmanager
+def stopped_after_snapshots(snapshots: int = 1):
+    """Training runs inside snapshot at every rollout, and the first is stopped (:class:`Stop`, expected here)
+    right after writing its ``snapshots``-th snapshot."""
+    import pytest
+
+    from dpr.rl import resume as resume_state
+
+    written = []
+    save = resume_state.save_snapshot
+
+    def save_then_stop(*args, **kwargs):
+        save(*args, **kwargs)
+        written.append(1)
+        if len(written) == snapshots:
+            raise Stop
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(resume_state, "SNAPSHOT_SECONDS", 0.0)
+        patch.setattr(resume_state, "save_snapshot", save_then_stop)
+        with pytest.raises(Stop):
+            yield
+
+
+def copy_without_run(run: Path, out: Path, name: str, canonical: bool = False) -> Path:
+    """A copy of the pipeline run folder ``run`` at ``out`` as if the training run ``name`` (e.g.
+    ``navigation-ppo-seed1``) had never started: without its run folder, its model and its evaluations (and, with
+    ``canonical``, its method's canonical model)."""
+    import shutil
+
+    shutil.copytree(run, out)
+    shutil.rmtree(out / "runs" / name)
+    models = [out / "models" / f"{name}.zip"]
+    if canonical:
+        models.append(out / "models" / f"{name.rsplit('-seed', 1)[0]}.zip")
+    for path in [*models, *out.glob(f"eval/**/{name}.json")]:
+        path.unlink()
+    return out

@@ -5,7 +5,15 @@ import shutil
 
 import pytest
 import yaml
-from helpers import THREE_SEEDS, assert_same_policy, load_tool, run_tiny, trained_runs
+from helpers import (
+    THREE_SEEDS,
+    assert_same_policy,
+    copy_without_run,
+    load_tool,
+    run_tiny,
+    stopped_after_snapshots,
+    trained_runs,
+)
 
 
 @pytest.fixture(scope="module")
@@ -84,31 +92,12 @@ def test_keep_run_refuses_an_existing_folder_and_a_folder_that_is_not_a_run(tool
     assert not (tmp_path / "new").exists()
 
 
-def test_a_training_run_stopped_part_way_is_kept_and_resumes_from_its_snapshot(tool, finished, tmp_path, monkeypatch):
+def test_a_training_run_stopped_part_way_is_kept_and_resumes_from_its_snapshot(tool, finished, tmp_path):
     """A run killed mid-training keeps its snapshot (not its run folder's other files); the kept folder resumes it
     there and ends with the uninterrupted run's model."""
-    from dpr.rl import resume as resume_state
-
-    run = tmp_path / "run"
-    shutil.copytree(finished, run)
-    shutil.rmtree(run / "runs" / "navigation-ppo-seed1")
-    for path in [*run.glob("models/navigation-ppo-seed1.zip"), *run.glob("eval/**/navigation-ppo-seed1.json")]:
-        path.unlink()
-
-    class Stop(Exception):
-        pass
-
-    save = resume_state.save_snapshot
-
-    def save_then_stop(*args, **kwargs):
-        save(*args, **kwargs)
-        raise Stop
-
-    with monkeypatch.context() as patch:
-        patch.setattr(resume_state, "SNAPSHOT_SECONDS", 0.0)
-        patch.setattr(resume_state, "save_snapshot", save_then_stop)
-        with pytest.raises(Stop):
-            run_tiny(THREE_SEEDS, run)
+    run = copy_without_run(finished, tmp_path / "run", "navigation-ppo-seed1")
+    with stopped_after_snapshots():
+        run_tiny(THREE_SEEDS, run)
     kept = tmp_path / "kept"
     assert tool.main([str(run), str(kept)]) == 0
     assert sorted(p.name for p in (kept / "runs" / "navigation-ppo-seed1").iterdir()) == ["config.yaml", "resume"]

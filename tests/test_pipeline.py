@@ -13,7 +13,9 @@ from helpers import (
     QUIET,
     THREE_SEEDS,
     assert_same_policy,
+    copy_without_run,
     run_tiny,
+    stopped_after_snapshots,
     trained_runs,
 )
 
@@ -414,34 +416,15 @@ def test_a_retrained_run_that_does_not_reproduce_its_evaluation_is_refused(three
     assert not (record / "models" / "navigation-bc.zip").exists()
 
 
-def test_a_training_run_stopped_part_way_resumes_from_its_snapshot(pipeline, tmp_path, monkeypatch):
+def test_a_training_run_stopped_part_way_resumes_from_its_snapshot(pipeline, tmp_path):
     """A run killed mid-training goes on from its last snapshot in its run folder (no new folder beside it; here
     one that an earlier attempt had started beside a first) and ends with the model the uninterrupted pipeline
     made."""
-    import shutil
-
     from dpr.rl import resume as resume_state
 
-    out = tmp_path / "run"
-    shutil.copytree(pipeline[0], out)
-    shutil.rmtree(out / "runs" / "navigation-ppo-seed0")
-    for path in [*out.glob("models/navigation-ppo*.zip"), *out.glob("eval/**/navigation-ppo*.json")]:
-        path.unlink()
-
-    class Stop(Exception):
-        pass
-
-    save = resume_state.save_snapshot
-
-    def save_then_stop(*args, **kwargs):
-        save(*args, **kwargs)
-        raise Stop
-
-    with monkeypatch.context() as patch:
-        patch.setattr(resume_state, "SNAPSHOT_SECONDS", 0.0)
-        patch.setattr(resume_state, "save_snapshot", save_then_stop)
-        with pytest.raises(Stop):
-            run_tiny(PIPELINE, out)
+    out = copy_without_run(pipeline[0], tmp_path / "run", "navigation-ppo-seed0", canonical=True)
+    with stopped_after_snapshots():
+        run_tiny(PIPELINE, out)
     assert resume_state.has_snapshot(out / "runs" / "navigation-ppo-seed0")
     (out / "runs" / "navigation-ppo-seed0").rename(out / "runs" / "navigation-ppo-seed0-2")
     _, lines = run_tiny(PIPELINE, out)

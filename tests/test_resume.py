@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from helpers import stopped_after_snapshots
 
 import dpr  # noqa: F401
 from dpr.checks import ParameterError
@@ -19,10 +20,6 @@ from dpr.rl import resume as resume_state
 from dpr.rl.train import TrainConfig, resumable, train
 
 ENV_KWARGS = {"obs_last_action": True, "action_repeat": 2}
-
-
-class Stop(Exception):
-    """Stands for the process being killed."""
 
 
 def make_env():
@@ -83,26 +80,10 @@ def _evaluations(run_dir) -> dict[str, np.ndarray]:
     return dict(np.load(run_dir / "eval" / "evaluations.npz"))
 
 
-def _stopped_after(monkeypatch, snapshots: int):
-    """Snapshots at every rollout, and a stop right after the ``snapshots``-th is written."""
-    monkeypatch.setattr(resume_state, "SNAPSHOT_SECONDS", 0.0)
-    written = []
-    save = resume_state.save_snapshot
-
-    def save_then_stop(*args, **kwargs):
-        save(*args, **kwargs)
-        written.append(1)
-        if len(written) == snapshots:
-            raise Stop
-
-    monkeypatch.setattr(resume_state, "save_snapshot", save_then_stop)
-    return written
-
-
 @pytest.mark.parametrize(
     "algo, fine_tune", [("ppo", False), ("ppo", True), ("a2c", False)], ids=["from-scratch", "fine-tune", "a2c"]
 )
-def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, monkeypatch, algo, fine_tune):
+def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, algo, fine_tune):
     extra = {"algo": algo, "hyperparams": {"n_steps": 16}} if algo == "a2c" else {}
     if fine_tune:  # a fine-tuning after a critic warm-up, as the pipeline's: the snapshot comes after the warm-up
         start = train(_config(timesteps=64, seed=1), tmp_path / "start", show_progress=False, log=lambda _: None)
@@ -111,10 +92,8 @@ def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, monkeypatch, al
     whole = train(config, tmp_path / "whole", show_progress=False, log=lambda _: None)
     assert not resume_state.snapshot_path(whole.run_dir).exists()  # a finished run drops its snapshot
 
-    with monkeypatch.context() as patch:
-        _stopped_after(patch, snapshots=4)
-        with pytest.raises(Stop):
-            train(config, tmp_path / "stopped", show_progress=False, log=lambda _: None)
+    with stopped_after_snapshots(4):
+        train(config, tmp_path / "stopped", show_progress=False, log=lambda _: None)
     stopped = tmp_path / "stopped"
     assert not (stopped / "model.zip").exists() and resumable(stopped, config)
     reached = resume_state.load_snapshot(stopped).reached
@@ -132,23 +111,19 @@ def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, monkeypatch, al
     assert not resume_state.snapshot_path(stopped).exists()
 
 
-def test_a_stop_while_the_snapshot_is_replaced_keeps_one(tmp_path, monkeypatch):
+def test_a_stop_while_the_snapshot_is_replaced_keeps_one(tmp_path):
     config = _config(timesteps=128)
-    with monkeypatch.context() as patch:
-        _stopped_after(patch, snapshots=2)
-        with pytest.raises(Stop):
-            train(config, tmp_path / "run", show_progress=False, log=lambda _: None)
+    with stopped_after_snapshots(2):
+        train(config, tmp_path / "run", show_progress=False, log=lambda _: None)
     folder = resume_state.snapshot_path(tmp_path / "run")
     folder.rename(folder.with_name("resume.new"))  # as if stopped between the two renames
     assert resumable(tmp_path / "run", config) and folder.is_dir()
 
 
-def test_resume_refuses_other_settings_and_folders_without_a_snapshot(tmp_path, monkeypatch):
+def test_resume_refuses_other_settings_and_folders_without_a_snapshot(tmp_path):
     config = _config(timesteps=128)
-    with monkeypatch.context() as patch:
-        _stopped_after(patch, snapshots=1)
-        with pytest.raises(Stop):
-            train(config, tmp_path / "run", show_progress=False, log=lambda _: None)
+    with stopped_after_snapshots():
+        train(config, tmp_path / "run", show_progress=False, log=lambda _: None)
     before = sorted(p.name for p in (tmp_path / "run").iterdir())
     other = _config(timesteps=128, seed=4)
     assert not resumable(tmp_path / "run", other)
