@@ -27,6 +27,13 @@ def fresh_path(path: str | Path) -> Path:
     return candidate
 
 
+def attempt_paths(path: str | Path) -> list[Path]:
+    """``path`` and the folders :func:`fresh_path` started beside it (``path-2``, ``path-3``...), oldest first."""
+    base = Path(path)
+    beside = [p for p in base.parent.glob(f"{base.name}-*") if p.name.rsplit("-", 1)[1].isdigit()]
+    return [base, *sorted(beside, key=lambda p: int(p.name.rsplit("-", 1)[1]))]
+
+
 def check_new_folder(out: str | Path | None) -> None:
     """A :class:`ParameterError` about ``out`` when it exists and is not an empty folder (``None``: a default
     folder will be made)."""

@@ -71,7 +71,7 @@ from dpr.rl.run_folder import (
     task_done,
     tested_runs,
 )
-from dpr.runs import fresh_path
+from dpr.runs import attempt_paths, fresh_path
 
 
 def _stage(done: Path, what: str, log: Callable[[str], None]) -> bool:
@@ -348,7 +348,7 @@ def _train_run(
     )
     run_dir = out / "runs" / f"{task}-{method}-seed{seed}"
     # a run stopped part-way goes on from its last snapshot, in its folder or in the newest one started beside it
-    stopped = [folder for folder in _run_folders(run_dir) if resumable(folder, train_config)]
+    stopped = [folder for folder in attempt_paths(run_dir) if resumable(folder, train_config)]
     if stopped:
         run_dir = stopped[-1]
     elif run_dir.exists():
@@ -359,13 +359,6 @@ def _train_run(
         raise KeyboardInterrupt
     _copy_new(result.model_path, model)
     return model
-
-
-def _run_folders(run_dir: Path) -> list[Path]:
-    """``run_dir`` and the folders :func:`fresh_path` started beside it (``<name>-2``, ``<name>-3``...), oldest
-    first."""
-    beside = [p for p in run_dir.parent.glob(f"{run_dir.name}-*") if p.name.rsplit("-", 1)[1].isdigit()]
-    return [run_dir, *sorted(beside, key=lambda p: int(p.name.rsplit("-", 1)[1]))]
 
 
 def _evaluate(

@@ -24,6 +24,7 @@ from typing import Any
 
 SNAPSHOT_ALGOS = ("ppo", "a2c")  # on-policy: nothing but the model and the envs carries over between rollouts
 SNAPSHOT_DIR = "resume"
+NEW_DIR, OLD_DIR = SNAPSHOT_DIR + ".new", SNAPSHOT_DIR + ".old"  # beside it while a snapshot replaces another
 SNAPSHOT_SECONDS = 300.0
 MODEL_FILE = "model.zip"
 STATE_FILE = "state.pkl"
@@ -49,7 +50,7 @@ def has_snapshot(run_dir: str | Path) -> bool:
     :func:`save_snapshot`'s two renames left aside)."""
     folder = snapshot_path(run_dir)
     if not folder.exists():
-        for aside in (folder.with_name(SNAPSHOT_DIR + ".new"), folder.with_name(SNAPSHOT_DIR + ".old")):
+        for aside in (folder.with_name(NEW_DIR), folder.with_name(OLD_DIR)):
             if (aside / STATE_FILE).is_file():  # .new is renamed into place only once whole
                 aside.rename(folder)
                 break
@@ -76,7 +77,7 @@ def _callback_state(callback) -> list[dict[str, Any]]:
     for each in _all_callbacks(callback):
         row = {"n_calls": each.n_calls}
         if isinstance(each, EvalCallback):
-            row |= {name: pickle.loads(pickle.dumps(getattr(each, name))) for name in EVAL_ATTRIBUTES}
+            row |= {name: getattr(each, name) for name in EVAL_ATTRIBUTES}  # pickled to disk at once
         rows.append(row)
     return rows
 
@@ -101,7 +102,7 @@ class Snapshot:
 
     def restore_vec_env(self, vec_env, which: str) -> None:
         """Give ``vec_env`` (rebuilt from this snapshot's episodes) the seeds and options it had pending."""
-        vec_env._seeds, vec_env._options = pickle.loads(pickle.dumps(self.pending[which]))
+        vec_env._seeds, vec_env._options = self.pending[which]
 
     def restore_callbacks(self, callback) -> None:
         """Put the callbacks' counters and evaluation results back (``callback`` built as the run built it)."""
@@ -142,7 +143,7 @@ def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: i
     import torch
 
     folder = snapshot_path(run_dir)
-    fresh = folder.with_name(SNAPSHOT_DIR + ".new")
+    fresh = folder.with_name(NEW_DIR)
     if fresh.exists():
         shutil.rmtree(fresh)
     fresh.mkdir()
@@ -160,7 +161,7 @@ def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: i
     }
     with open(fresh / STATE_FILE, "wb") as file:
         pickle.dump(state, file)
-    old = folder.with_name(SNAPSHOT_DIR + ".old")
+    old = folder.with_name(OLD_DIR)
     if folder.exists():
         folder.rename(old)
     fresh.rename(folder)
@@ -191,7 +192,7 @@ def snapshots(run_dir: Path, train_env, eval_env, callback, origin: int, every: 
 
 def drop_snapshot(run_dir: str | Path) -> None:
     """Remove a finished run's snapshot (its model.zip is then the run's result)."""
-    for name in (SNAPSHOT_DIR, SNAPSHOT_DIR + ".new", SNAPSHOT_DIR + ".old"):
+    for name in (SNAPSHOT_DIR, NEW_DIR, OLD_DIR):
         path = Path(run_dir) / name
         if path.exists():
             shutil.rmtree(path)

@@ -338,10 +338,10 @@ def train(
     """Train ``config.algo`` from scratch and save the run into ``out`` (a new or empty folder; default
     ``runs/train/<task>-<algo>-seed<S>-<timestamp>``). Bad input raises ValueError before anything is written.
 
-    The run writes a snapshot of its training state into ``out/resume/`` every few minutes (:mod:`dpr.rl.resume`;
-    not for runs anchored to demonstrations). ``resume=True`` goes on from the snapshot of the stopped run in
-    ``out``, made with the same ``config`` (a ParameterError otherwise), to the model the run would have made
-    had it never stopped."""
+    A PPO or A2C run writes a snapshot of its training state into ``out/resume/`` every few minutes
+    (:mod:`dpr.rl.resume`; not when anchored to demonstrations). ``resume=True`` goes on from the snapshot of the
+    stopped run in ``out``, made with the same ``config`` (a ParameterError otherwise), to the model the run would
+    have made had it never stopped."""
     hyper, env_kwargs, timesteps = config.resolve()
     if resume:
         check_resumable(out, config)
