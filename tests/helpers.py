@@ -59,6 +59,33 @@ def positions(obs, n_robots: int) -> np.ndarray:
     return np.asarray(state)[: 6 * n_robots].reshape(n_robots, 6)[:, 0:2]
 
 
+def visited_observations(env, seeds=(0, 1, 2), steps=25) -> np.ndarray:
+    """Observations of random rollouts: spread-out swarms at reset, then shuffled by random expansions."""
+    out = []
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        env.action_space.seed(seed)
+        out.append(observation)
+        for _ in range(steps):
+            observation, *_ = env.step(env.action_space.sample())
+            out.append(observation)
+    return np.array(out)
+
+
+def rotate_scene(observations: np.ndarray, n_robots: int, angle: float, object_at: int | None = None) -> np.ndarray:
+    """State observations of the same scene rotated by ``angle`` about the goal: every robot's position and
+    velocity, and the object's (its features at ``object_at``) when there is one."""
+    c, s = np.cos(angle), np.sin(angle)
+    rotated = observations.copy()
+    pairs = [rotated[:, : 6 * n_robots].reshape(len(rotated), n_robots, 6)[..., i : i + 2] for i in (0, 2)]
+    if object_at is not None:
+        pairs += [rotated[:, object_at + i : object_at + i + 2] for i in (0, 2)]
+    for pair in pairs:  # views into `rotated`
+        x, y = pair[..., 0].copy(), pair[..., 1].copy()
+        pair[..., 0], pair[..., 1] = c * x - s * y, s * x + c * y
+    return rotated
+
+
 def run_cli(argv: list[str]) -> int:
     """dpr.cli.main's exit status, whether it returns it or argparse raises SystemExit."""
     from dpr.cli import main

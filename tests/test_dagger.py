@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import rotate_scene, visited_observations
 from helpers import run_cli as run
 
 import dpr.imitation.bc as bc_module
@@ -425,19 +426,6 @@ SWARM_ENVS = [
 ]
 
 
-def visited_observations(env, seeds=(0, 1, 2), steps=25) -> np.ndarray:
-    """Observations of random rollouts: spread-out swarms at reset, then shuffled by random expansions."""
-    out = []
-    for seed in seeds:
-        observation, _ = env.reset(seed=seed)
-        env.action_space.seed(seed)
-        out.append(observation)
-        for _ in range(steps):
-            observation, *_ = env.step(env.action_space.sample())
-            out.append(observation)
-    return np.array(out)
-
-
 def swarm_features(extractor: SwarmFeatures, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(observation part, along, across) of the extractor's output."""
     with torch.no_grad():
@@ -478,12 +466,7 @@ def test_swarm_features_are_invariant_to_rotating_the_scene_about_the_goal(env_i
     env.close()
     _, along, across = swarm_features(extractor, observations)
     for angle in (0.7, math.pi / 2, 2.5, -1.9):
-        c, s = math.cos(angle), math.sin(angle)
-        rotated = observations.copy()
-        robots = rotated[:, : 6 * 9].reshape(len(rotated), 9, 6)
-        for x, y in ((0, 1), (2, 3)):  # positions and velocities of every robot
-            px, py = robots[..., x].copy(), robots[..., y].copy()
-            robots[..., x], robots[..., y] = c * px - s * py, s * px + c * py
+        rotated = rotate_scene(observations, 9, angle)
         head, along_r, across_r = swarm_features(extractor, rotated)
         np.testing.assert_array_equal(head, rotated)
         np.testing.assert_allclose(along_r, along, atol=2e-4)

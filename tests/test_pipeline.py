@@ -19,6 +19,7 @@ from helpers import (
     trained_runs,
 )
 
+from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import load_model, read_model_info
 from dpr.rl.pipeline import run_pipeline
@@ -101,6 +102,26 @@ def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
         info = read_model_info(tmp_path / "run" / "models" / f"manipulation-{method}.zip")
         assert info.env_kwargs["approach_reward"] == 0.5, method
     assert "approach_reward" not in read_model_info(tmp_path / "run" / "models" / "manipulation-bc.zip").env_kwargs
+
+
+def test_pipeline_gives_every_learner_the_swarm_actor(tmp_path):
+    """--actor swarm: the clone, its fine-tuning and the run from scratch all have the shared per-robot actor, and
+    the choice is one of the settings a resume must match."""
+    from dpr.policies.swarm_policy import SwarmActorCriticPolicy
+
+    settings = {**PIPELINE, "anchor": False, "actor": "swarm"}
+    out = tmp_path / "run"
+    run_tiny(settings, out)
+    for method in METHODS[1:]:
+        model, _ = load_model(out / "models" / f"navigation-{method}.zip")
+        assert isinstance(model.policy, SwarmActorCriticPolicy), method
+    assert yaml.safe_load((out / "pipeline.yaml").read_text())["config"]["actor"] == "swarm"
+    with pytest.raises(ParameterError, match="actor: 'swarm' there, 'mlp' here"):
+        run_tiny({**settings, "actor": "mlp"}, out)
+    with pytest.raises(ParameterError, match="actor: expected one of"):
+        PipelineConfig(actor="transformer")
+    with pytest.raises(ParameterError, match="DQN from scratch has none"):
+        PipelineConfig(actor="swarm", scratch_algos=["ppo", "dqn"])
 
 
 def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):

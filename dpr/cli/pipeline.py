@@ -32,7 +32,7 @@ def _pairs(mapping: dict) -> str:
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
     from dpr.policies.sb3 import FINETUNE_ALGOS
-    from dpr.rl.pipeline_config import DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
+    from dpr.rl.pipeline_config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
 
     presets = {name: dataclasses.asdict(config) for name, config in PRESETS.items()}
 
@@ -115,6 +115,13 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         help="a fine-tuning hyperparameter over the preset's (preset: "
         + ", ".join(f"{name} {_pairs(config['finetune_hyperparams'])}" for name, config in presets.items())
         + ") and the yaml's `finetune` entry, e.g. learning_rate=1e-4 (repeatable)",
+    )
+    preset_argument(
+        "--actor",
+        "every learner's actor: mlp (one MLP from the whole state to every robot's action) or swarm (one network "
+        "shared by the robots, seeing the whole swarm: dpr.policies.swarm_policy)",
+        type=str,
+        choices=list(ACTORS),
     )
     preset_argument("--steps", "physics steps per episode, everywhere")
     preset_argument(

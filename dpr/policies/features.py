@@ -19,7 +19,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from dpr.envs.particle_env import LENGTH_SCALE, ROBOT_FEATURES
 from dpr.policies.wave import BIN_WIDTH
 
-__all__ = ["SwarmFeatures"]
+__all__ = ["GoalFrame", "SwarmFeatures"]
 
 
 class SwarmFeatures(BaseFeaturesExtractor):
@@ -43,10 +43,31 @@ class SwarmFeatures(BaseFeaturesExtractor):
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
         n = self.n_robots
         positions = observations[:, : ROBOT_FEATURES * n].reshape(-1, n, ROBOT_FEATURES)[..., 0:2] / LENGTH_SCALE
-        centre = positions.mean(dim=1, keepdim=True)
-        direction = centre / centre.norm(dim=2, keepdim=True).clamp_min(1e-6)
-        normal = torch.stack([-direction[..., 1], direction[..., 0]], dim=2)
-        along = (positions * direction).sum(dim=2).abs()
-        across = ((positions - centre) * normal).sum(dim=2)
+        frame = GoalFrame(positions)
+        along = frame.along(positions).abs()
         along = along - along.min(dim=1, keepdim=True).values
-        return torch.cat([observations, along / BIN_WIDTH, across / BIN_WIDTH], dim=1)
+        return torch.cat([observations, along / BIN_WIDTH, frame.across(positions) / BIN_WIDTH], dim=1)
+
+
+class GoalFrame:
+    """The frame of a swarm's goal direction: ``along`` the unit vector from the goal to the swarm's centre,
+    ``across`` the one perpendicular to it, for positions ``(B, N, 2)`` relative to the goal."""
+
+    def __init__(self, positions: torch.Tensor):
+        self.centre = positions.mean(dim=1, keepdim=True)
+        self.distance = self.centre.norm(dim=2, keepdim=True)
+        self.along_unit = self.centre / self.distance.clamp_min(1e-6)
+        self.across_unit = torch.stack([-self.along_unit[..., 1], self.along_unit[..., 0]], dim=2)
+
+    def along(self, vectors: torch.Tensor) -> torch.Tensor:
+        """Signed components along the goal direction (for positions: the distance past the line through the
+        goal perpendicular to it)."""
+        return (vectors * self.along_unit).sum(dim=2)
+
+    def across(self, positions: torch.Tensor) -> torch.Tensor:
+        """Offsets across the goal direction from the swarm's centre."""
+        return ((positions - self.centre) * self.across_unit).sum(dim=2)
+
+    def rotate(self, vectors: torch.Tensor) -> torch.Tensor:
+        """Vectors (velocities) in the frame: ``(..., 2)`` as (along, across) components."""
+        return torch.stack([self.along(vectors), (vectors * self.across_unit).sum(dim=2)], dim=2)

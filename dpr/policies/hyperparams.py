@@ -33,7 +33,7 @@ FINETUNE_PRESET = "finetune"  # the env id's entry with the yaml's `finetune` en
 PRESETS = (DEFAULT_PRESET, PAPER_PRESET, FINETUNE_PRESET)
 LINEAR_PREFIX = "lin_"
 ACTIVATIONS = ("tanh", "relu")
-POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor")
+POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor", "robot_net")
 FEATURES_EXTRACTORS = ("flatten", "swarm")  # SB3's default; dpr.policies.features.SwarmFeatures
 # Set by the trainer itself, never by a yaml entry.
 RESERVED = ("env", "seed", "verbose", "tensorboard_log", "device", "_init_setup_model")

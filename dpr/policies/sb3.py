@@ -33,6 +33,8 @@ ALGOS = (PPO, A2C, DQN)  # the SB3 algorithms a model file may hold (`dpr train`
 FINETUNE_ALGOS = (PPO, A2C)  # actor-critics: a cloned action distribution goes on training under them
 BC_ALGOS = ALGOS  # actor-critics (an action distribution) and DQN (Q-values as logits)
 DEFAULT_ALGO = PPO
+# A hyperparameter entry's `policy`: SB3's own names, or the shared per-robot actor (dpr.policies.swarm_policy).
+SWARM_POLICY = "SwarmPolicy"
 # The parameter that names a model file in evaluate and collect: what a bad model file is reported as by default.
 POLICY_PARAMETER = "policy"
 # The TrainConfig field that names the model a fine-tuning run starts from (dpr.rl.train).
@@ -293,14 +295,15 @@ def build_model(hyper, env, seed: int, tensorboard_log: str | None):
     VecEnv), seeded with ``seed``: what ``dpr train`` trains and what ``dpr bc`` clones into. Its initial weights
     follow from the torch RNG state, ``hyper`` and ``seed`` alone."""
     single_thread_torch()
+    kwargs = hyper.model_kwargs(n_robots=env.get_attr("n_robots")[0])
+    policy = hyper.policy
+    if policy == SWARM_POLICY:
+        from dpr.policies.swarm_policy import SwarmActorCriticPolicy
+
+        policy = SwarmActorCriticPolicy
+        kwargs["policy_kwargs"] = {**kwargs.get("policy_kwargs", {}), "has_object": env.get_attr("has_object")[0]}
     return algo_class(hyper.algo)(
-        hyper.policy,
-        env,
-        seed=seed,
-        verbose=0,
-        device="cpu",
-        tensorboard_log=tensorboard_log,
-        **hyper.model_kwargs(n_robots=env.get_attr("n_robots")[0]),
+        policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log, **kwargs
     )
 
 

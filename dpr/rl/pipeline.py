@@ -126,9 +126,15 @@ def run_pipeline(
     if config_path.exists():
         previous = yaml.safe_load(config_path.read_text()).get("config")
         if not isinstance(previous, dict) or saved_settings(previous) != asdict(config):
+            settings = saved_settings(previous) if isinstance(previous, dict) else {}
+            differ = [
+                f"{name}: {settings.get(name)!r} there, {value!r} here"
+                for name, value in asdict(config).items()
+                if settings.get(name) != value
+            ]
             raise ParameterError(
                 "out",
-                f"{out} holds a pipeline run with other settings ({config_path}); "
+                f"{out} holds a pipeline run with other settings ({config_path}: {'; '.join(differ)}); "
                 "use a new folder, or the same settings to resume it",
             )
     else:
@@ -309,6 +315,7 @@ def _train_run(
                 env_id,
                 algo=BC_ALGO,
                 epochs=config.bc_epochs,
+                hyperparams=config.actor_hyperparams(),
                 seed=seed,
                 out=fresh_path(out / "runs" / f"{task}-bc-seed{seed}"),
                 show_progress=show_progress,
@@ -321,6 +328,7 @@ def _train_run(
     settings: dict[str, Any] = {
         "algo": method.removeprefix("bc-"),
         "timesteps": (config.finetune_steps if fine_tuned else config.rl_steps) // repeat,
+        "hyperparams": config.actor_hyperparams(),
     }
     warmup = f" after {config.critic_warmup} warm-up steps" if fine_tuned else ""
     what = f"{task}: {method}, seed {seed} ({settings['timesteps'] * repeat} physics steps{warmup})"

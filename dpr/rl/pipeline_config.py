@@ -10,7 +10,7 @@ from dpr.checks import ParameterError, check_int, check_number, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.envs.particle_env import HELD_STEPS_CAP
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
-from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, FINETUNE_ALGOS
+from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POLICY
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}
@@ -27,6 +27,9 @@ WAVE_HOLD = MODEL_DEFAULTS["paddle"]["hold_steps"]
 PER_PHASE = 0  # action_repeat 0: the learners decide once per phase of the task's teacher (K = its hold)
 SCRATCH_ALGOS = ALGOS
 BC_ALGO = DEFAULT_ALGO  # what the demonstrations are cloned into: an actor-critic every FINETUNE_ALGOS can load
+# Every learner's actor (clone, fine-tuning, from scratch): the yaml's MLP from the whole state to every robot's
+# logit, or one network shared by the robots (dpr.policies.swarm_policy); the critic is the yaml's MLP either way.
+ACTORS = {"mlp": {}, "swarm": {"policy": SWARM_POLICY}}
 
 
 @dataclass(frozen=True)
@@ -81,11 +84,16 @@ class PipelineConfig:
     action_repeat: int = 10
     # over the yaml's `finetune` entry (FINETUNE_AT_REPEAT)
     finetune_hyperparams: dict[str, Any] = field(default_factory=lambda: dict(FINETUNE_AT_REPEAT))
+    actor: str = "mlp"  # one of ACTORS
 
     def __post_init__(self):
         unknown = [task for task in self.tasks if task not in ENV_IDS]
         if not self.tasks or unknown:
             raise ValueError(f"tasks must be among {tuple(ENV_IDS)}, got {self.tasks!r}")
+        if self.actor not in ACTORS:
+            raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
+        if self.actor != "mlp" and DQN in self.scratch_algos:
+            raise ParameterError("actor", f"{self.actor!r} is an actor-critic's actor; DQN from scratch has none")
         for name, allowed in (("finetune_algos", FINETUNE_ALGOS), ("scratch_algos", SCRATCH_ALGOS)):
             bad = [algo for algo in getattr(self, name) if algo not in allowed]
             if bad:
@@ -177,7 +185,15 @@ class PipelineConfig:
     def finetune_hyperparams_at(self, hold: int) -> dict[str, Any]:
         """The fine-tuning hyperparameters: ``finetune_hyperparams``, discounting PHYSICS_DISCOUNT per physics
         step unless they set gamma."""
-        return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3), **self.finetune_hyperparams}
+        return {
+            "gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3),
+            **self.actor_hyperparams(),
+            **self.finetune_hyperparams,
+        }
+
+    def actor_hyperparams(self) -> dict[str, Any]:
+        """The hyperparameter overrides that give every learner its actor (:data:`ACTORS`)."""
+        return dict(ACTORS[self.actor])
 
     def methods(self) -> list[str]:
         """Names of the policies evaluated on each task: the wave first, the chosen teacher unless it is the wave's

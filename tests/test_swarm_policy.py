@@ -1,0 +1,154 @@
+"""SwarmActorCriticPolicy (`policy: SwarmPolicy`): a shared per-robot actor that sees the whole swarm."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from helpers import rotate_scene, visited_observations
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from dpr.datasets.collect import CollectSpec, collect
+from dpr.imitation import behaviour_clone
+from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.sb3 import VALUE_HEAD_PREFIXES, build_model, load_model, load_model_policy
+from dpr.policies.swarm_policy import RobotLogits, SwarmActorCriticPolicy
+from dpr.rl.train import TrainConfig, train
+
+N = 5
+SWARM = {"policy": "SwarmPolicy", "policy_kwargs": {"net_arch": [16], "robot_net": [16, 8]}}
+ENVS = [
+    ("dpr/Navigation-v0", {"obs_last_action": True}),
+    ("dpr/Unresponsive-v0", {"obs_last_action": True}),
+    ("dpr/Manipulation-v0", {"obs_last_action": True}),
+    ("dpr/Navigation-v0", {}),
+]
+IDS = ["navigation", "unresponsive", "manipulation-object", "navigation-no-memory"]
+
+
+def swarm_model(env_id, kwargs, seed=0):
+    env = gym.make(env_id, n_robots=N, robot_model="disk", **kwargs)
+    model = build_model(load_hyperparams("ppo", env_id, overrides=SWARM), DummyVecEnv([lambda: env]), seed, None)
+    return model, env
+
+
+def logits(model, observations: np.ndarray) -> np.ndarray:
+    policy = model.policy
+    with torch.no_grad():
+        features = policy.extract_features(torch.as_tensor(observations), policy.pi_features_extractor)
+        return policy.action_net(policy.mlp_extractor.forward_actor(features)).numpy()
+
+
+def trained_a_little(model) -> None:
+    """Weights away from the initialisation (whose output layer is nearly zero), so the tests see real outputs."""
+    with torch.no_grad():
+        for parameter in model.policy.parameters():
+            parameter.add_(0.3 * torch.randn_like(parameter))
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), ENVS, ids=IDS)
+def test_permuting_the_robots_permutes_the_logits(env_id, kwargs):
+    model, env = swarm_model(env_id, kwargs)
+    trained_a_little(model)
+    observations = visited_observations(env, seeds=(0, 1), steps=10)
+    base = logits(model, observations)
+    assert base.shape == (len(observations), N) and np.ptp(base) > 0.1
+    layout = model.policy.layout
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        order = rng.permutation(N)
+        permuted = observations.copy()
+        robots = permuted[:, : 6 * N].reshape(len(permuted), N, 6)
+        robots[:] = robots[:, order]
+        if layout.has_memory:
+            permuted[:, layout.memory_at : layout.memory_at + N] = observations[:, layout.memory_at :][:, order]
+        np.testing.assert_allclose(logits(model, permuted), base[:, order], atol=1e-5)
+    env.close()
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), ENVS, ids=IDS)
+def test_rotating_the_scene_about_the_goal_leaves_the_actor_unchanged(env_id, kwargs):
+    model, env = swarm_model(env_id, kwargs)
+    trained_a_little(model)
+    observations = visited_observations(env, seeds=(2,), steps=15)
+    base = logits(model, observations)
+    layout = model.policy.layout
+    for angle in (0.7, np.pi / 2, 2.5, -1.9):
+        rotated = rotate_scene(observations, N, angle, layout.object_at if layout.has_object else None)
+        np.testing.assert_allclose(logits(model, rotated), base, atol=2e-4)
+    # the object is seen: moving it changes the logits
+    if layout.has_object:
+        moved = observations.copy()
+        moved[:, layout.object_at] += 0.05
+        assert not np.allclose(logits(model, moved), base, atol=1e-3)
+    env.close()
+
+
+def test_the_actor_shares_one_network_across_robots_and_other_swarm_sizes_keep_its_shapes():
+    model, env = swarm_model("dpr/Navigation-v0", {"obs_last_action": True})
+    policy = model.policy
+    assert isinstance(policy, SwarmActorCriticPolicy) and isinstance(policy.action_net, RobotLogits)
+    # the actor's weights do not grow with the swarm: the same shapes at N = 5 and N = 9
+    big_env = gym.make("dpr/Navigation-v0", n_robots=9, robot_model="disk", obs_last_action=True)
+    big = build_model(
+        load_hyperparams("ppo", "dpr/Navigation-v0", overrides=SWARM), DummyVecEnv([lambda: big_env]), 0, None
+    )
+
+    def actor_shapes(p):
+        return {name: tuple(t.shape) for name, t in p.named_parameters() if not name.startswith(VALUE_HEAD_PREFIXES)}
+
+    assert actor_shapes(big.policy) == actor_shapes(policy)
+    assert actor_shapes(policy)["action_net.unit.weight"] == (1, 8)
+    # every parameter is in the optimizer that PPO steps
+    optimised = {id(p) for group in policy.optimizer.param_groups for p in group["params"]}
+    assert optimised == {id(p) for p in policy.parameters()}
+    env.close()
+    big_env.close()
+
+
+def test_the_layout_is_checked():
+    with pytest.raises(ValueError, match="SwarmPolicy: a state observation of 5 robots without an object has 30 or 36"):
+        SwarmActorCriticPolicy(
+            gym.spaces.Box(-np.inf, np.inf, (31,), dtype=np.float32), gym.spaces.MultiBinary(5), lambda _: 1e-3
+        )
+    with pytest.raises(ValueError, match="SwarmPolicy needs MultiBinary"):
+        SwarmActorCriticPolicy(
+            gym.spaces.Box(-np.inf, np.inf, (30,), dtype=np.float32), gym.spaces.Discrete(32), lambda _: 1e-3
+        )
+    with pytest.raises(ValueError, match="policy_kwargs may only set"):
+        load_hyperparams("ppo", "dpr/Navigation-v0", overrides={"policy_kwargs": {"robot_nets": [8]}})
+
+
+def test_a_clone_runs_saves_loads_and_fine_tunes(tmp_path):
+    """BC clones into it, the model file reloads to the same actions, and PPO fine-tunes it from the file."""
+    env_id, kwargs = "dpr/Unresponsive-v0", {"obs_last_action": True}
+    spec = CollectSpec(env_id, policy="wave-markov", steps=40, n_robots=N, robot_model="disk", env_kwargs=kwargs)
+    collect(tmp_path / "demos", spec, episodes=3, workers=1)
+    clone = behaviour_clone(
+        tmp_path / "demos", env_id, epochs=3, out=tmp_path / "bc", hyperparams=SWARM, lr=3e-3, log=lambda _: None
+    )
+    assert clone.history[-1]["val_nll"] < clone.history[0]["val_nll"]
+    model, _ = load_model(clone.model_path)
+    assert isinstance(model.policy, SwarmActorCriticPolicy) and model.policy.robot_net == [16, 8]
+    env = gym.make(env_id, n_robots=N, robot_model="disk", **kwargs)
+    policy = load_model_policy(clone.model_path, env)
+    observation, _ = env.reset(seed=3)
+    for _ in range(5):
+        action = policy(observation)
+        assert action.shape == (N,) and set(np.unique(action)) <= {0, 1}
+        np.testing.assert_array_equal(model.predict(observation, deterministic=True)[0], action)
+        observation, *_ = env.step(action)
+    env.close()
+    config = TrainConfig(
+        env_id=env_id, n_robots=N, robot_model="disk", seed=0, n_envs=1, steps_per_episode=40, env_kwargs=kwargs,
+        algo="ppo", timesteps=64, preset="finetune", init_from=str(clone.model_path), critic_warmup=32,
+        hyperparams={**SWARM, "n_steps": 32, "batch_size": 16},
+    )  # fmt: skip
+    result = train(config, tmp_path / "ft", log=lambda _: None)
+    tuned, _ = load_model(result.model_path)
+    assert isinstance(tuned.policy, SwarmActorCriticPolicy)
+    moved = [
+        not torch.equal(a, b)
+        for (name, a), b in zip(tuned.policy.state_dict().items(), model.policy.state_dict().values(), strict=True)
+        if name.startswith("mlp_extractor.policy_net")
+    ]
+    assert any(moved)  # the actor trained after the warm-up
