@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 from helpers import rotate_scene, visited_observations
+from helpers import run_cli as run
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from dpr.datasets.collect import CollectSpec, collect
@@ -118,13 +119,33 @@ def test_the_layout_is_checked():
         load_hyperparams("ppo", "dpr/Navigation-v0", overrides={"policy_kwargs": {"robot_nets": [8]}})
 
 
-def test_a_clone_runs_saves_loads_and_fine_tunes(tmp_path):
+DEMO_ENV, DEMO_KWARGS = "dpr/Unresponsive-v0", {"obs_last_action": True}
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory):
+    """Three 40-step Markov-wave episodes of 5 disk robots with the last action in the observation."""
+    root = tmp_path_factory.mktemp("swarm") / "demos"
+    spec = CollectSpec(DEMO_ENV, policy="wave-markov", steps=40, n_robots=N, robot_model="disk", env_kwargs=DEMO_KWARGS)
+    collect(root, spec, episodes=3, workers=1)
+    return root
+
+
+def test_dpr_bc_clones_into_the_swarm_actor_with_a_hyperparam(demos, tmp_path, capsys):
+    args = ["bc", "--dataset", str(demos), "--env", DEMO_ENV, "--epochs", "1", "--out"]
+    assert run([*args, str(tmp_path / "bc"), "--hyperparam", "policy=SwarmPolicy"]) == 0
+    model, _ = load_model(tmp_path / "bc" / "model.zip")
+    assert isinstance(model.policy, SwarmActorCriticPolicy) and model.policy.robot_net == [64, 64]
+    assert run([*args, str(tmp_path / "bad"), "--hyperparam", "policy_kwargs={robot_nets: [8]}"]) == 2
+    assert "policy_kwargs may only set" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_a_clone_runs_saves_loads_and_fine_tunes(demos, tmp_path):
     """BC clones into it, the model file reloads to the same actions, and PPO fine-tunes it from the file."""
-    env_id, kwargs = "dpr/Unresponsive-v0", {"obs_last_action": True}
-    spec = CollectSpec(env_id, policy="wave-markov", steps=40, n_robots=N, robot_model="disk", env_kwargs=kwargs)
-    collect(tmp_path / "demos", spec, episodes=3, workers=1)
+    env_id, kwargs = DEMO_ENV, DEMO_KWARGS
     clone = behaviour_clone(
-        tmp_path / "demos", env_id, epochs=3, out=tmp_path / "bc", hyperparams=SWARM, lr=3e-3, log=lambda _: None
+        demos, env_id, epochs=3, out=tmp_path / "bc", hyperparams=SWARM, lr=3e-3, log=lambda _: None
     )
     assert clone.history[-1]["val_nll"] < clone.history[0]["val_nll"]
     model, _ = load_model(clone.model_path)

@@ -42,6 +42,7 @@ def add_fit_flags(parser, clone: dict, unit: str, held_out: str) -> None:
 
 
 def bc_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.cli.learn import hyperparam
     from dpr.imitation.bc import behaviour_clone
     from dpr.imitation.dagger import dagger
     from dpr.policies.sb3 import BC_ALGOS
@@ -65,6 +66,14 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
     parser.add_argument("--robot-model", choices=ROBOT_MODELS, help="only checked: it must be the dataset's")
     add_fit_flags(parser, clone, "frames", "fraction of episodes held out for validation")
+    parser.add_argument(
+        "--hyperparam",
+        action="append",
+        type=hyperparam,
+        metavar="NAME=VALUE",
+        help="override a value of the yaml entry the model is built from, e.g. policy=SwarmPolicy (an actor shared "
+        "by the robots) or 'policy_kwargs={net_arch: [256, 256]}'; fine-tune it with the same (repeatable)",
+    )
     parser.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
     parser.add_argument(
         "--dagger-rounds",
@@ -111,6 +120,7 @@ def cmd_bc(args, parser) -> int:
         patience=args.patience,
         seed=args.seed,
         env_kwargs=requested,
+        hyperparams=dict(args.hyperparam or []),
         show_progress=True,
     )
     try:
