@@ -80,14 +80,21 @@ def _evaluations(run_dir) -> dict[str, np.ndarray]:
     return dict(np.load(run_dir / "eval" / "evaluations.npz"))
 
 
+SWARM_ACTOR = {"policy": "SwarmPolicy", "policy_kwargs": {"net_arch": [16], "robot_net": [16, 8]}}
+
+
 @pytest.mark.parametrize(
-    "algo, fine_tune", [("ppo", False), ("ppo", True), ("a2c", False)], ids=["from-scratch", "fine-tune", "a2c"]
+    "algo, fine_tune, actor",
+    [("ppo", False, {}), ("ppo", True, {}), ("a2c", False, {}), ("ppo", True, SWARM_ACTOR)],
+    ids=["from-scratch", "fine-tune", "a2c", "fine-tune-swarm-actor"],
 )
-def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, algo, fine_tune):
+def test_resumed_run_ends_with_the_uninterrupted_model(tmp_path, algo, fine_tune, actor):
     extra = {"algo": algo, "hyperparams": {"n_steps": 16}} if algo == "a2c" else {}
     if fine_tune:  # a fine-tuning after a critic warm-up, as the pipeline's: the snapshot comes after the warm-up
-        start = train(_config(timesteps=64, seed=1), tmp_path / "start", show_progress=False, log=lambda _: None)
-        extra = {"init_from": str(start.model_path), "critic_warmup": 32}
+        hyperparams = {**_config().hyperparams, **actor}
+        start = _config(timesteps=64, seed=1, hyperparams=hyperparams)
+        start = train(start, tmp_path / "start", show_progress=False, log=lambda _: None)
+        extra = {"init_from": str(start.model_path), "critic_warmup": 32, "hyperparams": hyperparams}
     config = _config(**extra)
     whole = train(config, tmp_path / "whole", show_progress=False, log=lambda _: None)
     assert not resume_state.snapshot_path(whole.run_dir).exists()  # a finished run drops its snapshot
