@@ -1,9 +1,10 @@
 """Hyperparameters of the SB3 algorithms, read from ``dpr/rl/hyperparams/<algo>.yml`` (rl-zoo style).
 
 Each file has one entry per env id (laptop-sized defaults, preset ``default``) and one ``paper`` entry (Shen et
-al.'s values, any env id). An entry holds ``n_timesteps``, ``policy``, ``learning_rate`` (a number or
-``"lin_X"``: linear from X to 0 over training), ``policy_kwargs`` (``net_arch``, ``activation_fn``,
-``features_extractor``: ``flatten`` or ``swarm``, see :mod:`dpr.policies.features`),
+al.'s values, any env id). An entry holds ``n_timesteps``, ``policy`` (SB3's names, or ``SwarmPolicy``: the actor
+shared by the robots of :mod:`dpr.policies.swarm_policy`), ``learning_rate`` (a number or ``"lin_X"``: linear from
+X to 0 over training), ``policy_kwargs`` (``net_arch``, ``activation_fn``, ``features_extractor``: ``flatten`` or
+``swarm``, see :mod:`dpr.policies.features`; ``robot_net``: SwarmPolicy's per-robot layers),
 ``env_kwargs`` (gym.make kwargs the algorithm needs, e.g. DQN's discrete actions) and any other keyword
 argument of the SB3 class. Everything stays plain yaml data until :meth:`Hyperparams.model_kwargs` turns it
 into the objects SB3 wants, so the resolved values can be saved as they were read.
