@@ -117,6 +117,9 @@ def test_the_layout_is_checked():
         )
     with pytest.raises(ValueError, match="policy_kwargs may only set"):
         load_hyperparams("ppo", "dpr/Navigation-v0", overrides={"policy_kwargs": {"robot_nets": [8]}})
+    for bad in ([], [8, 0], 16):
+        with pytest.raises(ValueError, match="policy_kwargs.robot_net"):
+            load_hyperparams("ppo", "dpr/Navigation-v0", overrides={"policy_kwargs": {"robot_net": bad}})
 
 
 DEMO_ENV, DEMO_KWARGS = "dpr/Unresponsive-v0", {"obs_last_action": True}

@@ -172,11 +172,14 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
     policy_kwargs = entry.get("policy_kwargs") or {}
     if not isinstance(policy_kwargs, dict) or set(policy_kwargs) - set(POLICY_KWARGS):
         raise ValueError(f"{where}: policy_kwargs may only set {POLICY_KWARGS}, got {policy_kwargs!r}")
-    net_arch = policy_kwargs.get("net_arch", [64])
-    if not isinstance(net_arch, list):
-        raise ValueError(f"{where}: policy_kwargs.net_arch must be a list of layer sizes, got {net_arch!r}")
-    for size in net_arch:
-        _check_int(where, "policy_kwargs.net_arch (layer sizes)", size, 1)
+    for name, layers in (
+        ("net_arch", policy_kwargs.get("net_arch", [64])),
+        ("robot_net", policy_kwargs.get("robot_net", [64])),
+    ):
+        if not isinstance(layers, list) or (name == "robot_net" and not layers):
+            raise ValueError(f"{where}: policy_kwargs.{name} must be a list of layer sizes, got {layers!r}")
+        for size in layers:
+            _check_int(where, f"policy_kwargs.{name} (layer sizes)", size, 1)
     if policy_kwargs.get("features_extractor", "flatten") not in FEATURES_EXTRACTORS:
         raise ValueError(
             f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "
