@@ -11,8 +11,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.imitation import behaviour_clone
 from dpr.policies.hyperparams import load_hyperparams
-from dpr.policies.sb3 import VALUE_HEAD_PREFIXES, build_model, load_model, load_model_policy
-from dpr.policies.swarm_policy import RobotLogits, SwarmActorCriticPolicy
+from dpr.policies.sb3 import SWARM_POLICY, VALUE_HEAD_PREFIXES, build_model, load_model, load_model_policy
+from dpr.policies.swarm_policy import POLICY_NAME, RobotLogits, SwarmActorCriticPolicy
 from dpr.rl.train import TrainConfig, train
 
 N = 5
@@ -107,6 +107,7 @@ def test_the_actor_shares_one_network_across_robots_and_other_swarm_sizes_keep_i
 
 
 def test_the_layout_is_checked():
+    assert POLICY_NAME == SWARM_POLICY  # the name its errors give is the name that builds it
     with pytest.raises(ValueError, match="SwarmPolicy: a state observation of 5 robots without an object has 30 or 36"):
         SwarmActorCriticPolicy(
             gym.spaces.Box(-np.inf, np.inf, (31,), dtype=np.float32), gym.spaces.MultiBinary(5), lambda _: 1e-3

@@ -29,11 +29,13 @@ from torch import nn
 
 from dpr.envs.particle_env import LENGTH_SCALE, OBJECT_FEATURES, ROBOT_FEATURES
 from dpr.policies.features import GoalFrame
-from dpr.policies.sb3 import SWARM_POLICY as POLICY_NAME
 from dpr.policies.wave import BIN_WIDTH
 
-__all__ = ["POLICY_NAME", "SwarmActorCriticPolicy"]
+__all__ = ["SwarmActorCriticPolicy"]
 
+# Its name in a hyperparameter entry's `policy` (dpr.policies.sb3.SWARM_POLICY, which builds it; not imported
+# here, which would close an import circle).
+POLICY_NAME = "SwarmPolicy"
 ROBOT_INPUTS = 7  # along, across, velocity along and across, angular velocity, expansion, last action
 # Positions and velocities in units of the wave's bin width (positions are observed in units of 1000).
 _BIN = BIN_WIDTH * LENGTH_SCALE
