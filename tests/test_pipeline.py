@@ -118,6 +118,12 @@ def test_pipeline_gives_every_learner_the_swarm_actor(tmp_path):
     assert yaml.safe_load((out / "pipeline.yaml").read_text())["config"]["actor"] == "swarm"
     with pytest.raises(ParameterError, match="actor: 'swarm' there, 'mlp' here"):
         run_tiny({**settings, "actor": "mlp"}, out)
+    bare = tmp_path / "bare"  # a folder holding only the settings: the refusal adds nothing to it
+    bare.mkdir()
+    (bare / "pipeline.yaml").write_bytes((out / "pipeline.yaml").read_bytes())
+    with pytest.raises(ParameterError, match="actor"):
+        run_tiny({**settings, "actor": "mlp"}, bare)
+    assert [path.name for path in bare.iterdir()] == ["pipeline.yaml"]
     with pytest.raises(ParameterError, match="actor: expected one of"):
         PipelineConfig(actor="transformer")
     with pytest.raises(ParameterError, match="DQN from scratch has none"):

@@ -120,8 +120,6 @@ def run_pipeline(
         raise ParameterError("out", f"{out} exists and is not a folder")
     for model in shipped:  # a shipped model must run on the pipeline's swarm, or its row means nothing
         model_env_kwargs(model.path, model.env_id, {"n_robots": config.n_robots})
-    for folder in ("datasets", "runs", "models", "eval/test", "eval/validation"):
-        (out / folder).mkdir(parents=True, exist_ok=True)
     config_path = out / "pipeline.yaml"
     if config_path.exists():
         previous = yaml.safe_load(config_path.read_text()).get("config")
@@ -137,7 +135,9 @@ def run_pipeline(
                 f"{out} holds a pipeline run with other settings ({config_path}: {'; '.join(differ)}); "
                 "use a new folder, or the same settings to resume it",
             )
-    else:
+    for folder in ("datasets", "runs", "models", "eval/test", "eval/validation"):
+        (out / folder).mkdir(parents=True, exist_ok=True)
+    if not config_path.exists():
         config_path.write_text(
             yaml.safe_dump(
                 {
