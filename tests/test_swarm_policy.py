@@ -26,8 +26,8 @@ ENVS = [
 IDS = ["navigation", "unresponsive", "manipulation-object", "navigation-no-memory"]
 
 
-def swarm_model(env_id, kwargs, seed=0):
-    env = gym.make(env_id, n_robots=N, robot_model="disk", **kwargs)
+def swarm_model(env_id, kwargs, seed=0, n_robots=N):
+    env = gym.make(env_id, n_robots=n_robots, robot_model="disk", **kwargs)
     model = build_model(load_hyperparams("ppo", env_id, overrides=SWARM), DummyVecEnv([lambda: env]), seed, None)
     return model, env
 
@@ -89,10 +89,7 @@ def test_the_actor_shares_one_network_across_robots_and_other_swarm_sizes_keep_i
     policy = model.policy
     assert isinstance(policy, SwarmActorCriticPolicy) and isinstance(policy.action_net, RobotLogits)
     # the actor's weights do not grow with the swarm: the same shapes at N = 5 and N = 9
-    big_env = gym.make("dpr/Navigation-v0", n_robots=9, robot_model="disk", obs_last_action=True)
-    big = build_model(
-        load_hyperparams("ppo", "dpr/Navigation-v0", overrides=SWARM), DummyVecEnv([lambda: big_env]), 0, None
-    )
+    big, big_env = swarm_model("dpr/Navigation-v0", {"obs_last_action": True}, n_robots=9)
 
     def actor_shapes(p):
         return {name: tuple(t.shape) for name, t in p.named_parameters() if not name.startswith(VALUE_HEAD_PREFIXES)}

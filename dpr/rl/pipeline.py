@@ -121,7 +121,8 @@ def run_pipeline(
     for model in shipped:  # a shipped model must run on the pipeline's swarm, or its row means nothing
         model_env_kwargs(model.path, model.env_id, {"n_robots": config.n_robots})
     config_path = out / "pipeline.yaml"
-    if config_path.exists():
+    resuming = config_path.exists()
+    if resuming:
         previous = yaml.safe_load(config_path.read_text()).get("config")
         if not isinstance(previous, dict) or saved_settings(previous) != asdict(config):
             settings = saved_settings(previous) if isinstance(previous, dict) else {}
@@ -137,7 +138,7 @@ def run_pipeline(
             )
     for folder in ("datasets", "runs", "models", "eval/test", "eval/validation"):
         (out / folder).mkdir(parents=True, exist_ok=True)
-    if not config_path.exists():
+    if not resuming:
         config_path.write_text(
             yaml.safe_dump(
                 {
@@ -342,7 +343,7 @@ def _train_run(
             "init_from": str(_train_run(config, task, teacher, "bc", seed, out, show_progress, log)),
             "critic_warmup": config.critic_warmup // repeat,
             "anchor_datasets": [str(dataset)] if config.anchor else [],
-            "hyperparams": config.finetune_hyperparams_at(teacher.hold),
+            "hyperparams": settings["hyperparams"] | config.finetune_hyperparams_at(teacher.hold),
         }
     kwargs = config.rl_env_kwargs(task, teacher.hold)
     train_config = TrainConfig(

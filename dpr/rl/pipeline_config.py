@@ -185,11 +185,7 @@ class PipelineConfig:
     def finetune_hyperparams_at(self, hold: int) -> dict[str, Any]:
         """The fine-tuning hyperparameters: ``finetune_hyperparams``, discounting PHYSICS_DISCOUNT per physics
         step unless they set gamma."""
-        return {
-            "gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3),
-            **self.actor_hyperparams(),
-            **self.finetune_hyperparams,
-        }
+        return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3), **self.finetune_hyperparams}
 
     def actor_hyperparams(self) -> dict[str, Any]:
         """The hyperparameter overrides that give every learner its actor (:data:`ACTORS`)."""
