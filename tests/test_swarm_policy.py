@@ -11,7 +11,17 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.imitation import behaviour_clone
 from dpr.policies.hyperparams import load_hyperparams
-from dpr.policies.sb3 import SWARM_POLICY, VALUE_HEAD_PREFIXES, build_model, load_model, load_model_policy
+from dpr.policies.sb3 import (
+    SWARM_POLICY,
+    VALUE_HEAD_PREFIXES,
+    ModelInfo,
+    build_model,
+    has_swarm_actor,
+    load_model,
+    load_model_policy,
+    model_env_kwargs,
+    save_model,
+)
 from dpr.policies.swarm_policy import POLICY_NAME, RobotLogits, SwarmActorCriticPolicy
 from dpr.rl.train import TrainConfig, train
 
@@ -174,3 +184,44 @@ def test_a_clone_runs_saves_loads_and_fine_tunes(demos, tmp_path):
         if name.startswith("mlp_extractor.policy_net")
     ]
     assert any(moved)  # the actor trained after the warm-up
+
+
+def test_a_swarm_model_acts_at_any_swarm_size_but_trains_only_at_its_own(tmp_path, capsys):
+    """The actor is shared by the robots: a model of N robots acts for N' robots with the same weights (its critic,
+    which reads the whole state, is not carried over). An MLP model is refused at another N."""
+    env_id, kwargs = "dpr/Navigation-v0", {"obs_last_action": True}
+    model, env = swarm_model(env_id, kwargs)
+    trained_a_little(model)
+    info = ModelInfo("ppo", env_id, {"n_robots": N, "robot_model": "disk", **kwargs})
+    path = save_model(model, tmp_path / "swarm.zip", info)
+    assert has_swarm_actor(path)
+    assert model_env_kwargs(path, env_id, {"n_robots": 7})["n_robots"] == 7
+
+    big_env = gym.make(env_id, n_robots=7, robot_model="disk", **kwargs)
+    big, _ = load_model(path, big_env)
+    actor = {name: t for name, t in model.policy.state_dict().items() if not name.startswith(VALUE_HEAD_PREFIXES)}
+    resized = big.policy.state_dict()
+    assert all(torch.equal(resized[name], t) for name, t in actor.items())
+    observation, _ = big_env.reset(seed=0)
+    action = load_model_policy(path, big_env)(observation)
+    assert action.shape == (7,) and set(np.unique(action)) <= {0, 1}
+    # saved at N' and resized back to N, it gives the logits it gave before
+    big_path = save_model(big, tmp_path / "swarm7.zip", ModelInfo("ppo", env_id, {**info.env_kwargs, "n_robots": 7}))
+    back, _ = load_model(big_path, env)
+    assert back.observation_space == env.observation_space
+    observations = visited_observations(env, seeds=(0,), steps=5)
+    np.testing.assert_allclose(logits(back, observations), logits(model, observations), rtol=1e-6)
+
+    with pytest.raises(ValueError, match="acts at any swarm size but trains only at its own"):
+        load_model(path, big_env, for_training=True)
+    mlp = build_model(load_hyperparams("ppo", env_id), DummyVecEnv([lambda: env]), 0, None)
+    mlp_path = save_model(mlp, tmp_path / "mlp.zip", info)
+    assert not has_swarm_actor(mlp_path)
+    with pytest.raises(ValueError, match="n_robots=5; n_robots=7 makes a different observation"):
+        model_env_kwargs(mlp_path, env_id, {"n_robots": 7})
+
+    argv = ["evaluate", "--policy", str(path), "--env", env_id, "--n-robots", "7", "--steps", "20", "--seeds", "0"]
+    assert run([*argv, "--workers", "1"]) == 0
+    assert "dpr/Navigation-v0" in capsys.readouterr().out
+    env.close()
+    big_env.close()

@@ -35,6 +35,7 @@ BC_ALGOS = ALGOS  # actor-critics (an action distribution) and DQN (Q-values as 
 DEFAULT_ALGO = PPO
 # A hyperparameter entry's `policy`: SB3's own names, or the shared per-robot actor (dpr.policies.swarm_policy).
 SWARM_POLICY = "SwarmPolicy"
+SWARM_POLICY_MODULE = "dpr.policies.swarm_policy"  # where it is defined, as a model file names it
 # The parameter that names a model file in evaluate and collect: what a bad model file is reported as by default.
 POLICY_PARAMETER = "policy"
 # The TrainConfig field that names the model a fine-tuning run starts from (dpr.rl.train).
@@ -128,20 +129,23 @@ def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> Mode
 
 def model_env_kwargs(path: str | Path, env_id: str, requested: dict[str, Any] | None = None) -> dict[str, Any]:
     """The env kwargs to run the model at ``path`` on ``env_id``: the model's own, plus any ``requested``
-    kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values;
-    another env id a :class:`ParameterError` about ``env_id``."""
+    kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values
+    (except ``n_robots`` for a :data:`SWARM_POLICY` model, which acts at any swarm size); another env id a
+    :class:`ParameterError` about ``env_id``."""
     info = read_model_info(path)
     if env_id != info.env_id:
         raise ParameterError("env_id", f"model {path} was trained on {info.env_id}; it cannot be run on {env_id}")
     kwargs = dict(info.env_kwargs)
+    any_size = has_swarm_actor(path)  # its actor is shared by the robots: any n_robots
     for name, value in (requested or {}).items():
-        if name in kwargs and kwargs[name] != value:
+        if name in kwargs and kwargs[name] != value and not (name == "n_robots" and any_size):
             why = (
                 "makes a different observation or action space" if name in SPACE_KWARGS else "is not what it learned on"
             )
+            only = f"; only a {SWARM_POLICY} model acts at any swarm size" if name == "n_robots" else ""
             raise ValueError(
                 f"model {path} was trained with {name}={kwargs[name]!r}; {name}={value!r} {why} "
-                "(leave it out to use the model's value)"
+                f"(leave it out to use the model's value{only})"
             )
         kwargs[name] = value
     return kwargs
@@ -153,6 +157,24 @@ def describe_space(space) -> str:
     if type(space).__name__ == "Box":
         return f"Box(shape={shape}, dtype={space.dtype})"
     return str(space)
+
+
+def has_swarm_actor(path: str | Path) -> bool:
+    """Whether the model file at ``path`` holds a :data:`SWARM_POLICY`, whose actor acts at any swarm size."""
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data"))
+    return data.get("policy_class", {}).get("__module__") == SWARM_POLICY_MODULE
+
+
+def _differing_space_kwargs(info: ModelInfo, env) -> dict[str, tuple[Any, Any]]:
+    """The :data:`SPACE_KWARGS` the model was trained with that ``env`` (a gymnasium env) sets otherwise: name ->
+    (the model's value, the env's). Empty for a VecEnv, which does not say."""
+    base = getattr(env, "unwrapped", None)
+    return {
+        name: (info.env_kwargs[name], getattr(base, name))
+        for name in SPACE_KWARGS
+        if name in info.env_kwargs and hasattr(base, name) and getattr(base, name) != info.env_kwargs[name]
+    }
 
 
 def _space_mismatch(path: Path, info: ModelInfo, model, env) -> str | None:
@@ -167,14 +189,29 @@ def _space_mismatch(path: Path, info: ModelInfo, model, env) -> str | None:
         )
     if not problems:
         return None
-    base = getattr(env, "unwrapped", None)  # a VecEnv has none: then only the spaces are named
     differing = [
-        f"{name}={info.env_kwargs[name]!r} (the env has {name}={getattr(base, name)!r})"
-        for name in SPACE_KWARGS
-        if name in info.env_kwargs and hasattr(base, name) and getattr(base, name) != info.env_kwargs[name]
+        f"{name}={ours!r} (the env has {name}={theirs!r})"
+        for name, (ours, theirs) in _differing_space_kwargs(info, env).items()
     ]
     trained = f"; it was trained with {', '.join(differing)}" if differing else ""
     return f"model {path} does not fit this env: {'; '.join(problems)}{trained}"
+
+
+def _swarm_model_resized(model, env):
+    """The :data:`SWARM_POLICY` ``model`` acting in ``env``, another swarm size than its own. Its actor is one
+    network shared by the robots, so the same weights act for any N; its critic reads the whole state of N robots
+    and is not carried over: the model acts, it does not train."""
+    policy = model.policy
+    params = policy._get_constructor_parameters()
+    params.update(observation_space=env.observation_space, action_space=env.action_space)
+    resized = type(policy)(**params)
+    actor = {name: value for name, value in policy.state_dict().items() if not name.startswith(VALUE_HEAD_PREFIXES)}
+    missing, unexpected = resized.load_state_dict(actor, strict=False)
+    if unexpected or not all(name.startswith(VALUE_HEAD_PREFIXES) for name in missing):
+        raise RuntimeError(f"the actor's weights do not fit {SWARM_POLICY} at another N: {missing + unexpected}")
+    model.policy = resized
+    model.observation_space, model.action_space = env.observation_space, env.action_space
+    return model
 
 
 def load_model(path: str | Path, env=None, *, for_training: bool = False, parameter: str = POLICY_PARAMETER):
@@ -202,6 +239,13 @@ def load_model(path: str | Path, env=None, *, for_training: bool = False, parame
             per_robot_parallel = not hasattr(env, "parallel_env")  # a PettingZoo env: spaces per agent
         # Spaces are compared here rather than by SB3's load(env=...), so that the error names the env kwargs.
         mismatch = None if per_robot_parallel else _space_mismatch(path, info, model, env)
+        if mismatch and set(_differing_space_kwargs(info, env)) == {"n_robots"} and has_swarm_actor(path):
+            if for_training:
+                raise ValueError(
+                    f"{mismatch}. A {SWARM_POLICY} model acts at any swarm size but trains only at its own: "
+                    "its critic reads the whole state"
+                )
+            model, mismatch = _swarm_model_resized(model, env), None
         if mismatch:
             raise ValueError(mismatch)
         if for_training and per_robot_parallel:
