@@ -9,6 +9,7 @@ from helpers import run_cli as run
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.lerobot import LeRobotReader
 from dpr.imitation import behaviour_clone
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.sb3 import (
@@ -223,5 +224,10 @@ def test_a_swarm_model_acts_at_any_swarm_size_but_trains_only_at_its_own(tmp_pat
     argv = ["evaluate", "--policy", str(path), "--env", env_id, "--n-robots", "7", "--steps", "20", "--seeds", "0"]
     assert run([*argv, "--workers", "1"]) == 0
     assert "dpr/Navigation-v0" in capsys.readouterr().out
+    # dpr collect records it on its own env kwargs (disk robots, the last action observed) at the N asked for
+    argv = ["collect", "--policy", str(path), "--env", env_id, "--n-robots", "7", "--steps", "5", "--episodes", "1"]
+    assert run([*argv, "--workers", "1", "--out", str(tmp_path / "ds")]) == 0
+    (episode,) = LeRobotReader(tmp_path / "ds").episodes
+    assert episode["env_kwargs"] == {**info.env_kwargs, "n_robots": 7, "max_episode_steps": 5}
     env.close()
     big_env.close()

@@ -290,6 +290,33 @@ def check_env_kwargs(env_ids: list[str], env_kwargs: dict, parser: argparse.Argu
             parser.error(f"{env_id} with {env_kwargs}: {error}")
 
 
+def policy_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser) -> dict:
+    """The env kwargs that run ``args.policy`` on ``env_ids`` (``dpr evaluate``, ``dpr collect``): for a scripted
+    policy the flags (--n-robots, --robot-model, --env-kwarg; the env's swarm by default); for a ``.zip`` model its
+    own kwargs, where a flag given explicitly must agree with them (a parser error naming the flag)."""
+    from dpr.policies.sb3 import is_model_path, model_env_kwargs
+
+    given = {"n_robots": args.n_robots, "robot_model": args.robot_model}
+    flags = {"n_robots": "--n-robots", "robot_model": "--robot-model"}
+    explicit = {**{k: v for k, v in given.items() if v is not None}, **dict(args.env_kwarg or [])}
+    if not is_model_path(args.policy):
+        env_kwargs = {**SWARM_DEFAULTS, **explicit}
+        check_env_kwargs(env_ids, env_kwargs, parser)
+        return env_kwargs
+    resolved = {}
+    for env_id in env_ids:
+        try:
+            resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit)
+        except ValueError as error:
+            message = flag_message(error)
+            for name, flag in flags.items():  # name the flag the user typed, not the kwarg
+                if given[name] is not None:
+                    message = message.replace(f"; {name}={given[name]!r}", f"; {flag} {given[name]}")
+            parser.error(message)
+    check_env_kwargs(env_ids, resolved[env_ids[0]], parser)
+    return resolved[env_ids[0]]
+
+
 def write_json(path: str, payload: Any) -> None:
     """``--json``: what a command printed, for scripts, in a new file (checked by :func:`check_output` first)."""
     from dpr.atomic import atomic_write_json

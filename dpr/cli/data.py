@@ -9,6 +9,7 @@ from pathlib import Path
 
 from dpr.cli.common import (
     ENV_ID_LIST,
+    SWARM_DEFAULTS,
     Command,
     check_output,
     check_seed,
@@ -18,6 +19,7 @@ from dpr.cli.common import (
     flag_message,
     json_argument,
     parse_seeds,
+    policy_env_kwargs,
     positive_int,
     swarm_arguments,
     workers_argument,
@@ -50,7 +52,7 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, help="dataset folder (created, or resumed if it holds the same dataset)"
     )
     default_argument(parser, "--seed", run["seed"], "first seed", type=int)
-    swarm_arguments(parser, spec)
+    swarm_arguments(parser)  # default: a model's swarm, else the env's
     parser.add_argument(
         "--steps",
         type=positive_int,
@@ -103,17 +105,21 @@ def cmd_collect(args, parser) -> int:
     check_seed(args, parser)
 
     from dpr.datasets.collect import CollectSpec, collect, format_summary
+    from dpr.policies.sb3 import is_model_path
 
+    # a model records on the env it was trained on: its own kwargs, which the flags may only repeat (or, for a
+    # SwarmPolicy model, give another --n-robots)
+    env_kwargs = policy_env_kwargs(args, [args.env], parser) if is_model_path(args.policy) else {}
+    swarm = {name: env_kwargs.pop(name, getattr(args, name)) for name in SWARM_DEFAULTS}
     try:
         spec = CollectSpec(
             args.env,
             policy=args.policy,
-            n_robots=args.n_robots,
-            robot_model=args.robot_model,
+            **{name: value for name, value in swarm.items() if value is not None},
             steps=args.steps,
             pixels=args.pixels,
             image_size=args.image_size,
-            env_kwargs=dict(args.env_kwarg or []),
+            env_kwargs={**env_kwargs, **dict(args.env_kwarg or [])},
             label_policy=args.label_policy,
         )
     except ValueError as error:

@@ -10,9 +10,7 @@ from dpr.cli.common import (
     ALL_ENVS,
     ENV_ID_LIST,
     EXAMPLE_ENV_ID,
-    SWARM_DEFAULTS,
     Command,
-    check_env_kwargs,
     check_output,
     check_rerun_output,
     defaults,
@@ -20,6 +18,7 @@ from dpr.cli.common import (
     flag_message,
     json_argument,
     parse_seeds,
+    policy_env_kwargs,
     positive_int,
     rerun_argument,
     swarm_arguments,
@@ -65,32 +64,6 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     rerun_argument(parser, "also save every evaluated episode (replayed with full state) to this new rerun file")
 
 
-def _evaluate_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser) -> dict:
-    """The env kwargs of ``dpr evaluate``: for a scripted policy the flags (the env's swarm by default); for a
-    ``.zip`` model its own kwargs, where a flag given explicitly must agree with them."""
-    from dpr.policies.sb3 import is_model_path, model_env_kwargs
-
-    given = {"n_robots": args.n_robots, "robot_model": args.robot_model}
-    flags = {"n_robots": "--n-robots", "robot_model": "--robot-model"}
-    explicit = {**{k: v for k, v in given.items() if v is not None}, **dict(args.env_kwarg or [])}
-    if not is_model_path(args.policy):
-        env_kwargs = {**SWARM_DEFAULTS, **explicit}
-        check_env_kwargs(env_ids, env_kwargs, parser)
-        return env_kwargs
-    resolved = {}
-    for env_id in env_ids:
-        try:
-            resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit)
-        except ValueError as error:
-            message = flag_message(error)
-            for name, flag in flags.items():  # name the flag the user typed, not the kwarg
-                if given[name] is not None:
-                    message = message.replace(f"; {name}={given[name]!r}", f"; {flag} {given[name]}")
-            parser.error(message)
-    check_env_kwargs(env_ids, resolved[env_ids[0]], parser)
-    return resolved[env_ids[0]]
-
-
 def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
@@ -100,7 +73,7 @@ def cmd_evaluate(args, parser) -> int:
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     check_output(args.json, parser, "--json")
     check_rerun_output(args, parser)
-    env_kwargs = _evaluate_env_kwargs(args, env_ids, parser)
+    env_kwargs = policy_env_kwargs(args, env_ids, parser)
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
             results = evaluate(

@@ -17,6 +17,10 @@ actor computes it the same way for every robot (Deep Sets, Zaheer et al. 2017):
 Robots stay exchangeable: permuting the robots permutes the logits. The critic is SB3's usual MLP on the whole
 state (``net_arch``). The model is an ordinary SB3 PPO/A2C model: ``dpr bc`` clones into it, ``dpr finetune``
 trains it, ``dpr evaluate`` runs it. It is chosen with ``policy: SwarmPolicy`` in a hyperparameter entry.
+
+No weight of the actor depends on N, so a model trained on N robots acts for any other number: ``dpr evaluate``,
+``dpr collect`` and ``dpr view`` take ``--n-robots`` with it (:func:`dpr.policies.sb3.load_model` rebuilds the
+policy for the env's spaces with the same actor). Its critic reads the state of N robots, so it trains at its N only.
 """
 
 from __future__ import annotations
