@@ -109,8 +109,11 @@ def cmd_collect(args, parser) -> int:
 
     # a model records on the env it was trained on: its own kwargs, which the flags may only repeat (or, for a
     # SwarmPolicy model, give another --n-robots)
-    env_kwargs = policy_env_kwargs(args, [args.env], parser) if is_model_path(args.policy) else {}
-    swarm = {name: env_kwargs.pop(name, getattr(args, name)) for name in SWARM_DEFAULTS}
+    swarm = {name: getattr(args, name) for name in SWARM_DEFAULTS}
+    env_kwargs = dict(args.env_kwarg or [])  # swarm kwargs here are refused by CollectSpec: they are its fields
+    if is_model_path(args.policy):
+        env_kwargs = policy_env_kwargs(args, [args.env], parser)  # the model's, --env-kwarg included
+        swarm.update((name, env_kwargs.pop(name)) for name in SWARM_DEFAULTS if name in env_kwargs)
     try:
         spec = CollectSpec(
             args.env,
@@ -119,7 +122,7 @@ def cmd_collect(args, parser) -> int:
             steps=args.steps,
             pixels=args.pixels,
             image_size=args.image_size,
-            env_kwargs={**env_kwargs, **dict(args.env_kwarg or [])},
+            env_kwargs=env_kwargs,
             label_policy=args.label_policy,
         )
     except ValueError as error:

@@ -239,7 +239,11 @@ def load_model(path: str | Path, env=None, *, for_training: bool = False, parame
             per_robot_parallel = not hasattr(env, "parallel_env")  # a PettingZoo env: spaces per agent
         # Spaces are compared here rather than by SB3's load(env=...), so that the error names the env kwargs.
         mismatch = None if per_robot_parallel else _space_mismatch(path, info, model, env)
-        if mismatch and set(_differing_space_kwargs(info, env)) == {"n_robots"} and has_swarm_actor(path):
+        if (
+            mismatch
+            and set(_differing_space_kwargs(info, env)) == {"n_robots"}
+            and type(model.policy).__module__ == SWARM_POLICY_MODULE  # loaded: no need to read the file again
+        ):
             if for_training:
                 raise ValueError(
                     f"{mismatch}. A {SWARM_POLICY} model acts at any swarm size but trains only at its own: "
