@@ -124,7 +124,8 @@ def test_a_stop_while_the_snapshot_is_replaced_keeps_one(tmp_path):
         train(config, tmp_path / "run", show_progress=False, log=lambda _: None)
     folder = resume_state.snapshot_path(tmp_path / "run")
     folder.rename(folder.with_name("resume.new"))  # as if stopped between the two renames
-    assert resumable(tmp_path / "run", config) and folder.is_dir()
+    assert resumable(tmp_path / "run", config) and not folder.exists()  # asking changes nothing
+    assert resume_state.load_snapshot(tmp_path / "run").reached > 0 and folder.is_dir()  # loading puts it back
 
 
 def test_resume_refuses_other_settings_and_folders_without_a_snapshot(tmp_path):

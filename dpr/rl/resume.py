@@ -45,16 +45,21 @@ def snapshot_path(run_dir: str | Path) -> Path:
     return Path(run_dir) / SNAPSHOT_DIR
 
 
-def has_snapshot(run_dir: str | Path) -> bool:
-    """Whether ``run_dir`` holds a complete snapshot to resume from (after putting back one that a stop between
-    :func:`save_snapshot`'s two renames left aside)."""
-    folder = snapshot_path(run_dir)
-    if not folder.exists():
-        for aside in (folder.with_name(NEW_DIR), folder.with_name(OLD_DIR)):
-            if (aside / STATE_FILE).is_file():  # .new is renamed into place only once whole
-                aside.rename(folder)
-                break
+def _whole(folder: Path) -> bool:
     return (folder / MODEL_FILE).is_file() and (folder / STATE_FILE).is_file()
+
+
+def _snapshot_folder(run_dir: str | Path) -> Path | None:
+    """The folder holding ``run_dir``'s complete snapshot: ``resume/``, or where a stop between
+    :func:`save_snapshot`'s two renames left it (``.new`` is renamed into place only once whole); None if none."""
+    folder = snapshot_path(run_dir)
+    candidates = [folder] if folder.exists() else [folder.with_name(NEW_DIR), folder.with_name(OLD_DIR)]
+    return next((candidate for candidate in candidates if _whole(candidate)), None)
+
+
+def has_snapshot(run_dir: str | Path) -> bool:
+    """Whether ``run_dir`` holds a complete snapshot to resume from (changes nothing)."""
+    return _snapshot_folder(run_dir) is not None
 
 
 def _all_callbacks(callback) -> list:
@@ -126,9 +131,11 @@ class Snapshot:
 
 def load_snapshot(run_dir: str | Path) -> Snapshot:
     """The snapshot in ``run_dir`` (a ValueError naming the folder if it is missing or of another version)."""
-    folder = snapshot_path(run_dir)
-    if not has_snapshot(run_dir):
+    folder, found = snapshot_path(run_dir), _snapshot_folder(run_dir)
+    if found is None:
         raise ValueError(f"{folder} holds no snapshot to resume from")
+    if found != folder:  # put back the snapshot that a stop between save_snapshot's renames left aside
+        found.rename(folder)
     with open(folder / STATE_FILE, "rb") as file:
         state = pickle.load(file)
     if state.get("version") != STATE_VERSION:
