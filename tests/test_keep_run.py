@@ -98,6 +98,8 @@ def test_a_training_run_stopped_part_way_is_kept_and_resumes_from_its_snapshot(t
     run = copy_without_run(finished, tmp_path / "run", "navigation-ppo-seed1")
     with stopped_after_snapshots():
         run_tiny(THREE_SEEDS, run)
+    snapshot = run / "runs" / "navigation-ppo-seed1" / "resume"
+    snapshot.rename(snapshot.with_name("resume.new"))  # as if stopped while a snapshot replaced the last
     kept = tmp_path / "kept"
     assert tool.main([str(run), str(kept)]) == 0
     assert sorted(p.name for p in (kept / "runs" / "navigation-ppo-seed1").iterdir()) == ["config.yaml", "resume"]

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from dpr.policies.sb3 import save_slim_copy
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
-from dpr.rl.resume import SNAPSHOT_DIR, has_snapshot
+from dpr.rl.resume import SNAPSHOT_DIR, snapshot_folder
 from dpr.rl.run_folder import model_path, models_still_needed, read_run_settings
 
 
@@ -46,8 +46,9 @@ def keep(run: Path, out: Path) -> list[Path]:
     for model in runs:
         save_slim_copy(model, out / "models" / model.name)
     for stopped in sorted((run / "runs").glob("*")) if (run / "runs").is_dir() else []:
-        if has_snapshot(stopped) and not (stopped / "model.zip").exists():
-            shutil.copytree(stopped / SNAPSHOT_DIR, out / "runs" / stopped.name / SNAPSHOT_DIR)
+        snapshot = snapshot_folder(stopped)  # resume/, or where a stop while it was replaced left it
+        if snapshot is not None and not (stopped / "model.zip").exists():
+            shutil.copytree(snapshot, out / "runs" / stopped.name / SNAPSHOT_DIR)
             shutil.copyfile(stopped / "config.yaml", out / "runs" / stopped.name / "config.yaml")
     return runs
 

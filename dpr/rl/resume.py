@@ -49,7 +49,7 @@ def _whole(folder: Path) -> bool:
     return (folder / MODEL_FILE).is_file() and (folder / STATE_FILE).is_file()
 
 
-def _snapshot_folder(run_dir: str | Path) -> Path | None:
+def snapshot_folder(run_dir: str | Path) -> Path | None:
     """The folder holding ``run_dir``'s complete snapshot: ``resume/``, or where a stop between
     :func:`save_snapshot`'s two renames left it (``.new`` is renamed into place only once whole); None if none."""
     folder = snapshot_path(run_dir)
@@ -59,7 +59,7 @@ def _snapshot_folder(run_dir: str | Path) -> Path | None:
 
 def has_snapshot(run_dir: str | Path) -> bool:
     """Whether ``run_dir`` holds a complete snapshot to resume from (changes nothing)."""
-    return _snapshot_folder(run_dir) is not None
+    return snapshot_folder(run_dir) is not None
 
 
 def _all_callbacks(callback) -> list:
@@ -131,7 +131,7 @@ class Snapshot:
 
 def load_snapshot(run_dir: str | Path) -> Snapshot:
     """The snapshot in ``run_dir`` (a ValueError naming the folder if it is missing or of another version)."""
-    folder, found = snapshot_path(run_dir), _snapshot_folder(run_dir)
+    folder, found = snapshot_path(run_dir), snapshot_folder(run_dir)
     if found is None:
         raise ValueError(f"{folder} holds no snapshot to resume from")
     if found != folder:  # put back the snapshot that a stop between save_snapshot's renames left aside
