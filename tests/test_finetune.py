@@ -261,6 +261,28 @@ def test_cli_finetunes_a_ppo_clone_with_a2c(cloned, tmp_path, capsys):
     assert (info.algo, info.env_kwargs) == ("a2c", ENV_KWARGS)
 
 
+def test_a_disk_model_runs_and_fine_tunes_on_the_paddle_model(cloned, tmp_path, capsys):
+    """The two robot models make the same spaces: a policy learned on the fast disk model is evaluated on, and
+    fine-tuned on, the paddle model when asked (and the swarm then moves by the paddle physics)."""
+    model = str(cloned.model_path)
+    on_disk, on_paddle = (
+        evaluate([ENV], model, [5], steps=STEPS, env_kwargs=kwargs)[0] for kwargs in ({}, {"robot_model": "paddle"})
+    )
+    assert not np.array_equal(on_disk.trajectory, on_paddle.trajectory)  # the same actor, another physics
+    report = tmp_path / "paddle.json"
+    argv = ["evaluate", "--policy", model, "--env", ENV, "--robot-model", "paddle", "--seeds", "5"]
+    assert run([*argv, "--steps", str(STEPS), "--json", str(report)]) == 0
+    assert json.loads(report.read_text())["env_kwargs"] == {**ENV_KWARGS, "robot_model": "paddle"}
+
+    out = tmp_path / "run"
+    argv = ["finetune", "--from", model, "--env", ENV, "--robot-model", "paddle", "--timesteps", "32"]
+    argv += ["--critic-warmup", "16", "--n-envs", "1", "--out", str(out)]
+    argv += [arg for name, value in TINY_PPO.items() for arg in ("--hyperparam", f"{name}={value}")]
+    assert run(argv) == 0
+    assert read_model_info(out / "model.zip").env_kwargs == {**ENV_KWARGS, "robot_model": "paddle"}
+    assert yaml.safe_load((out / "config.yaml").read_text())["env_kwargs"]["robot_model"] == "paddle"
+
+
 # -- the demonstration anchor ---------------------------------------------------------------------------------------
 def _demos(cloned):
     return yaml.safe_load(cloned.config_path.read_text())["dataset"]

@@ -19,7 +19,15 @@ from dpr.imitation.per_robot import behaviour_clone_per_robot
 from dpr.policies.decentralised import PerRobotPolicyAdapter
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import make_policy
-from dpr.policies.sb3 import ModelInfo, actor_parameters, build_model, load_model, make_vec_env, read_model_info
+from dpr.policies.sb3 import (
+    ModelInfo,
+    actor_parameters,
+    build_model,
+    load_model,
+    make_vec_env,
+    model_env_kwargs,
+    read_model_info,
+)
 from dpr.policies.sb3 import save_model as save_sb3_model
 from dpr.rl.finetune_per_robot import PerRobotFinetuneConfig, finetune_per_robot
 from dpr.rl.train import EVAL_SEED_OFFSET
@@ -186,6 +194,12 @@ def test_a_per_robot_model_of_another_robot_model_is_refused(cloned, tmp_path):
     with pytest.raises(ValueError, match="paddle robot model"):
         finetune_per_robot(config, tmp_path / "run", **QUIET)
     assert not (tmp_path / "run").exists()
+
+
+def test_a_per_robot_model_runs_only_on_its_own_robot_model(cloned):
+    """A centralised model may run on the other robot model; a per-robot one's local observation is its own's."""
+    with pytest.raises(ValueError, match="trained with robot_model='disk'; robot_model='paddle'"):
+        model_env_kwargs(cloned.model_path, ENV, {"robot_model": "paddle"})
 
 
 # -- the command ----------------------------------------------------------------------------------------------------

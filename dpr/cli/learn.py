@@ -21,6 +21,7 @@ from dpr.cli.common import (
     swarm_arguments,
     workers_argument,
 )
+from dpr.sim.models import ROBOT_MODELS
 
 # Value-head-only steps before a fine-tuned actor moves; the library's TrainConfig does none unless asked.
 FINETUNE_CRITIC_WARMUP = 20_000
@@ -195,6 +196,12 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--from", dest="source", required=True, metavar="MODEL.zip", help="the model to start from")
     parser.add_argument("--env", required=True, help=f"env id the model was trained on, e.g. {EXAMPLE_ENV_ID}")
     parser.add_argument("--algo", choices=FINETUNE_ALGOS, help="algorithm to fine-tune with (default: the model's)")
+    parser.add_argument(
+        "--robot-model",
+        choices=ROBOT_MODELS,
+        help="the robot model to fine-tune on (default: the model's); both make the same spaces, so a model "
+        "learned on the fast disk model fine-tunes on the paddle model",
+    )
     parser.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
     default_argument(
         parser,
@@ -246,7 +253,8 @@ def cmd_finetune(args, parser) -> int:
             )
         if info.env_id != args.env:
             raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
-        swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, dict(args.env_kwarg or [])))
+        requested = {**({"robot_model": args.robot_model} if args.robot_model else {}), **dict(args.env_kwarg or [])}
+        swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, requested))
         config = TrainConfig(
             args.algo or info.algo,
             args.env,

@@ -44,6 +44,9 @@ INIT_PARAMETER = "init_from"
 VALUE_HEAD_PREFIXES = ("mlp_extractor.value_net.", "value_net.", "vf_features_extractor.")
 # Env kwargs whose value decides the observation or action space: a different value can never run the model.
 SPACE_KWARGS = ("n_robots", "action_type", "obs_type", "obs_last_action", "image_size")
+# Env kwargs a centralised model may be run with otherwise than it was trained: the two robot models make the same
+# observation and action spaces (sim-to-sim transfer, e.g. from the faster disk model to the paddle model).
+TRANSFERABLE_KWARGS = ("robot_model",)
 
 
 def is_model_path(name: str) -> bool:
@@ -129,16 +132,20 @@ def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> Mode
 
 def model_env_kwargs(path: str | Path, env_id: str, requested: dict[str, Any] | None = None) -> dict[str, Any]:
     """The env kwargs to run the model at ``path`` on ``env_id``: the model's own, plus any ``requested``
-    kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values
-    (except ``n_robots`` for a :data:`SWARM_POLICY` model, which acts at any swarm size); another env id a
-    :class:`ParameterError` about ``env_id``."""
+    kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values,
+    except ``n_robots`` for a :data:`SWARM_POLICY` model, which acts at any swarm size, and ``robot_model`` for a
+    centralised model: the paddle and disk models share their spaces, so a policy learned on one runs on, and
+    fine-tunes on, the other (:data:`TRANSFERABLE_KWARGS`). Another env id is a :class:`ParameterError` about
+    ``env_id``."""
     info = read_model_info(path)
     if env_id != info.env_id:
         raise ParameterError("env_id", f"model {path} was trained on {info.env_id}; it cannot be run on {env_id}")
     kwargs = dict(info.env_kwargs)
-    any_size = has_swarm_actor(path)  # its actor is shared by the robots: any n_robots
+    transferable = {"n_robots"} if has_swarm_actor(path) else set()  # its actor is shared by the robots: any N
+    if info.per_robot is None:  # a per-robot model's local observation is laid out for its own robot model
+        transferable.update(TRANSFERABLE_KWARGS)
     for name, value in (requested or {}).items():
-        if name in kwargs and kwargs[name] != value and not (name == "n_robots" and any_size):
+        if name in kwargs and kwargs[name] != value and name not in transferable:
             why = (
                 "makes a different observation or action space" if name in SPACE_KWARGS else "is not what it learned on"
             )
