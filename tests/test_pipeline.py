@@ -279,15 +279,19 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
 
 
+MLP = ["--actor", "mlp", "--bc-epochs", "15"]  # the records before the swarm actor's
+
+
 @pytest.mark.parametrize(
     "record, flags",
     [
-        ("full-ft600", []),
-        ("full-bins", ["--finetune-steps", "300000"]),
-        ("full", ["--finetune-steps", "300000", "--teacher-bin-widths", "60", "--teacher-seeds", "none"]),
+        ("full-swarm", []),
+        ("full-ft600", [*MLP, "--finetune-steps", "600000"]),
+        ("full-bins", [*MLP, "--finetune-steps", "300000"]),
+        ("full", [*MLP, "--finetune-steps", "300000", "--teacher-bin-widths", "60", "--teacher-seeds", "none"]),
         (
             "full-hold10",
-            ["--finetune-steps", "300000", "--teacher-holds", "10", "--action-repeat", "10"]
+            [*MLP, "--finetune-steps", "300000", "--teacher-holds", "10", "--action-repeat", "10"]
             + ["--finetune-hyperparam", "gamma=0.904", "--teacher-bin-widths", "60", "--teacher-seeds", "none"],
         ),
     ],

@@ -217,7 +217,11 @@ PRESETS: dict[str, PipelineConfig] = {
     "full": PipelineConfig(
         tasks=list(ENV_IDS),
         episodes=80,
-        finetune_steps=600_000,  # twice 300,000: adopted on validation seeds (docs/learning.md, "The 600k record")
+        # every learner's actor shared by the robots, cloned 40 epochs and fine-tuned 1,200,000 steps: adopted on
+        # validation seeds over the 600k record (docs/learning.md, "The swarm actor is adopted on validation seeds")
+        actor="swarm",
+        bc_epochs=40,
+        finetune_steps=1_200_000,
         train_seeds=[0, 1, 2],
         validation_seeds=list(range(200, 220)),
         test_seeds=list(range(300, 350)),
