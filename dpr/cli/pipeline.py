@@ -209,7 +209,7 @@ COMMANDS = (
         "on seeds no choice saw, and write OUT/report/results.md (with interval estimates over training runs) and "
         "its figures. Training seeds, validation seeds (every choice) and test seeds (the report) never overlap. "
         "Every stage is skipped when its output exists: the same command resumes an interrupted run. --preset "
-        "small (the default) is `make run` (Navigation, N=9, about 7 minutes on 2 CPU cores); --preset full "
+        "small (the default) is `make run` (Navigation, N=9, about 5 minutes on 2 CPU cores); --preset full "
         "--tasks all is the headline.",
         arguments=pipeline_arguments,
         flags=PIPELINE_FLAGS,
