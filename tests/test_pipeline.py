@@ -63,6 +63,7 @@ from dpr.rl.pipeline_config import PipelineConfig, saved_settings
         ({"teacher_holds": [7, 10], "validation_seeds": [200]}, r"action_repeat: must divide every teacher hold"),
         ({"action_repeat": 3}, r"action_repeat: must divide every teacher hold \[10\]"),
         ({"action_repeat": -1}, "action_repeat: must be >= 0"),
+        ({"scratch_physics_discount": "yes"}, "scratch_physics_discount: expected true or false"),
     ],
 )
 def test_pipeline_config_refuses_bad_settings(kwargs, message):
@@ -130,14 +131,25 @@ def test_pipeline_gives_every_learner_the_swarm_actor(tmp_path):
         PipelineConfig(actor="swarm", scratch_algos=["ppo", "dqn"])
 
 
-def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path):
+@pytest.mark.parametrize("scratch_physics_discount", [False, True])
+def test_pipeline_learners_decide_every_action_repeat_steps(tmp_path, scratch_physics_discount):
     """With action_repeat=10 the demonstrations, the clone and RL all decide every 10 physics steps; budgets and
-    evaluations count physics steps, so the wave (every step) and the learners are scored over the same time."""
+    evaluations count physics steps, so the wave (every step) and the learners are scored over the same time.
+    Fine-tuning discounts 0.99 per physics step (0.99^10 per decision); the runs from scratch do too with
+    scratch_physics_discount, and keep the yaml's 0.99 per decision without it."""
     from dpr.datasets.lerobot import LeRobotReader
 
     settings = {**PIPELINE, "anchor": False, "action_repeat": 10, "steps": 60, "critic_warmup": 320}
+    settings["scratch_physics_discount"] = scratch_physics_discount
     out = tmp_path / "run"
     run_tiny(settings, out)
+    gammas = {}
+    for method in METHODS[2:]:
+        model, _ = load_model(out / "models" / f"navigation-{method}.zip")
+        gammas[method] = model.gamma
+    assert gammas == {"bc-ppo": 0.904, "ppo": 0.904 if scratch_physics_discount else 0.99}
+    saved = yaml.safe_load((out / "pipeline.yaml").read_text())["config"]
+    assert saved["scratch_physics_discount"] is scratch_physics_discount
     assert LeRobotReader(out / "datasets" / "navigation").info["total_frames"] == 2 * 6
     for method in METHODS[1:]:
         assert read_model_info(out / "models" / f"navigation-{method}.zip").env_kwargs["action_repeat"] == 10
@@ -310,6 +322,22 @@ def test_each_record_resumes_with_the_flags_results_md_gives(record, flags):
     assert dataclasses.asdict(pipeline_config(args)) == saved_settings(saved)
     shown = " ".join((root / "RESULTS.md").read_text().replace("\\\n", " ").split())  # continued lines joined
     assert " ".join(["dpr pipeline --preset full --tasks all --out", f"runs/{record}", *flags, ""]) in shown
+
+
+def test_scratch_physics_discount_is_a_flag_over_the_preset():
+    """--scratch-physics-discount turns the setting on over any preset; without it the preset's (off) stands."""
+    from dpr.cli import build_parser
+    from dpr.cli.pipeline import pipeline_config
+
+    parse = build_parser().parse_args
+    assert pipeline_config(
+        parse(["pipeline", "--preset", "full", "--scratch-physics-discount"])
+    ).scratch_physics_discount
+    assert not pipeline_config(parse(["pipeline", "--preset", "full"])).scratch_physics_discount
+    full = pipeline_config(parse(["pipeline", "--preset", "full", "--scratch-physics-discount"]))
+    assert full.scratch_hyperparams_at(6) == {"policy": "SwarmPolicy", "gamma": 0.941}  # a decision per phase
+    small = pipeline_config(parse(["pipeline", "--scratch-physics-discount"]))
+    assert small.scratch_hyperparams_at(6) == {"policy": "SwarmPolicy", "gamma": 0.904}  # every 10 steps
 
 
 def test_pipeline_resumes_a_run_from_before_a_setting_existed(pipeline, tmp_path):

@@ -68,6 +68,13 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         help="anchor fine-tuning to the task's demonstrations "
         "(`dpr finetune --anchor` with its default weight and decay)",
     )
+    parser.add_argument(
+        "--scratch-physics-discount",
+        action="store_true",
+        default=None,
+        help="the runs from scratch discount 0.99 per physics step (0.99^K per decision of K steps), as the "
+        "fine-tuning does, instead of the yaml's gamma per decision",
+    )
     preset_argument(
         "--approach-reward",
         "Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the swarm-ball approach "

@@ -329,7 +329,7 @@ def _train_run(
     settings: dict[str, Any] = {
         "algo": method.removeprefix("bc-"),
         "timesteps": (config.finetune_steps if fine_tuned else config.rl_steps) // repeat,
-        "hyperparams": config.actor_hyperparams(),
+        "hyperparams": config.actor_hyperparams() if fine_tuned else config.scratch_hyperparams_at(teacher.hold),
     }
     warmup = f" after {config.critic_warmup} warm-up steps" if fine_tuned else ""
     what = f"{task}: {method}, seed {seed} ({settings['timesteps'] * repeat} physics steps{warmup})"

@@ -86,6 +86,9 @@ class PipelineConfig:
     # over the yaml's `finetune` entry (FINETUNE_AT_REPEAT)
     finetune_hyperparams: dict[str, Any] = field(default_factory=lambda: dict(FINETUNE_AT_REPEAT))
     actor: str = "mlp"  # one of ACTORS; mlp, what a pipeline.yaml written before the setting existed ran
+    # the runs from scratch discount PHYSICS_DISCOUNT per physics step as the fine-tuning does, not the yaml's gamma
+    # per decision (off: what every record before the setting existed ran)
+    scratch_physics_discount: bool = False
 
     def __post_init__(self):
         unknown = [task for task in self.tasks if task not in ENV_IDS]
@@ -121,6 +124,10 @@ class PipelineConfig:
                 "action_repeat",
                 f"must divide every teacher hold {holds}, so that the demonstrations are the teacher's gait "
                 f"(or be {PER_PHASE}: once per phase); got {repeat}",
+            )
+        if not isinstance(self.scratch_physics_discount, bool):
+            raise ParameterError(
+                "scratch_physics_discount", f"expected true or false, got {self.scratch_physics_discount!r}"
             )
         if not isinstance(self.finetune_hyperparams, dict):
             raise ParameterError("finetune_hyperparams", f"expected a mapping, got {self.finetune_hyperparams!r}")
@@ -183,10 +190,20 @@ class PipelineConfig:
             return {**self.learner_env_kwargs(hold), "approach_reward": float(self.approach_reward)}
         return self.learner_env_kwargs(hold)
 
+    def physics_discount_at(self, hold: int) -> dict[str, float]:
+        """The discount per decision that is PHYSICS_DISCOUNT per physics step, as a hyperparameter."""
+        return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3)}
+
     def finetune_hyperparams_at(self, hold: int) -> dict[str, Any]:
         """The fine-tuning hyperparameters: ``finetune_hyperparams``, discounting PHYSICS_DISCOUNT per physics
         step unless they set gamma."""
-        return {"gamma": round(PHYSICS_DISCOUNT ** self.decision_steps(hold), 3), **self.finetune_hyperparams}
+        return {**self.physics_discount_at(hold), **self.finetune_hyperparams}
+
+    def scratch_hyperparams_at(self, hold: int) -> dict[str, Any]:
+        """The hyperparameter overrides of the runs from scratch: the actor's, and PHYSICS_DISCOUNT per physics
+        step when ``scratch_physics_discount`` (else the yaml's gamma, per decision)."""
+        discount = self.physics_discount_at(hold) if self.scratch_physics_discount else {}
+        return {**self.actor_hyperparams(), **discount}
 
     def actor_hyperparams(self) -> dict[str, Any]:
         """The hyperparameter overrides that give every learner its actor (:data:`ACTORS`)."""
