@@ -330,11 +330,9 @@ def test_scratch_physics_discount_is_a_flag_over_the_preset():
     from dpr.cli.pipeline import pipeline_config
 
     parse = build_parser().parse_args
-    assert pipeline_config(
-        parse(["pipeline", "--preset", "full", "--scratch-physics-discount"])
-    ).scratch_physics_discount
-    assert not pipeline_config(parse(["pipeline", "--preset", "full"])).scratch_physics_discount
     full = pipeline_config(parse(["pipeline", "--preset", "full", "--scratch-physics-discount"]))
+    assert full.scratch_physics_discount
+    assert not pipeline_config(parse(["pipeline", "--preset", "full"])).scratch_physics_discount
     assert full.scratch_hyperparams_at(6) == {"policy": "SwarmPolicy", "gamma": 0.941}  # a decision per phase
     small = pipeline_config(parse(["pipeline", "--scratch-physics-discount"]))
     assert small.scratch_hyperparams_at(6) == {"policy": "SwarmPolicy", "gamma": 0.904}  # every 10 steps

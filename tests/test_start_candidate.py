@@ -26,8 +26,8 @@ def test_the_candidate_shares_the_kept_methods_and_resumes_with_its_flags(tool, 
     settings = saved_settings(read_run_settings(out)["config"])
     assert settings == dataclasses.asdict(config)  # `dpr pipeline <FLAGS> --out` resumes it, and only those flags
     assert config.tasks == ["gate"] and config.scratch_physics_discount
-    record = yaml.safe_load((RECORD / "pipeline.yaml").read_text())["config"]
-    differ = {name for name, value in settings.items() if saved_settings(record)[name] != value}
+    record = saved_settings(read_run_settings(RECORD)["config"])
+    differ = {name for name, value in settings.items() if record[name] != value}
     assert differ == {"tasks", "scratch_physics_discount"}
     choices = yaml.safe_load((out / "choices.yaml").read_text())
     assert sorted(choices) == ["gate-bc", "gate-bc-ppo", "gate-teacher"]

@@ -23,12 +23,10 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-import yaml
-
 from dpr.envs import ENV_IDS
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
 from dpr.rl.report import write_report
-from dpr.rl.run_folder import read_run_settings, report_evaluations
+from dpr.rl.run_folder import load_choices, read_run_settings, report_evaluations, save_choices, write_run_settings
 
 
 def _first_folder(entry: dict, run: Path, task: str) -> str:
@@ -61,7 +59,7 @@ def merge(out: Path, runs: list[Path]) -> PipelineConfig:
     copies: dict[Path, Path] = {}  # destination -> source
     for task in tasks:
         run, single = owner[task], PipelineConfig(**{**asdict(merged), "tasks": [task]})
-        run_choices = yaml.safe_load((run / "choices.yaml").read_text()) if (run / "choices.yaml").exists() else {}
+        run_choices = load_choices(run)
         choices.update({key: value for key, value in run_choices.items() if key.startswith(f"{task}-")})
         needed = [path for path, _ in report_evaluations(single, run)]
         needed += [run / "models" / f"{task}-{method}.zip" for method in merged.learned_methods()]
@@ -74,10 +72,8 @@ def merge(out: Path, runs: list[Path]) -> PipelineConfig:
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source, target)
     started = min(str(entry.get("started", "")) for entry in saved)
-    record = {"config": asdict(merged), "rl_steps": merged.rl_steps, "started": started}
-    record["merged_from"] = {task: folders[task] for task in tasks}
-    (out / "pipeline.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
-    (out / "choices.yaml").write_text(yaml.safe_dump(choices, sort_keys=True))
+    write_run_settings(out, merged, started, merged_from={task: folders[task] for task in tasks})
+    save_choices(out, choices)
     evaluations = report_evaluations(merged, out)
     write_report([path for path, _ in evaluations], out / "report", labels=[method for _, method in evaluations])
     return merged

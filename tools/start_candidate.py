@@ -16,18 +16,14 @@ pipeline, given the same flags, then trains and scores only the rest:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import shutil
 import sys
-import time
 from pathlib import Path
-
-import yaml
 
 from dpr.cli import build_parser
 from dpr.cli.pipeline import pipeline_config
 from dpr.rl.pipeline_config import TEACHER, PipelineConfig
-from dpr.rl.run_folder import model_path
+from dpr.rl.run_folder import load_choices, model_path, read_run_settings, save_choices, write_run_settings
 
 
 def start(record: Path, out: Path, keep: list[str], flags: list[str], models: Path) -> PipelineConfig:
@@ -42,20 +38,17 @@ def start(record: Path, out: Path, keep: list[str], flags: list[str], models: Pa
     unknown = sorted(set(keep) - set(config.learned_methods()))
     if unknown:
         raise ValueError(f"--keep: {unknown} are not methods of the candidate ({config.learned_methods()})")
-    saved = yaml.safe_load((record / "pipeline.yaml").read_text())
-    if task not in saved["config"]["tasks"]:
+    if task not in read_run_settings(record)["config"]["tasks"]:
         raise ValueError(f"{record}: the record has no {task} runs")
-    choices = yaml.safe_load((record / "choices.yaml").read_text())
+    choices = load_choices(record)
     names = [f"{task}-{TEACHER}", *(f"{task}-{method}" for method in keep)]
     sources = [models / model_path(Path("."), task, method, None).name for method in keep]
     missing = [str(path) for path in sources if not path.is_file()]
     if missing:
         raise ValueError(f"--models: {missing} missing; expected the record's canonical models")
     out.mkdir(parents=True)
-    settings = dataclasses.asdict(config)
-    written = {"config": settings, "rl_steps": config.rl_steps, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-    (out / "pipeline.yaml").write_text(yaml.safe_dump({**written, "started_from": str(record)}, sort_keys=False))
-    (out / "choices.yaml").write_text(yaml.safe_dump({k: choices[k] for k in names if k in choices}, sort_keys=False))
+    write_run_settings(out, config, started_from=str(record))
+    save_choices(out, {name: choices[name] for name in names if name in choices})
     prefixes = (f"{task}-{TEACHER}", f"{task}-wave", *(f"{task}-{method}-seed" for method in keep))
     for split in ("validation", "test"):
         (out / "eval" / split).mkdir(parents=True)

@@ -70,6 +70,7 @@ from dpr.rl.run_folder import (
     save_choices,
     task_done,
     tested_runs,
+    write_run_settings,
 )
 from dpr.runs import attempt_paths, fresh_path
 
@@ -139,16 +140,7 @@ def run_pipeline(
     for folder in ("datasets", "runs", "models", "eval/test", "eval/validation"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     if not resuming:
-        config_path.write_text(
-            yaml.safe_dump(
-                {
-                    "config": asdict(config),
-                    "rl_steps": config.rl_steps,
-                    "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                },
-                sort_keys=False,
-            )
-        )
+        write_run_settings(out, config)
     started = time.perf_counter()
     for task in config.tasks:
         teacher = _choose_teacher(config, task, out, show_progress, log)  # on the teacher seeds

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +32,7 @@ __all__ = [
     "save_choices",
     "task_done",
     "tested_runs",
+    "write_run_settings",
 ]
 
 
@@ -50,6 +53,14 @@ def read_run_settings(run: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
     return yaml.safe_load(path.read_text())
+
+
+def write_run_settings(run: Path, config: PipelineConfig, started: str | None = None, **extra: Any) -> None:
+    """Write ``run``'s ``pipeline.yaml``: ``config`` under ``config``, its RL budget, when it started (now unless
+    given) and ``extra`` entries (where a merged or candidate folder came from)."""
+    started = started or time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    record = {"config": asdict(config), "rl_steps": config.rl_steps, "started": started, **extra}
+    atomic_write_text(run / "pipeline.yaml", yaml.safe_dump(record, sort_keys=False))
 
 
 def load_choices(out: Path) -> dict[str, Any]:
