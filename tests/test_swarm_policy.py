@@ -1,5 +1,7 @@
 """SwarmActorCriticPolicy (`policy: SwarmPolicy`): a shared per-robot actor that sees the whole swarm."""
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from dpr.policies.sb3 import (
     ModelInfo,
     build_model,
     has_swarm_actor,
+    load_initial_policy,
     load_model,
     load_model_policy,
     model_env_kwargs,
@@ -231,3 +234,75 @@ def test_a_swarm_model_acts_at_any_swarm_size_but_trains_only_at_its_own(tmp_pat
     assert episode["env_kwargs"] == {**info.env_kwargs, "n_robots": 7, "max_episode_steps": 5}
     env.close()
     big_env.close()
+
+
+SWARM_CRITIC = {**SWARM, "policy_kwargs": {**SWARM["policy_kwargs"], "critic": "swarm"}}
+
+
+def values(model, observations: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return model.policy.predict_values(torch.as_tensor(observations)).numpy()[:, 0]
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), ENVS[1:3], ids=IDS[1:3])
+def test_the_swarm_critic_ignores_the_robots_order_and_takes_any_swarm_size(env_id, kwargs, tmp_path):
+    """With ``critic: swarm`` the value is the same for any order of the robots, and a model saved at N values a
+    swarm of N' with the same weights, critic included; the MLP critic's value changes with the order."""
+    env = gym.make(env_id, n_robots=N, robot_model="disk", **kwargs)
+    model = build_model(load_hyperparams("ppo", env_id, overrides=SWARM_CRITIC), DummyVecEnv([lambda: env]), 0, None)
+    mlp, _ = swarm_model(env_id, kwargs)
+    for each in (model, mlp):
+        trained_a_little(each)
+    observations = visited_observations(env, seeds=(0,), steps=10)
+    layout = model.policy.layout
+    order = np.random.default_rng(1).permutation(N)
+    permuted = observations.copy()
+    robots = permuted[:, : 6 * N].reshape(len(permuted), N, 6)
+    robots[:] = robots[:, order]
+    permuted[:, layout.memory_at : layout.memory_at + N] = observations[:, layout.memory_at :][:, order]
+    base = values(model, observations)
+    assert np.ptp(base) > 1e-3
+    np.testing.assert_allclose(values(model, permuted), base, rtol=1e-5, atol=1e-6)
+    assert not np.allclose(values(mlp, permuted), values(mlp, observations), atol=1e-4)
+
+    info = ModelInfo("ppo", env_id, {"n_robots": N, "robot_model": "disk", **kwargs})
+    path = save_model(model, tmp_path / "swarm-critic.zip", info)
+    big_env = gym.make(env_id, n_robots=7, robot_model="disk", **kwargs)
+    big, _ = load_model(path, big_env)
+    assert big.policy.critic == "swarm"
+    assert all(torch.equal(big.policy.state_dict()[name], t) for name, t in model.policy.state_dict().items())
+    assert np.isfinite(values(big, visited_observations(big_env, seeds=(0,), steps=3))).all()
+    env.close()
+    big_env.close()
+
+
+def test_a_clone_fine_tunes_with_the_swarm_critic_keeping_its_actor(demos, tmp_path):
+    """A clone made with the MLP critic starts a fine-tuning run whose critic is the swarm one: its actor's weights
+    are the clone's, the critic is new."""
+    clone = behaviour_clone(
+        demos, DEMO_ENV, epochs=1, out=tmp_path / "bc", hyperparams=SWARM, lr=3e-3, log=lambda _: None
+    )
+    source, _ = load_model(clone.model_path)
+    env = gym.make(DEMO_ENV, n_robots=N, robot_model="disk", **DEMO_KWARGS)
+    model = build_model(
+        load_hyperparams("ppo", DEMO_ENV, "finetune", SWARM_CRITIC), DummyVecEnv([lambda: env]), 0, None
+    )
+    load_initial_policy(model, clone.model_path)
+    weights = model.policy.state_dict()
+    for name, value in source.policy.state_dict().items():
+        if not name.startswith(VALUE_HEAD_PREFIXES):
+            assert torch.equal(weights[name], value), name
+    assert "mlp_extractor.value_net.phi.0.weight" in weights
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "problem"),
+    [
+        ({"policy_kwargs": {"critic": "swarm"}}, "with policy 'MlpPolicy'"),
+        ({**SWARM, "policy_kwargs": {"critic": "deep"}}, "one of ('mlp', 'swarm'); got 'deep'"),
+    ],
+)
+def test_the_critic_setting_is_checked(overrides, problem):
+    with pytest.raises(ValueError, match=re.escape(problem)):
+        load_hyperparams("ppo", "dpr/Navigation-v0", overrides=overrides)

@@ -4,7 +4,8 @@ Each file has one entry per env id (laptop-sized defaults, preset ``default``) a
 al.'s values, any env id). An entry holds ``n_timesteps``, ``policy`` (SB3's names, or ``SwarmPolicy``: the actor
 shared by the robots of :mod:`dpr.policies.swarm_policy`), ``learning_rate`` (a number or ``"lin_X"``: linear from
 X to 0 over training), ``policy_kwargs`` (``net_arch``, ``activation_fn``, ``features_extractor``: ``flatten`` or
-``swarm``, see :mod:`dpr.policies.features`; ``robot_net``: SwarmPolicy's per-robot layers),
+``swarm``, see :mod:`dpr.policies.features`; ``robot_net``: SwarmPolicy's per-robot layers; ``critic``:
+SwarmPolicy's critic, ``mlp`` or ``swarm``),
 ``env_kwargs`` (gym.make kwargs the algorithm needs, e.g. DQN's discrete actions) and any other keyword
 argument of the SB3 class. Everything stays plain yaml data until :meth:`Hyperparams.model_kwargs` turns it
 into the objects SB3 wants, so the resolved values can be saved as they were read.
@@ -34,7 +35,8 @@ FINETUNE_PRESET = "finetune"  # the env id's entry with the yaml's `finetune` en
 PRESETS = (DEFAULT_PRESET, PAPER_PRESET, FINETUNE_PRESET)
 LINEAR_PREFIX = "lin_"
 ACTIVATIONS = ("tanh", "relu")
-POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor", "robot_net")
+POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor", "robot_net", "critic")
+SWARM_CRITICS = ("mlp", "swarm")  # dpr.policies.swarm_policy.CRITICS (not imported here: torch)
 FEATURES_EXTRACTORS = ("flatten", "swarm")  # SB3's default; dpr.policies.features.SwarmFeatures
 # Set by the trainer itself, never by a yaml entry.
 RESERVED = ("env", "seed", "verbose", "tensorboard_log", "device", "_init_setup_model")
@@ -184,6 +186,11 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
         raise ValueError(
             f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "
             f"got {policy_kwargs['features_extractor']!r}"
+        )
+    if "critic" in policy_kwargs and (str(policy) != "SwarmPolicy" or policy_kwargs["critic"] not in SWARM_CRITICS):
+        raise ValueError(
+            f"{where}: policy_kwargs.critic is SwarmPolicy's, one of {SWARM_CRITICS}; got {policy_kwargs['critic']!r} "
+            f"with policy {policy!r}"
         )
     if policy_kwargs.get("activation_fn", "tanh") not in ACTIVATIONS:
         raise ValueError(

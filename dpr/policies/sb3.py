@@ -206,13 +206,18 @@ def _space_mismatch(path: Path, info: ModelInfo, model, env) -> str | None:
 
 def _swarm_model_resized(model, env):
     """The :data:`SWARM_POLICY` ``model`` acting in ``env``, another swarm size than its own. Its actor is one
-    network shared by the robots, so the same weights act for any N; its critic reads the whole state of N robots
-    and is not carried over: the model acts, it does not train."""
+    network shared by the robots, so the same weights act for any N; so does the swarm critic, whereas the MLP
+    critic reads the whole state of N robots and is not carried over: the model acts, it does not train."""
     policy = model.policy
     params = policy._get_constructor_parameters()
     params.update(observation_space=env.observation_space, action_space=env.action_space)
     resized = type(policy)(**params)
-    actor = {name: value for name, value in policy.state_dict().items() if not name.startswith(VALUE_HEAD_PREFIXES)}
+    keep_critic = _critic_of(policy) == "swarm"
+    actor = {
+        name: value
+        for name, value in policy.state_dict().items()
+        if keep_critic or not name.startswith(VALUE_HEAD_PREFIXES)
+    }
     missing, unexpected = resized.load_state_dict(actor, strict=False)
     if unexpected or not all(name.startswith(VALUE_HEAD_PREFIXES) for name in missing):
         raise RuntimeError(f"the actor's weights do not fit {SWARM_POLICY} at another N: {missing + unexpected}")
@@ -403,14 +408,26 @@ def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER
                 f"{path}: its {name} {describe_space(getattr(source, name))} differs from "
                 f"this run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs}){kind}",
             )
+    weights = source.policy.state_dict()
     try:
-        model.policy.load_state_dict(source.policy.state_dict())
+        if _critic_of(source.policy) == _critic_of(model.policy):
+            model.policy.load_state_dict(weights)
+        else:  # e.g. a clone (whose value head BC never trained) fine-tuned with the swarm critic: the actor only
+            actor = {name: value for name, value in weights.items() if not name.startswith(VALUE_HEAD_PREFIXES)}
+            missing, unexpected = model.policy.load_state_dict(actor, strict=False)
+            if unexpected or not all(name.startswith(VALUE_HEAD_PREFIXES) for name in missing):
+                raise RuntimeError(f"the actors differ: {missing + unexpected}")
     except RuntimeError as error:
         raise ParameterError(
             parameter,
             f"{path} ({info.algo}) has another network than this run's "
             f"{model.policy.net_arch}: {str(error).splitlines()[0]}",
         ) from None
+
+
+def _critic_of(policy) -> str:
+    """Which critic a policy has: ``mlp`` unless it is a :data:`SWARM_POLICY` built with the swarm critic."""
+    return getattr(policy, "critic", "mlp")
 
 
 def save_slim_copy(source: str | Path, target: str | Path) -> Path:

@@ -15,12 +15,16 @@ actor computes it the same way for every robot (Deep Sets, Zaheer et al. 2017):
 - one linear unit, shared, from each robot's ``rho`` output to its logit.
 
 Robots stay exchangeable: permuting the robots permutes the logits. The critic is SB3's usual MLP on the whole
-state (``net_arch``). The model is an ordinary SB3 PPO/A2C model: ``dpr bc`` clones into it, ``dpr finetune``
-trains it, ``dpr evaluate`` runs it. It is chosen with ``policy: SwarmPolicy`` in a hyperparameter entry.
+state (``net_arch``), or with ``critic="swarm"`` a Deep Sets network of its own: ``phi`` on every robot, the mean
+and the max over the swarm with the globals, then the ``net_arch`` layers to the value. That critic has no weight
+that depends on N either, and permuting the robots leaves the value as it is. The model is an ordinary SB3
+PPO/A2C model: ``dpr bc`` clones into it, ``dpr finetune`` trains it, ``dpr evaluate`` runs it. It is chosen with
+``policy: SwarmPolicy`` in a hyperparameter entry (and the critic with ``policy_kwargs: {critic: swarm}``).
 
 No weight of the actor depends on N, so a model trained on N robots acts for any other number: ``dpr evaluate``,
 ``dpr collect`` and ``dpr view`` take ``--n-robots`` with it (:func:`dpr.policies.sb3.load_model` rebuilds the
-policy for the env's spaces with the same actor). Its critic reads the state of N robots, so it trains at its N only.
+policy for the env's spaces with the same actor, and the same critic when it is the swarm one). The MLP critic reads
+the state of N robots, so such a model trains at its N only.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ __all__ = ["SwarmActorCriticPolicy"]
 # Its name in a hyperparameter entry's `policy` (dpr.policies.sb3.SWARM_POLICY, which builds it; not imported
 # here, which would close an import circle).
 POLICY_NAME = "SwarmPolicy"
+CRITICS = ("mlp", "swarm")  # SB3's MLP on the whole state; a Deep Sets critic (module docstring)
 ROBOT_INPUTS = 7  # along, across, velocity along and across, angular velocity, expansion, last action
 # Positions and velocities in units of the wave's bin width (positions are observed in units of 1000).
 _BIN = BIN_WIDTH * LENGTH_SCALE
@@ -93,11 +98,21 @@ class SwarmLayout:
 
 class SwarmExtractor(nn.Module):
     """SB3's ``mlp_extractor`` for :class:`SwarmActorCriticPolicy`: ``policy_net`` is the shared per-robot actor
-    (its latent is every robot's ``rho`` output, flattened), ``value_net`` SB3's MLP on the whole state."""
+    (its latent is every robot's ``rho`` output, flattened), ``value_net`` SB3's MLP on the whole state or, with
+    ``critic="swarm"``, a per-robot ``phi`` pooled over the swarm and an MLP from the pool to the value's latent."""
 
-    def __init__(self, layout: SwarmLayout, features_dim: int, robot_net: list[int], vf_net: list[int], activation):
+    def __init__(
+        self,
+        layout: SwarmLayout,
+        features_dim: int,
+        robot_net: list[int],
+        vf_net: list[int],
+        activation,
+        critic: str = "mlp",
+    ):
         super().__init__()
         self.layout = layout
+        self.critic = critic
         hidden = int(robot_net[-1])
         self.policy_net = nn.ModuleDict(
             {
@@ -105,10 +120,19 @@ class SwarmExtractor(nn.Module):
                 "rho": nn.Sequential(*create_mlp(3 * hidden + layout.globals, -1, robot_net, activation)),
             }
         )
-        self.value_net = nn.Sequential(*create_mlp(features_dim, -1, vf_net, activation))
+        if critic == "swarm":
+            self.value_net = nn.ModuleDict(
+                {
+                    "phi": nn.Sequential(*create_mlp(ROBOT_INPUTS, -1, robot_net, activation)),
+                    "rho": nn.Sequential(*create_mlp(2 * hidden + layout.globals, -1, vf_net, activation)),
+                }
+            )
+            self.latent_dim_vf = int(vf_net[-1]) if vf_net else 2 * hidden + layout.globals
+        else:
+            self.value_net = nn.Sequential(*create_mlp(features_dim, -1, vf_net, activation))
+            self.latent_dim_vf = int(vf_net[-1]) if vf_net else features_dim
         self.hidden = hidden
         self.latent_dim_pi = layout.n_robots * hidden
-        self.latent_dim_vf = int(vf_net[-1]) if vf_net else features_dim
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         robots, swarm = self.layout.split(features)
@@ -119,7 +143,11 @@ class SwarmExtractor(nn.Module):
         return self.policy_net["rho"](joint).flatten(1)
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
-        return self.value_net(features)
+        if self.critic != "swarm":
+            return self.value_net(features)
+        robots, swarm = self.layout.split(features)
+        each = self.value_net["phi"](robots)
+        return self.value_net["rho"](torch.cat([each.mean(1), each.max(1).values, swarm], 1))
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
@@ -139,7 +167,8 @@ class RobotLogits(nn.Module):
 
 class SwarmActorCriticPolicy(ActorCriticPolicy):
     """SB3's ActorCriticPolicy with a shared per-robot actor (module docstring) for MultiBinary(N) actions.
-    ``robot_net`` is the layer sizes of ``phi`` and ``rho``; ``net_arch`` (a list) the critic's."""
+    ``robot_net`` is the layer sizes of ``phi`` and ``rho``; ``net_arch`` (a list) the critic's; ``critic`` one of
+    :data:`CRITICS`."""
 
     def __init__(
         self,
@@ -149,24 +178,30 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
         *args,
         has_object: bool = False,
         robot_net: list[int] | None = None,
+        critic: str = "mlp",
         **kwargs,
     ):
         if not isinstance(action_space, gym.spaces.MultiBinary) or len(action_space.shape) != 1:
             raise ValueError(f"{POLICY_NAME} needs MultiBinary(N) actions, got {action_space}")
         if not isinstance(observation_space, gym.spaces.Box) or len(observation_space.shape) != 1:
             raise ValueError(f"{POLICY_NAME} needs the 1-D state observation, got {observation_space}")
+        if critic not in CRITICS:
+            raise ValueError(f"{POLICY_NAME}: critic must be one of {CRITICS}, got {critic!r}")
         self.layout = SwarmLayout(observation_space.shape[0], action_space.n, has_object)
         self.robot_net = list(robot_net or [64, 64])
+        self.critic = critic
         super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()
-        data.update(has_object=self.layout.has_object, robot_net=self.robot_net)
+        data.update(has_object=self.layout.has_object, robot_net=self.robot_net, critic=self.critic)
         return data
 
     def _build_mlp_extractor(self) -> None:
         vf_net = self.net_arch["vf"] if isinstance(self.net_arch, dict) else list(self.net_arch)
-        self.mlp_extractor = SwarmExtractor(self.layout, self.features_dim, self.robot_net, vf_net, self.activation_fn)
+        self.mlp_extractor = SwarmExtractor(
+            self.layout, self.features_dim, self.robot_net, vf_net, self.activation_fn, self.critic
+        )
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
