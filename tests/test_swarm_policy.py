@@ -13,7 +13,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.imitation import behaviour_clone
-from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.hyperparams import SWARM_CRITICS, load_hyperparams
 from dpr.policies.sb3 import (
     SWARM_POLICY,
     VALUE_HEAD_PREFIXES,
@@ -26,7 +26,7 @@ from dpr.policies.sb3 import (
     model_env_kwargs,
     save_model,
 )
-from dpr.policies.swarm_policy import POLICY_NAME, RobotLogits, SwarmActorCriticPolicy
+from dpr.policies.swarm_policy import CRITICS, POLICY_NAME, RobotLogits, SwarmActorCriticPolicy
 from dpr.rl.train import TrainConfig, train
 
 N = 5
@@ -53,6 +53,16 @@ def logits(model, observations: np.ndarray) -> np.ndarray:
         return policy.action_net(policy.mlp_extractor.forward_actor(features)).numpy()
 
 
+def robots_permuted(observations: np.ndarray, layout, order: np.ndarray) -> np.ndarray:
+    """``observations`` with the robots (their features and, when observed, their last actions) in ``order``."""
+    permuted = observations.copy()
+    robots = permuted[:, : 6 * N].reshape(len(permuted), N, 6)
+    robots[:] = robots[:, order]
+    if layout.has_memory:
+        permuted[:, layout.memory_at : layout.memory_at + N] = observations[:, layout.memory_at :][:, order]
+    return permuted
+
+
 def trained_a_little(model) -> None:
     """Weights away from the initialisation (whose output layer is nearly zero), so the tests see real outputs."""
     with torch.no_grad():
@@ -67,15 +77,10 @@ def test_permuting_the_robots_permutes_the_logits(env_id, kwargs):
     observations = visited_observations(env, seeds=(0, 1), steps=10)
     base = logits(model, observations)
     assert base.shape == (len(observations), N) and np.ptp(base) > 0.1
-    layout = model.policy.layout
     rng = np.random.default_rng(0)
     for _ in range(3):
         order = rng.permutation(N)
-        permuted = observations.copy()
-        robots = permuted[:, : 6 * N].reshape(len(permuted), N, 6)
-        robots[:] = robots[:, order]
-        if layout.has_memory:
-            permuted[:, layout.memory_at : layout.memory_at + N] = observations[:, layout.memory_at :][:, order]
+        permuted = robots_permuted(observations, model.policy.layout, order)
         np.testing.assert_allclose(logits(model, permuted), base[:, order], atol=1e-5)
     env.close()
 
@@ -254,12 +259,7 @@ def test_the_swarm_critic_ignores_the_robots_order_and_takes_any_swarm_size(env_
     for each in (model, mlp):
         trained_a_little(each)
     observations = visited_observations(env, seeds=(0,), steps=10)
-    layout = model.policy.layout
-    order = np.random.default_rng(1).permutation(N)
-    permuted = observations.copy()
-    robots = permuted[:, : 6 * N].reshape(len(permuted), N, 6)
-    robots[:] = robots[:, order]
-    permuted[:, layout.memory_at : layout.memory_at + N] = observations[:, layout.memory_at :][:, order]
+    permuted = robots_permuted(observations, model.policy.layout, np.random.default_rng(1).permutation(N))
     base = values(model, observations)
     assert np.ptp(base) > 1e-3
     np.testing.assert_allclose(values(model, permuted), base, rtol=1e-5, atol=1e-6)
@@ -304,5 +304,6 @@ def test_a_clone_fine_tunes_with_the_swarm_critic_keeping_its_actor(demos, tmp_p
     ],
 )
 def test_the_critic_setting_is_checked(overrides, problem):
+    assert SWARM_CRITICS == CRITICS  # hyperparams checks the names the policy builds
     with pytest.raises(ValueError, match=re.escape(problem)):
         load_hyperparams("ppo", "dpr/Navigation-v0", overrides=overrides)

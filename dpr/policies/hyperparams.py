@@ -26,7 +26,7 @@ import yaml
 
 from dpr.checks import ParameterError, check_int
 from dpr.envs import ENV_IDS
-from dpr.policies.sb3 import ALGOS, algo_class
+from dpr.policies.sb3 import ALGOS, SWARM_POLICY, algo_class
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
 DEFAULT_PRESET = "default"
@@ -187,10 +187,10 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
             f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "
             f"got {policy_kwargs['features_extractor']!r}"
         )
-    if "critic" in policy_kwargs and (str(policy) != "SwarmPolicy" or policy_kwargs["critic"] not in SWARM_CRITICS):
+    if "critic" in policy_kwargs and (str(policy) != SWARM_POLICY or policy_kwargs["critic"] not in SWARM_CRITICS):
         raise ValueError(
-            f"{where}: policy_kwargs.critic is SwarmPolicy's, one of {SWARM_CRITICS}; got {policy_kwargs['critic']!r} "
-            f"with policy {policy!r}"
+            f"{where}: policy_kwargs.critic is {SWARM_POLICY}'s, one of {SWARM_CRITICS}; "
+            f"got {policy_kwargs['critic']!r} with policy {policy!r}"
         )
     if policy_kwargs.get("activation_fn", "tanh") not in ACTIVATIONS:
         raise ValueError(

@@ -212,15 +212,7 @@ def _swarm_model_resized(model, env):
     params = policy._get_constructor_parameters()
     params.update(observation_space=env.observation_space, action_space=env.action_space)
     resized = type(policy)(**params)
-    keep_critic = _critic_of(policy) == "swarm"
-    actor = {
-        name: value
-        for name, value in policy.state_dict().items()
-        if keep_critic or not name.startswith(VALUE_HEAD_PREFIXES)
-    }
-    missing, unexpected = resized.load_state_dict(actor, strict=False)
-    if unexpected or not all(name.startswith(VALUE_HEAD_PREFIXES) for name in missing):
-        raise RuntimeError(f"the actor's weights do not fit {SWARM_POLICY} at another N: {missing + unexpected}")
+    _load_weights(resized, policy.state_dict(), with_critic=_critic_of(policy) == "swarm")
     model.policy = resized
     model.observation_space, model.action_space = env.observation_space, env.action_space
     return model
@@ -408,21 +400,27 @@ def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER
                 f"{path}: its {name} {describe_space(getattr(source, name))} differs from "
                 f"this run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs}){kind}",
             )
-    weights = source.policy.state_dict()
     try:
-        if _critic_of(source.policy) == _critic_of(model.policy):
-            model.policy.load_state_dict(weights)
-        else:  # e.g. a clone (whose value head BC never trained) fine-tuned with the swarm critic: the actor only
-            actor = {name: value for name, value in weights.items() if not name.startswith(VALUE_HEAD_PREFIXES)}
-            missing, unexpected = model.policy.load_state_dict(actor, strict=False)
-            if unexpected or not all(name.startswith(VALUE_HEAD_PREFIXES) for name in missing):
-                raise RuntimeError(f"the actors differ: {missing + unexpected}")
+        # another critic: e.g. a clone (whose value head BC never trained) fine-tuned with the swarm critic
+        _load_weights(model.policy, source.policy.state_dict(), _critic_of(source.policy) == _critic_of(model.policy))
     except RuntimeError as error:
         raise ParameterError(
             parameter,
             f"{path} ({info.algo}) has another network than this run's "
             f"{model.policy.net_arch}: {str(error).splitlines()[0]}",
         ) from None
+
+
+def _load_weights(policy, weights: dict, with_critic: bool) -> None:
+    """Load ``weights`` (a state dict) into ``policy``: all of them, or without the value head, which then keeps its
+    own initialisation. A RuntimeError naming the weights that do not fit."""
+    if with_critic:
+        policy.load_state_dict(weights)
+        return
+    actor = {name: value for name, value in weights.items() if not name.startswith(VALUE_HEAD_PREFIXES)}
+    missing, unexpected = policy.load_state_dict(actor, strict=False)
+    if unexpected or not all(name.startswith(VALUE_HEAD_PREFIXES) for name in missing):
+        raise RuntimeError(f"the actor's weights do not fit: {missing + unexpected}")
 
 
 def _critic_of(policy) -> str:

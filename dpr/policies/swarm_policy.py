@@ -134,23 +134,33 @@ class SwarmExtractor(nn.Module):
         self.hidden = hidden
         self.latent_dim_pi = layout.n_robots * hidden
 
-    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        robots, swarm = self.layout.split(features)
+    @staticmethod
+    def _pooled(each: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
+        """The mean and the max over the swarm of every robot's ``phi`` output, with the swarm's globals."""
+        return torch.cat([each.mean(1), each.max(1).values, swarm], 1)
+
+    def _actor(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
         each = self.policy_net["phi"](robots)
-        n = self.layout.n_robots
-        pooled = torch.cat([each.mean(1), each.max(1).values, swarm], 1)
-        joint = torch.cat([each, pooled[:, None, :].expand(-1, n, -1)], 2)
+        pooled = self._pooled(each, swarm)
+        joint = torch.cat([each, pooled[:, None, :].expand(-1, self.layout.n_robots, -1)], 2)
         return self.policy_net["rho"](joint).flatten(1)
+
+    def _swarm_critic(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
+        return self.value_net["rho"](self._pooled(self.value_net["phi"](robots), swarm))
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        return self._actor(*self.layout.split(features))
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
         if self.critic != "swarm":
             return self.value_net(features)
-        robots, swarm = self.layout.split(features)
-        each = self.value_net["phi"](robots)
-        return self.value_net["rho"](torch.cat([each.mean(1), each.max(1).values, swarm], 1))
+        return self._swarm_critic(*self.layout.split(features))
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.forward_actor(features), self.forward_critic(features)
+        if self.critic != "swarm":
+            return self.forward_actor(features), self.value_net(features)
+        parts = self.layout.split(features)  # once for both
+        return self._actor(*parts), self._swarm_critic(*parts)
 
 
 class RobotLogits(nn.Module):
