@@ -12,6 +12,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
+from dpr.envs.particle_env import ROBOT_FEATURES
 from dpr.imitation import behaviour_clone
 from dpr.policies.hyperparams import SWARM_CRITICS, load_hyperparams
 from dpr.policies.sb3 import (
@@ -56,7 +57,7 @@ def logits(model, observations: np.ndarray) -> np.ndarray:
 def robots_permuted(observations: np.ndarray, layout, order: np.ndarray) -> np.ndarray:
     """``observations`` with the robots (their features and, when observed, their last actions) in ``order``."""
     permuted = observations.copy()
-    robots = permuted[:, : 6 * N].reshape(len(permuted), N, 6)
+    robots = permuted[:, : ROBOT_FEATURES * N].reshape(len(permuted), N, ROBOT_FEATURES)
     robots[:] = robots[:, order]
     if layout.has_memory:
         permuted[:, layout.memory_at : layout.memory_at + N] = observations[:, layout.memory_at :][:, order]
