@@ -291,13 +291,14 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
 
 
-MLP = ["--actor", "mlp", "--bc-epochs", "15"]  # the records before the swarm actor's
+YAML_LR = ["--finetune-hyperparam", "learning_rate=null"]  # the records before the preset's learning rate
+MLP = [*YAML_LR, "--actor", "mlp", "--bc-epochs", "15"]  # the records before the swarm actor's
 
 
 @pytest.mark.parametrize(
     "record, flags",
     [
-        ("full-swarm", []),
+        ("full-swarm", YAML_LR),
         ("full-ft600", [*MLP, "--finetune-steps", "600000"]),
         ("full-bins", [*MLP, "--finetune-steps", "300000"]),
         ("full", [*MLP, "--finetune-steps", "300000", "--teacher-bin-widths", "60", "--teacher-seeds", "none"]),
@@ -322,6 +323,23 @@ def test_each_record_resumes_with_the_flags_results_md_gives(record, flags):
     assert dataclasses.asdict(pipeline_config(args)) == saved_settings(saved)
     shown = " ".join((root / "RESULTS.md").read_text().replace("\\\n", " ").split())  # continued lines joined
     assert " ".join(["dpr pipeline --preset full --tasks all --out", f"runs/{record}", *flags, ""]) in shown
+
+
+def test_finetune_hyperparams_go_over_the_preset_and_null_drops_one():
+    """--finetune-hyperparam NAME=VALUE goes over the preset's values; NAME=null drops the preset's, so the yaml's
+    `finetune` entry stands for it (how the records before the full preset's learning rate are named)."""
+    from dpr.cli import build_parser
+    from dpr.cli.pipeline import pipeline_config
+    from dpr.rl.pipeline_config import FINETUNE_AT_REPEAT, PRESETS
+
+    parse = build_parser().parse_args
+    assert PRESETS["full"].finetune_hyperparams["learning_rate"] == 3e-4
+    over = pipeline_config(parse(["pipeline", "--preset", "full", "--finetune-hyperparam", "learning_rate=1e-4"]))
+    assert over.finetune_hyperparams == {**FINETUNE_AT_REPEAT, "learning_rate": 1e-4}
+    dropped = ["pipeline", "--preset", "full", "--finetune-hyperparam", "learning_rate=null"]
+    assert pipeline_config(parse(dropped)).finetune_hyperparams == FINETUNE_AT_REPEAT
+    small = ["pipeline", "--finetune-hyperparam", "n_epochs=null", "--finetune-hyperparam", "clip_range=0.2"]
+    assert pipeline_config(parse(small)).finetune_hyperparams == {"n_steps": 512, "batch_size": 128, "clip_range": 0.2}
 
 
 def test_scratch_physics_discount_is_a_flag_over_the_preset():

@@ -121,7 +121,8 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="a fine-tuning hyperparameter over the preset's (preset: "
         + ", ".join(f"{name} {_pairs(config['finetune_hyperparams'])}" for name, config in presets.items())
-        + ") and the yaml's `finetune` entry, e.g. learning_rate=1e-4 (repeatable)",
+        + ") and the yaml's `finetune` entry, e.g. learning_rate=1e-4; NAME=null drops the preset's value, so the "
+        "yaml's stands (repeatable)",
     )
     preset_argument(
         "--actor",
@@ -184,9 +185,10 @@ def pipeline_config(args):
     }
     if overrides.get("tasks") == [ALL_ENVS]:
         overrides["tasks"] = list(ENV_IDS)
-    if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's
+    if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's; NAME=null drops the preset's
         preset = PRESETS[args.preset].finetune_hyperparams  # (argparse allows only known presets)
-        overrides["finetune_hyperparams"] = {**preset, **dict(overrides["finetune_hyperparams"])}
+        merged = {**preset, **dict(overrides["finetune_hyperparams"])}
+        overrides["finetune_hyperparams"] = {name: value for name, value in merged.items() if value is not None}
     return preset_config(args.preset, **overrides)
 
 
