@@ -62,6 +62,8 @@ def test_the_records_compare_and_no_decision_comes_from_unfinished_tasks(tool, t
     assert mean == pytest.approx(1.060, abs=0.001)
     _, mean = tool.compare(RECORDS / "full-ft600", RECORDS / "full-swarm", tasks, "bc-ppo")
     assert mean == pytest.approx(1.205, abs=0.001)
+    _, mean = tool.compare(RECORDS / "full-swarm", RECORDS / "full-lr3e4", tasks, "bc-ppo")
+    assert mean == pytest.approx(1.032, abs=0.001)
     partial = _copy_validation("full", tmp_path / "partial", ["navigation"])
     assert tool.main([str(RECORDS / "full"), str(partial)]) == 0
     out = capsys.readouterr().out

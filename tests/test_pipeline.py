@@ -298,6 +298,7 @@ MLP = [*YAML_LR, "--actor", "mlp", "--bc-epochs", "15"]  # the records before th
 @pytest.mark.parametrize(
     "record, flags",
     [
+        ("full-lr3e4", []),
         ("full-swarm", YAML_LR),
         ("full-ft600", [*MLP, "--finetune-steps", "600000"]),
         ("full-bins", [*MLP, "--finetune-steps", "300000"]),

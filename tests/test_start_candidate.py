@@ -11,7 +11,7 @@ from dpr.rl.pipeline_config import saved_settings
 from dpr.rl.run_folder import read_run_settings
 
 ROOT = Path(__file__).resolve().parents[1]
-RECORD = ROOT / "docs" / "results" / "full-swarm"
+RECORD = ROOT / "docs" / "results" / "full-lr3e4"
 FLAGS = ["--preset", "full", "--tasks", "gate", "--scratch-physics-discount"]
 
 

@@ -8,7 +8,7 @@ flags over them, for the one task), the record's choice of the task's teacher an
 validation and test evaluations, and the record's canonical models of those methods (from ``--models``). The
 pipeline, given the same flags, then trains and scores only the rest:
 
-    python tools/start_candidate.py docs/results/full-swarm runs/cand-gate --keep bc bc-ppo -- \\
+    python tools/start_candidate.py docs/results/full-lr3e4 runs/cand-gate --keep bc bc-ppo -- \\
         --preset full --tasks gate --scratch-physics-discount
     dpr pipeline --preset full --tasks gate --scratch-physics-discount --out runs/cand-gate
 """
