@@ -119,9 +119,36 @@ def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(t
     out = tmp_path / "run"
     report = run_pipeline(config, out, shipped=load_model_card(card), **QUIET)
     for stem in ("navigation", "gate"):
-        payload = json.loads((out / "eval" / "shipped" / f"{stem}.json").read_text())
+        (evaluation,) = (out / "eval" / "shipped").glob(f"{stem}-*.json")
+        payload = json.loads(evaluation.read_text())
         assert payload["seeds"] == [300, 301] and payload["policy"].endswith(f"{stem}.zip")
     assert json.loads((out / "eval" / "test" / "gate-wave.json").read_text())["seeds"] == [300, 301]
     text = (report / "results.md").read_text()
     for row in ("| Navigation | shipped bc-ppo |", "| Gate | wave |", "| Gate | shipped bc-ppo |"):
         assert row in text
+
+
+def test_a_shipped_model_replaced_since_the_last_run_is_evaluated_again_into_a_new_report(tmp_path, tiny_rollouts):
+    """Run again after `models/` changed, the pipeline scores the new file (its evaluation named by the file's
+    content) and writes the report into a new folder, keeping the old evaluation and report; run once more, it
+    only skips."""
+    import zipfile
+
+    models = tmp_path / "models"
+    models.mkdir()
+    card = write_card(models, [entry("navigation", tiny_model("navigation", models).name)])
+    config = PipelineConfig(**TINY_PIPELINE, finetune_algos=[], scratch_algos=[], test_seeds=[300])
+    out = tmp_path / "run"
+    first = run_pipeline(config, out, shipped=load_model_card(card), **QUIET)
+    (old_evaluation,) = (out / "eval" / "shipped").iterdir()
+    old_report = (first / "results.md").read_text()
+    with zipfile.ZipFile(models / "navigation.zip", "a") as model:  # another file, the same policy
+        model.comment = b"replaced"
+    lines = []
+    second = run_pipeline(config, out, shipped=load_model_card(card), show_progress=False, log=lines.append)
+    assert second == out / "report-2" and (first / "results.md").read_text() == old_report
+    assert old_evaluation.exists() and len(list((out / "eval" / "shipped").iterdir())) == 2
+    assert any(f"{first} is kept" in line for line in lines)
+    files = {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()}
+    assert run_pipeline(config, out, shipped=load_model_card(card), **QUIET) == second
+    assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files

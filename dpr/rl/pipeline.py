@@ -102,6 +102,32 @@ def _copy_new(source: Path, target: Path) -> None:
     partial.replace(target)
 
 
+def _shipped_evaluation_path(out: Path, model: Path) -> Path:
+    """Where a shipped model's test evaluation goes: named by the file's content, so that a model replaced in
+    ``models/`` is evaluated again beside the old one's evaluation, not taken for it."""
+    import hashlib
+
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()[:12]
+    return out / "eval" / "shipped" / f"{model.stem}-{digest}.json"
+
+
+def _report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]) -> Path:
+    """The folder the report belongs in: the latest report (``report``, ``report-2``...) if none of ``sources`` is
+    newer than it, else a new folder beside it (reports are never overwritten; the older one is kept)."""
+    from dpr.rl.report import REPORT_FILES
+
+    written = [folder for folder in attempt_paths(out / "report") if (folder / REPORT_FILES[0]).exists()]
+    if not written:
+        return out / "report"
+    latest = written[-1]
+    made = (latest / REPORT_FILES[0]).stat().st_mtime_ns
+    if all(source.stat().st_mtime_ns <= made for source in sources):
+        return latest
+    fresh = fresh_path(out / "report")
+    log(f"dpr pipeline: evaluations newer than {latest}: the report goes into {fresh}, {latest} is kept")
+    return fresh
+
+
 def run_pipeline(
     config: PipelineConfig,
     out: str | Path,
@@ -168,7 +194,7 @@ def run_pipeline(
     for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
         test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
     for model in shipped:
-        path = out / "eval" / "shipped" / f"{model.path.stem}.json"
+        path = _shipped_evaluation_path(out, model.path)
         _evaluate_policy(
             config,
             model.env_id,
@@ -182,11 +208,12 @@ def run_pipeline(
         )
         test_evaluations.append((path, f"shipped {model.method}"))
 
-    report = out / "report"
+    sources = [path for path, _ in test_evaluations]
+    report = _report_folder(out, sources, log)
     if (report / REPORT_FILES[0]).exists():
         log(f"dpr pipeline: report: {report} exists, skipped")
     else:
-        write_report([path for path, _ in test_evaluations], report, labels=[method for _, method in test_evaluations])
+        write_report(sources, report, labels=[method for _, method in test_evaluations])
     log(f"dpr pipeline: done in {time.perf_counter() - started:.0f} s; report in {report}")
     return report
 
