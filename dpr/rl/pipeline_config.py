@@ -253,7 +253,7 @@ PRESETS: dict[str, PipelineConfig] = {
         teacher_seeds=list(range(200, 280)),
         action_repeat=PER_PHASE,
         # fine-tuned at ten times the yaml's learning rate: adopted on validation seeds over the swarm record
-        # (docs/learning.md, "The learning-rate candidate")
+        # (docs/learning.md, "What limits Unresponsive": "Fine-tuning at learning rate 3e-4 is adopted")
         finetune_hyperparams={**FINETUNE_AT_REPEAT, "learning_rate": FULL_FINETUNE_LEARNING_RATE},
     ),
 }
