@@ -343,6 +343,23 @@ def test_finetune_hyperparams_go_over_the_preset_and_null_drops_one():
     assert pipeline_config(parse(small)).finetune_hyperparams == {"n_steps": 512, "batch_size": 128, "clip_range": 0.2}
 
 
+@pytest.mark.parametrize(
+    "pair, expected",
+    [("learning_rate=abc", "learning_rate: expected a number > 0"), ("learnin_rate=1e-4", "unknown hyperparameter")],
+)
+def test_a_bad_finetune_hyperparam_is_refused_naming_its_flag_before_any_work(pair, expected, tmp_path, capsys):
+    """A misspelt fine-tuning hyperparameter, or a value the yaml would refuse, stops the command at once, not
+    hours later when the first clone is fine-tuned."""
+    from helpers import run_cli
+
+    out = tmp_path / "run"
+    argv = ["pipeline", "--preset", "full", "--tasks", "all", "--finetune-hyperparam", pair, "--out", str(out)]
+    assert run_cli(argv) == 2
+    error = capsys.readouterr().err
+    assert "--finetune-hyperparam: " in error and expected in error
+    assert not out.exists()
+
+
 def test_scratch_physics_discount_is_a_flag_over_the_preset():
     """--scratch-physics-discount turns the setting on over any preset; without it the preset's (off) stands."""
     from dpr.cli import build_parser

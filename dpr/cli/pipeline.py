@@ -201,7 +201,7 @@ def cmd_pipeline(args, parser) -> int:
         shipped = load_model_card(args.shipped) if args.shipped else []
         report = run_pipeline(config, args.out, shipped=shipped)
     except (TypeError, ValueError) as error:
-        parser.error(flag_message(error))
+        parser.error(flag_message(error, PIPELINE_FLAGS))
     except KeyboardInterrupt:
         print(f"dpr pipeline: interrupted; run the same command again to resume {args.out}", file=sys.stderr)
         return 130

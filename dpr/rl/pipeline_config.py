@@ -9,6 +9,7 @@ from typing import Any
 from dpr.checks import ParameterError, check_int, check_number, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
 from dpr.envs.particle_env import HELD_STEPS_CAP
+from dpr.policies.hyperparams import FINETUNE_PRESET, load_hyperparams
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POLICY
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
@@ -159,6 +160,14 @@ class PipelineConfig:
                 raise ParameterError(
                     name, f"{shared} are test seeds too; the seeds that choose must not be the ones that score"
                 )
+        for algo in self.finetune_algos:  # a misspelt name or value is refused now, not hours later at fine-tuning
+            for task in self.tasks:
+                try:
+                    load_hyperparams(
+                        algo, ENV_IDS[task], FINETUNE_PRESET, self.actor_hyperparams() | self.finetune_hyperparams
+                    )
+                except ValueError as error:
+                    raise ParameterError("finetune_hyperparams", str(error)) from None
 
     @property
     def rl_steps(self) -> int:
