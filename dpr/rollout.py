@@ -58,6 +58,7 @@ class RolloutResult:
     terminated: bool = False
     truncated: bool = False
     physics_error: str | None = None
+    measures: dict[str, float] = field(default_factory=dict)  # the task's own (env.episode_measures) at the end
 
     @property
     def steps(self) -> int:
@@ -111,6 +112,8 @@ def roll_out(
         on_reset(observation, info)
     goal = np.array(env.unwrapped.goal, dtype=float)
     trajectory = [info[AGENT_POSITION]]
+    measure_keys = env.unwrapped.episode_measures
+    last_info = info  # the last sane step's, whose measures end the episode
     rewards: list[float] = []
     terminated = truncated = False
     physics_error = None
@@ -121,6 +124,7 @@ def roll_out(
             physics_error = info[PHYSICS_ERROR]
             break
         trajectory.append(info[AGENT_POSITION])
+        last_info = info
         rewards.append(float(reward))
         if on_step is not None:
             on_step(Step(len(rewards), observation, action, next_observation, reward, terminated, truncated, info))
@@ -133,6 +137,9 @@ def roll_out(
         terminated=bool(terminated),
         truncated=bool(truncated),
         physics_error=physics_error,
+        measures={
+            key: last_info[key].item() if hasattr(last_info[key], "item") else last_info[key] for key in measure_keys
+        },
     )
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-ENV_IDS = ("dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Unresponsive-v0", "dpr/Manipulation-v0")
+ENV_IDS = ("dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Gate-v1", "dpr/Unresponsive-v0", "dpr/Manipulation-v0")
 ROBOT_MODELS = ("paddle", "disk")
 ACTION_TYPES = ("multibinary", "discrete", "continuous")
 OBS_TYPES = ("state", "pixels", "pixels_state")

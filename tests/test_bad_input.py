@@ -347,3 +347,19 @@ def test_collect_names_the_image_size_flag_for_a_frame_size_out_of_range(size, t
     assert exit_info.value.code == 2
     assert "--image-size: must be" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "distance, message",
+    [
+        (-1.0, "gate_distance: must be >= 0"),
+        (float("nan"), "gate_distance: must be finite"),
+        (float("inf"), "gate_distance: must be finite"),
+        (1e9, "gate_distance: must be <= 450"),
+        ("10", "gate_distance: expected a number"),
+        (True, "gate_distance: expected a number"),
+    ],
+)
+def test_gate_distance_out_of_range_is_one_error_naming_it(distance, message):
+    with pytest.raises(ValueError, match=message):
+        gym.make("dpr/Gate-v1", gate_distance=distance)

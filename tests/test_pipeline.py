@@ -291,14 +291,15 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
 
 
-YAML_LR = ["--finetune-hyperparam", "learning_rate=null"]  # the records before the preset's learning rate
+GATE_V0 = ["--env-id", "dpr/Gate-v0"]  # the records before Gate-v1
+YAML_LR = [*GATE_V0, "--finetune-hyperparam", "learning_rate=null"]  # the records before the preset's learning rate
 MLP = [*YAML_LR, "--actor", "mlp", "--bc-epochs", "15"]  # the records before the swarm actor's
 
 
 @pytest.mark.parametrize(
     "record, flags",
     [
-        ("full-lr3e4", []),
+        ("full-lr3e4", GATE_V0),
         ("full-swarm", YAML_LR),
         ("full-ft600", [*MLP, "--finetune-steps", "600000"]),
         ("full-bins", [*MLP, "--finetune-steps", "300000"]),

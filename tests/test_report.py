@@ -78,7 +78,7 @@ def _write(path, policy, episodes, steps=100):
     return path
 
 
-NAV, GATE = "dpr/Navigation-v0", "dpr/Gate-v0"
+NAV, GATE = "dpr/Navigation-v0", "dpr/Gate-v1"
 
 
 @pytest.fixture
@@ -253,3 +253,38 @@ def test_a_model_named_after_its_task_is_labelled_by_its_method():
     assert policy_label("models/gate-dqn.zip", {"Gate"}) == "dqn"
     assert policy_label("models/gate-dqn.zip", {"Navigation"}) == "gate-dqn"  # another task's model keeps its name
     assert policy_label("models/gate-dqn.zip") == "gate-dqn" and policy_label("wave", {"Gate"}) == "wave"
+
+
+def test_gate_evaluations_carry_the_passage_measure_into_the_report(tmp_path):
+    """An evaluation on Gate-v1 stores each episode's passage measure, summarises it, and the report shows it."""
+    path = tmp_path / "gate.json"
+    kwargs = ["--robot-model", "disk", "--n-robots", "9"]
+    argv = [
+        "evaluate",
+        "--policy",
+        "wave",
+        "--env",
+        "dpr/Gate-v1",
+        "--seeds",
+        "3-4",
+        "--steps",
+        "400",
+        "--workers",
+        "1",
+    ]
+    assert run([*argv, *kwargs, "--json", str(path)]) == 0
+    payload = json.loads(path.read_text())
+    for episode in payload["episodes"]:
+        result = run_episode(
+            "dpr/Gate-v1", "wave", episode["seed"], steps=400, env_kwargs={"robot_model": "disk", "n_robots": 9}
+        )
+        assert episode["gate_passage"] == result.measures["gate_passage"]
+        assert episode["gate_contact_step"] == result.measures["gate_contact_step"]
+    touched = [e["gate_contact_step"] >= 0 for e in payload["episodes"]]
+    assert payload["summary"]["gate_touched"]["mean"] == np.mean(touched)
+    out = tmp_path / "report"
+    assert run(["report", str(path), "--out", str(out)]) == 0
+    section = (out / "results.md").read_text().split("## Passage through the gate\n\n")[1].split("\n\n")[0]
+    (row,) = _rows(section)
+    assert row[:2] == ["Gate", "wave"]
+    assert row[3] == f"{sum(touched)} of 2"

@@ -115,6 +115,76 @@ def test_gate_geometry(make_env, seed):
         assert not [q for q in space.shape_query(wall) if q.shape.body.body_type == pymunk.Body.DYNAMIC]
 
 
+@pytest.mark.parametrize("distance", [0.0, 5.0, 40.0])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+def test_gate_v1_walls_stand_gate_distance_from_the_nearest_robot(make_env, distance, seed):
+    """On v1 the contracted swarm (disks) touches a wall once it has moved exactly gate_distance toward the goal;
+    the walls stand across the line to the goal, the opening on that line."""
+    env = make_env("dpr/Gate-v1", n_robots=9, gate_distance=distance)
+    _, info = env.reset(seed=seed)
+    u = env.unwrapped
+    start = info["centre_of_mass"]
+    along = -start / np.linalg.norm(start)
+
+    def gap(advance: float) -> float:
+        centres = u.world.swarm.position + along * advance
+        distances = [w.point_query(tuple(p)).distance for w in u.world.wall_shapes for p in centres]
+        return min(distances) - u.swarm_class.contracted_radius
+
+    assert gap(distance) == pytest.approx(0.0, abs=1e-6)
+    assert gap(distance - 0.5) > 0
+    walls = u.world.wall_shapes
+    middle = start + along * (u._gate_near + 50.0)  # halfway through the walls' thickness, on the line
+    across = np.array([-along[1], along[0]])
+    for side in (1, -1):
+        assert min(w.point_query(tuple(middle + side * across * 74)).distance for w in walls) > 0  # the opening
+        assert min(w.point_query(tuple(middle + side * across * 76)).distance for w in walls) < 0  # a wall
+    assert info["gate_passage"] == 0.0 or distance == 0.0
+    assert info["gate_contact_step"] == -1
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_gate_v1_the_wave_meets_the_walls_and_the_passage_measure_says_when(make_env, robot_model):
+    """The wave touches the v1 walls early while v0's stay out of reach; the passage measure counts robots past
+    the near face."""
+    from dpr.policies.registry import make_policy
+
+    contact = {}
+    for env_id in ("dpr/Gate-v1", "dpr/Gate-v0"):
+        env = make_env(env_id, robot_model=robot_model, n_robots=9)
+        observation, _ = env.reset(seed=5)
+        policy = make_policy("wave", env)
+        for _ in range(600):
+            observation, _, _, _, info = env.step(policy(observation))
+        contact[env_id] = info["gate_contact_step"]
+        u = env.unwrapped
+        assert info["gate_passage"] == ((u.world.swarm.position - u.start) @ u._gate_along > u._gate_near).mean()
+    assert 0 < contact["dpr/Gate-v1"] <= 600
+    assert contact["dpr/Gate-v0"] == -1
+
+
+def test_gate_contact_step_counts_physics_steps(make_env):
+    """With action_repeat=10 the contact step is the physics step of the contact, as with one decision a step."""
+    actions = [np.arange(9) % 2 == (k // 5) % 2 for k in range(40)]  # a crude gait, each action held 10 steps
+    contact = []
+    for repeat in (1, 10):
+        env = make_env("dpr/Gate-v1", robot_model="disk", n_robots=9, action_repeat=repeat, gate_distance=0.0)
+        env.reset(seed=5)
+        for action in actions:
+            for _ in range(10 // repeat):
+                _, _, _, _, info = env.step(action.astype(np.int8))
+        contact.append(info["gate_contact_step"])
+    assert contact[0] == contact[1] > 0
+
+
+@pytest.mark.parametrize("robot_model", ROBOT_MODELS)
+def test_gate_v0_keeps_the_papers_placement(make_env, robot_model):
+    """Gate-v0 is the paper's gate, halfway between start and goal, whatever Gate-v1's default."""
+    env = make_env("dpr/Gate-v0", robot_model=robot_model)
+    assert env.unwrapped.gate_distance is None
+    assert make_env("dpr/Gate-v1", robot_model=robot_model).unwrapped.gate_distance > 0
+
+
 @pytest.mark.parametrize("robot_model", ROBOT_MODELS)
 def test_wall_physically_blocks_robot_zero(robot_model):
     """A wall right across robot 0's path stops it when it is driven toward the wall."""

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from dpr.cli import bc, bench, data, evaluate, learn, pipeline, view
 from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, unwritable_destination
-from dpr.envs import ENV_IDS
+from dpr.envs import TASKS
 
 COMMANDS = (
     *evaluate.COMMANDS,
@@ -64,9 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if getattr(args, "env", None) and args.env != [ALL_ENVS]:
         requested = [args.env] if isinstance(args.env, str) else args.env
-        unknown = [e for e in requested if e not in ENV_IDS.values()]
+        unknown = [e for e in requested if e not in TASKS]
         if unknown:
-            parser.error(f"--env: unknown env id(s) {unknown}; choose from {list(ENV_IDS.values())} or '{ALL_ENVS}'")
+            parser.error(f"--env: unknown env id(s) {unknown}; choose from {list(TASKS)} or '{ALL_ENVS}'")
     for name in OUTPUT_FLAGS:
         value = getattr(args, name, None)
         problem = unwritable_destination(value) if isinstance(value, str) else None

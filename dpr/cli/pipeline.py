@@ -29,8 +29,18 @@ def _pairs(mapping: dict) -> str:
     return " ".join(f"{key}={value}" for key, value in mapping.items()) or "none"
 
 
+def earlier_env_id(text: str) -> str:
+    """An ``--env-id`` value: one of the tasks' earlier registered ids."""
+    from dpr.envs import EARLIER_ENV_IDS
+
+    if text not in EARLIER_ENV_IDS:
+        raise argparse.ArgumentTypeError(f"expected one of {list(EARLIER_ENV_IDS)}, got {text!r}")
+    return text
+
+
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
+    from dpr.envs import EARLIER_ENV_IDS
     from dpr.policies.sb3 import FINETUNE_ALGOS
     from dpr.rl.pipeline_config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
 
@@ -55,6 +65,16 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         "headline, hours per task); the flags below override single values",
     )
     preset_argument("--tasks", f"tasks to run, or '{ALL_ENVS}'", type=str, nargs="+", choices=(*TASK_NAMES, ALL_ENVS))
+    parser.add_argument(
+        "--env-id",
+        dest="env_ids",
+        action="append",
+        type=earlier_env_id,
+        metavar="ID",
+        default=None,
+        help="run a task on this earlier registered id of it instead of its current one, as the records made before "
+        f"it do (repeatable; {', '.join(EARLIER_ENV_IDS)})",
+    )
     preset_argument("--n-robots", "swarm size N")
     preset_argument("--episodes", "demonstration episodes per task")
     preset_argument("--demo-seed", "first demonstration seed", type=non_negative_int)
@@ -175,7 +195,7 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def pipeline_config(args):
     """The :class:`dpr.rl.pipeline_config.PipelineConfig` the parsed flags say: the preset, and every flag given
     over it (checked: a ValueError names the setting)."""
-    from dpr.envs import ENV_IDS
+    from dpr.envs import ENV_IDS, TASKS
     from dpr.rl.pipeline_config import PRESETS, PipelineConfig, preset_config
 
     overrides = {
@@ -185,6 +205,8 @@ def pipeline_config(args):
     }
     if overrides.get("tasks") == [ALL_ENVS]:
         overrides["tasks"] = list(ENV_IDS)
+    if "env_ids" in overrides:  # --env-id dpr/Gate-v0 -> {"gate": "dpr/Gate-v0"}
+        overrides["env_ids"] = {TASKS[env_id]: env_id for env_id in overrides["env_ids"]}
     if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's; NAME=null drops the preset's
         preset = PRESETS[args.preset].finetune_hyperparams  # (argparse allows only known presets)
         merged = {**preset, **dict(overrides["finetune_hyperparams"])}

@@ -32,7 +32,7 @@ from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
-from dpr.envs import ENV_IDS, episode_steps
+from dpr.envs import TASKS, episode_steps
 from dpr.envs.particle_env import IMAGE_SIZE_RANGE
 from dpr.metrics import EpisodeMetrics
 from dpr.policies.registry import check_policy_name, make_policy
@@ -61,7 +61,7 @@ class CollectSpec:
     label_policy: str | None = None
 
     def __post_init__(self):
-        check_choice("env_id", self.env_id, ENV_IDS.values())
+        check_choice("env_id", self.env_id, TASKS)
         if self.steps is None:
             object.__setattr__(self, "steps", episode_steps(self.env_kwargs))  # (frozen)
         check_policy_name(self.policy)

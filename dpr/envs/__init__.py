@@ -1,7 +1,8 @@
 """Gymnasium environments of the particle-robot tasks.
 
-``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v0``, ``dpr/Unresponsive-v0`` and
-``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``).
+``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v1``, ``dpr/Unresponsive-v0`` and
+``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``), and ``dpr/Gate-v0``, the gate at the
+paper's placement, which the swarm does not reach in an episode.
 """
 
 from gymnasium.envs.registration import register, registry
@@ -20,20 +21,23 @@ from dpr.envs.particle_env import (
     ParticleSwarmEnv,
     episode_steps,
 )
-from dpr.envs.tasks import ENV_IDS, TASK_CLASSES, TASKS
+from dpr.envs.tasks import EARLIER_ENV_IDS, ENV_IDS, TASK_CLASSES, TASKS
 from dpr.envs.unresponsive import UnresponsiveEnv
 
-for _task, _cls in TASK_CLASSES.items():
-    if ENV_IDS[_task] not in registry:
+for _env_id, _task in TASKS.items():
+    _cls = TASK_CLASSES[_task]
+    if _env_id not in registry:
         register(
-            id=ENV_IDS[_task],
+            id=_env_id,
             entry_point=f"{_cls.__module__}:{_cls.__name__}",
             max_episode_steps=MAX_EPISODE_STEPS,
+            kwargs=EARLIER_ENV_IDS.get(_env_id, (_task, {}))[1],
         )
 
 __all__ = [
     "ACTION_TYPES",
     "AGENT_POSITION",
+    "EARLIER_ENV_IDS",
     "ENV_IDS",
     "MAX_EPISODE_STEPS",
     "OBS_TYPES",

@@ -1,21 +1,34 @@
 """Gate: navigate the swarm through an opening narrower than itself."""
 
+from __future__ import annotations
+
 import numpy as np
 
-from dpr.checks import check_number
-from dpr.envs.particle_env import MAX_DISTANCE, ParticleSwarmEnv
+from dpr.checks import ParameterError, check_number
+from dpr.envs.particle_env import GOAL_CLEARANCE, MAX_DISTANCE, ParticleSwarmEnv
 from dpr.sim.objects import gate_polygons
+from dpr.sim.world import grid_centres
 
 WALL_THICKNESS = 100.0
-WALL_CLEARANCE = 10.0  # the least gap between the walls and a contracted robot they block, at the start
+WALL_CLEARANCE = 10.0  # Gate-v0: the least gap between the walls and a contracted robot they block, at the start
+# Gate-v1's gap between the walls' near face and the robots they block: clear at rest, met by the first
+# expansion of a front robot (docs/envs.md gives the wave's contact steps and distances)
+GATE_DISTANCE = 5.0
+# info keys of the passage measure (ParticleSwarmEnv.episode_measures)
+GATE_PASSAGE = "gate_passage"
+GATE_CONTACT_STEP = "gate_contact_step"
 
 
 class GateEnv(ParticleSwarmEnv):
     """
     ## Description
-    Navigation (see ``NavigationEnv``) with two static walls, 100 thick and 500 long, halfway between the
-    swarm's start and the goal, across the line joining them, leaving an opening of ``gate_width`` (150 by
-    default): wider than one expanded robot, narrower than the swarm, which must squeeze through.
+    Navigation (see ``NavigationEnv``) with two static walls, 100 thick and 500 long, across the line from the
+    swarm's start to the goal, leaving an opening of ``gate_width`` (150 by default) on that line: wider than
+    one expanded robot, narrower than the swarm, which must deform to squeeze through. On ``dpr/Gate-v1`` the
+    walls' near face stands ``gate_distance`` (5) ahead of the robots they block, so that the swarm meets them
+    as soon as its front robots expand. ``dpr/Gate-v0`` keeps the paper's placement, the walls halfway
+    between start and goal, 175-275 units ahead of the swarm: farther than the wave carries a swarm of 9 in
+    2500 steps, so its episodes are Navigation's.
 
     ## Action Space
     As Navigation.
@@ -27,23 +40,35 @@ class GateEnv(ParticleSwarmEnv):
     As Navigation.
 
     ## Starting State
-    As Navigation; the walls are placed once the start is drawn.
+    As Navigation; the walls are placed once the start is drawn. On v1, the front is the farthest point toward
+    the goal of the contracted robots that the opening does not hold (of the whole swarm if it holds them all);
+    robots it holds may start inside the opening. No robot starts in a wall, at any size.
 
     ## Episode End
     As Navigation.
 
+    ## Info
+    Navigation's, plus the passage measure: ``gate_passage``, the fraction of robots whose centre is past the
+    walls' near face, and ``gate_contact_step``, the physics step at which a robot first touched a wall (-1
+    until then). Evaluations report both at the episode's end.
+
     ## Arguments
-    Navigation's, plus ``gate_width=150.0``, which must exceed one expanded robot's diameter
-    (77.5 for the paddle model, 105 for the disk model), and be finite and <= 1e5.
+    Navigation's, plus ``gate_width=150.0``, which must exceed one expanded robot's diameter (77.5) and be
+    finite and <= 1e5, and ``gate_distance`` (v1: 5.0; None: halfway, v0's placement), finite, >= 0 and at
+    most the near end of ``start_radius``.
 
     ## Version History
-    * v0: first version; walls collide with every robot (robot 0 used to pass through them).
+    * v1: the walls stand ``gate_distance`` ahead of the front of the robots they block, where the swarm meets
+      them; the passage measure in ``info``.
+    * v0: the paper's placement, halfway to the goal; walls collide with every robot (robot 0 used to pass
+      through them).
     """
 
     task = "gate"
     task_description = "navigate the swarm through the gate to the goal"
+    episode_measures = (GATE_PASSAGE, GATE_CONTACT_STEP)
 
-    def __init__(self, gate_width: float = 150.0, **kwargs):
+    def __init__(self, gate_width: float = 150.0, gate_distance: float | None = GATE_DISTANCE, **kwargs):
         super().__init__(**kwargs)
         diameter = 2 * self.swarm_class.expanded_radius
         check_number("gate_width", gate_width, maximum=MAX_DISTANCE)
@@ -53,17 +78,75 @@ class GateEnv(ParticleSwarmEnv):
                 f"{self.robot_model!r}), got {gate_width!r}"
             )
         self.gate_width = float(gate_width)
+        if gate_distance is not None:
+            nearest_goal = self.start_radius[0]
+            gate_distance = check_number("gate_distance", gate_distance, minimum=0.0)
+            if gate_distance > nearest_goal:
+                raise ParameterError(
+                    "gate_distance",
+                    f"must be <= {nearest_goal:g} (the near end of start_radius) so that the walls stand between "
+                    f"the swarm and the goal; got {gate_distance:g}",
+                )
+        self.gate_distance = gate_distance
+        self._gate_along = np.zeros(2)  # unit vector from the start toward the goal
+        self._gate_near = 0.0  # the walls' near face, in units from the start along it
+        self._contact_step = -1
 
-    def _start_distances(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Besides the goal's clearance: every contracted robot that the opening does not hold stays
-        WALL_CLEARANCE in front of the walls, which stand halfway to the goal."""
-        radius = self.swarm_class.contracted_radius
+    def _blocked_front(
+        self, offsets: np.ndarray, directions: np.ndarray, radius: float, corners: bool = False
+    ) -> np.ndarray:
+        """For each unit direction (A, 2) toward the goal: the farthest point along it of the robots (offsets
+        (N, 2) from the swarm's centre, disks of ``radius``) that the opening does not hold (-inf if it holds
+        them all). With ``corners``, a robot that overlaps the opening's edge reaches only as far as it meets the
+        wall's corner: the walls placed there touch it and every robot it holds beside them."""
         along = offsets @ directions.T
         across = np.abs(offsets @ np.stack([-directions[:, 1], directions[:, 0]], axis=1).T)
-        blocked = across + radius > self.gate_width / 2
-        front = np.where(blocked, along + radius, -np.inf).max(axis=0)
-        walls = 2 * (front + WALL_CLEARANCE + WALL_THICKNESS / 2)
+        half = self.gate_width / 2
+        reach = radius
+        if corners:
+            reach = np.where(across >= half, radius, np.sqrt(np.maximum(radius**2 - (half - across) ** 2, 0.0)))
+        return np.where(across + radius > half, along + reach, -np.inf).max(axis=0)
+
+    def _near_face(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Gate-v1: the walls' near face for each direction, in units from the swarm's centre: ``gate_distance``
+        beyond the front of the contracted robots that the opening does not hold, where they meet the walls (of
+        every robot if it holds them all)."""
+        contracted = self.swarm_class.contracted_radius
+        front = self._blocked_front(offsets, directions, contracted, corners=True)
+        whole = (offsets @ directions.T).max(axis=0) + contracted
+        return np.where(np.isfinite(front), front, whole) + self.gate_distance
+
+    def _start_distances(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Besides the goal's clearance, v0: every contracted robot that the opening does not hold stays
+        WALL_CLEARANCE in front of the walls, which stand halfway to the goal; v1: the goal lies GOAL_CLEARANCE
+        beyond the walls' far face."""
+        if self.gate_distance is None:
+            front = self._blocked_front(offsets, directions, self.swarm_class.contracted_radius)
+            walls = 2 * (front + WALL_CLEARANCE + WALL_THICKNESS / 2)
+        else:
+            walls = self._near_face(offsets, directions) + WALL_THICKNESS + GOAL_CLEARANCE
         return np.maximum(super()._start_distances(offsets, directions), walls)
 
     def _walls(self, start: np.ndarray) -> list[np.ndarray]:
-        return gate_polygons(start, self.goal, self.gate_width, thickness=WALL_THICKNESS)
+        """This episode's walls, and the passage measure's geometry and state."""
+        along = self.goal - start
+        self._gate_along = along / np.linalg.norm(along)
+        self._contact_step = -1
+        if self.gate_distance is None:
+            self._gate_near = np.linalg.norm(self.goal - start) / 2 - WALL_THICKNESS / 2
+        else:
+            offsets = grid_centres(self.n_robots, (0.0, 0.0))
+            self._gate_near = float(self._near_face(offsets, self._gate_along[None, :])[0])
+        at = None if self.gate_distance is None else self._gate_near  # v0's walls as they always were, to the bit
+        return gate_polygons(start, self.goal, self.gate_width, thickness=WALL_THICKNESS, at=at)
+
+    def _after_physics_step(self) -> None:
+        if self._contact_step < 0 and self.world.robots_touch_walls():
+            self._contact_step = self.physics_step
+
+    def _info(self) -> dict:
+        info = super()._info()
+        past = (self.world.swarm.position - self.start) @ self._gate_along > self._gate_near
+        info[GATE_PASSAGE] = float(past.mean())
+        info[GATE_CONTACT_STEP] = self._contact_step
+        return info

@@ -81,6 +81,9 @@ class ParticleSwarmEnv(gym.Env):
     task_description = ""  # one sentence for datasets (LeRobot's per-frame "task" string)
     has_object = False
     has_dead_robots = False  # whether some robots may ignore commands (what a robot's local dead flag is for)
+    # info keys of the task's own measures of an episode, read at its last step beside the paper's metrics
+    # (evaluation files and reports carry them)
+    episode_measures: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -179,6 +182,9 @@ class ParticleSwarmEnv(gym.Env):
     def _walls(self, start: np.ndarray) -> list[np.ndarray]:
         return []
 
+    def _after_physics_step(self) -> None:
+        """Called after every sane physics step (``physics_step`` counts them), for a task's own measures."""
+
     def _object(self, start: np.ndarray, centres: np.ndarray) -> ObjectSpec | None:
         return None
 
@@ -224,6 +230,7 @@ class ParticleSwarmEnv(gym.Env):
             obj=self._object(self.start, centres),
         )
         self._tracker = MetricTracker(self._agent_position(), self.goal)
+        self.physics_step = 0  # physics steps since the reset
         self._last_targets = np.zeros(self.n_robots)
         self._held_steps = 0
         self._last_obs = self._observation()
@@ -249,6 +256,8 @@ class ParticleSwarmEnv(gym.Env):
                 info = self._info()
                 info[PHYSICS_ERROR] = "non-finite or exploding body state; episode truncated"
                 return _copy(self._last_obs), 0.0, False, True, info
+            self.physics_step += 1
+            self._after_physics_step()
             self._tracker.update(self._agent_position())
             total += self._reward(previous)
             terminated = self._tracker.distance_to_goal < SUCCESS_RADIUS

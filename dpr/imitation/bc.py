@@ -49,7 +49,7 @@ from dpr.checks import ParameterError, check_int
 from dpr.datasets import features
 from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import MAX_EPISODE_STEPS, TASKS
 from dpr.imitation.loss import batch_stats, check_features
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.sb3 import BC_ALGOS, DEFAULT_ALGO, DQN, ModelInfo, trained_parameters, write_model_info
@@ -178,8 +178,8 @@ def finish_bc_run(
 def check_bc_arguments(
     env_id: str, algo: str, epochs: int, batch_size: int, lr: float, val_fraction: float, patience: int, seed: int
 ) -> None:
-    if env_id not in ENV_IDS.values():
-        raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
+    if env_id not in TASKS:
+        raise ValueError(f"env must be one of {tuple(TASKS)}, got {env_id!r}")
     if algo not in BC_ALGOS:
         raise ValueError(f"algo must be one of {BC_ALGOS}, got {algo!r}")
     check_int("epochs", epochs, 1)

@@ -25,7 +25,7 @@ from typing import Any
 import yaml
 
 from dpr.checks import ParameterError, check_int
-from dpr.envs import ENV_IDS
+from dpr.envs import TASKS
 from dpr.policies.sb3 import ALGOS, SWARM_POLICY, algo_class
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
@@ -131,8 +131,8 @@ def load_hyperparams(
     path = hyperparams_file(algo)
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
-    if env_id not in ENV_IDS.values():
-        raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {env_id!r}")
+    if env_id not in TASKS:
+        raise ValueError(f"env must be one of {tuple(TASKS)}, got {env_id!r}")
     entries = read_entries(algo)
     key = PAPER_PRESET if preset == PAPER_PRESET else env_id
     keys = [key, FINETUNE_PRESET] if preset == FINETUNE_PRESET else [key]

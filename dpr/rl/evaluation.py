@@ -13,7 +13,7 @@ import numpy as np
 
 from dpr.atomic import atomic_write_text
 from dpr.checks import check_choice, check_seeds
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, episode_steps
+from dpr.envs import MAX_EPISODE_STEPS, TASKS, episode_steps
 from dpr.metrics import EpisodeMetrics, summarize
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import is_model_path, load_model, model_env_kwargs
@@ -28,7 +28,7 @@ TRAJECTORY_DECIMALS = 1
 
 def check_env_id(env_id: str, parameter: str = "env_id") -> str:
     """``env_id`` if it is a registered dpr env id (ParameterError naming ``parameter`` otherwise)."""
-    return check_choice(parameter, env_id, ENV_IDS.values())
+    return check_choice(parameter, env_id, TASKS)
 
 
 @dataclass
@@ -39,10 +39,18 @@ class EpisodeResult:
     metrics: EpisodeMetrics
     trajectory: np.ndarray = field(repr=False)
     goal: np.ndarray = field(repr=False)
+    measures: dict = field(default_factory=dict)  # the task's own at the episode's end (Gate's passage measure)
 
     def as_dict(self, trajectory: bool = False) -> dict:
-        """The metrics; with ``trajectory`` also the goal and the subsampled path (see subsample_trajectory)."""
-        row = {"env_id": self.env_id, "policy": self.policy, "seed": self.seed, **self.metrics.as_dict()}
+        """The metrics and the task's measures; with ``trajectory`` also the goal and the subsampled path (see
+        subsample_trajectory)."""
+        row = {
+            "env_id": self.env_id,
+            "policy": self.policy,
+            "seed": self.seed,
+            **self.metrics.as_dict(),
+            **self.measures,
+        }
         if trajectory:
             row["goal"] = [float(v) for v in self.goal]
             row["trajectory"] = subsample_trajectory(self.trajectory)
@@ -119,7 +127,9 @@ def run_episode(
         result = roll_out(env, make_policy(policy_name, env), seed)
     finally:
         env.close()
-    return EpisodeResult(env_id, policy_name, seed, result.metrics, result.trajectory, result.goal)
+    return EpisodeResult(
+        env_id, policy_name, seed, result.metrics, result.trajectory, result.goal, measures=result.measures
+    )
 
 
 def evaluate(
@@ -161,11 +171,29 @@ def evaluate(
 
 
 def summary(results: list[EpisodeResult]) -> dict:
-    """Per env id: each metric's median, min, max, mean, std and n (success as a rate)."""
+    """Per env id: each metric's median, min, max, mean, std and n (success as a rate), and the task's measures'
+    (Gate's passage; its contact step over the episodes that touched a wall, with ``touched``, their fraction)."""
     out: dict[str, dict] = {}
     for env_id in dict.fromkeys(r.env_id for r in results):
-        rows = [r.metrics.as_dict() for r in results if r.env_id == env_id]
+        episodes = [r for r in results if r.env_id == env_id]
+        rows = [r.metrics.as_dict() for r in episodes]
         out[env_id] = {m: summarize(float(row[m]) for row in rows) for m in METRICS}
+        out[env_id].update(measure_summary([r.measures for r in episodes]))
+    return out
+
+
+def measure_summary(measures: list[dict]) -> dict:
+    """The task's measures over episodes (each a dict of :attr:`EpisodeResult.measures`): each one's
+    :func:`summarize`; a contact step only over the episodes that made contact (-1: none), beside ``touched``,
+    the fraction that did."""
+    out: dict[str, dict] = {}
+    for key in dict.fromkeys(key for row in measures for key in row):
+        values = [float(row[key]) for row in measures if key in row]
+        if key.endswith("_contact_step"):
+            out[key.removesuffix("_contact_step") + "_touched"] = summarize(float(v >= 0) for v in values)
+            values = [v for v in values if v >= 0]
+        if values:
+            out[key] = summarize(values)
     return out
 
 

@@ -40,7 +40,7 @@ import yaml
 from dpr import runs
 from dpr.atomic import atomic_write_json, atomic_write_text
 from dpr.checks import ParameterError, check_choice, check_int
-from dpr.envs import ENV_IDS, TASKS
+from dpr.envs import TASKS
 from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.policies.hyperparams import FINETUNE_PRESET, Hyperparams, load_hyperparams
 from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env
@@ -135,7 +135,7 @@ def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
         raise ParameterError("shared_reward", f"expected True or False, got {config.shared_reward!r}")
     for n in config.n_robots:
         check_int("n_robots", n, 1)
-    check_choice("env_id", config.env_id, ENV_IDS.values())
+    check_choice("env_id", config.env_id, TASKS)
     path = config.init_from
     info = read_model_info(path, INIT_PARAMETER)  # a missing file, or one that is no dpr model
     spec = RobotModelSpec.from_info(info, path, INIT_PARAMETER)  # a centralised model

@@ -8,6 +8,7 @@
         method: bc-ppo            # the pipeline's method name (bc, bc-ppo, ppo, ...)
         file: navigation-bc-ppo.zip   # beside the card
         made_by: dpr pipeline --preset full --tasks all (median training seed)
+        env_id: dpr/Gate-v0       # optional: an earlier id of the task that the model was made on
 
 ``models/README.md`` describes the same models for people; ``dpr pipeline --shipped models/card.yaml`` (what
 ``make run`` does) evaluates each of them on the pipeline's test seeds, so that the claim is checked where the
@@ -22,10 +23,11 @@ from pathlib import Path
 import yaml
 
 from dpr.checks import ParameterError
-from dpr.envs import ENV_IDS
+from dpr.envs import ENV_IDS, TASKS
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
+OPTIONAL_KEYS = ("env_id",)  # the task's registered id the model runs on, when not its current one
 
 
 @dataclass(frozen=True)
@@ -36,10 +38,11 @@ class ShippedModel:
     method: str
     path: Path
     made_by: str
+    task_env_id: str | None = None  # the card's env_id: an earlier id of the task
 
     @property
     def env_id(self) -> str:
-        return ENV_IDS[self.task]
+        return self.task_env_id or ENV_IDS[self.task]
 
 
 def load_model_card(card: str | Path, parameter: str = "--shipped") -> list[ShippedModel]:
@@ -61,16 +64,22 @@ def load_model_card(card: str | Path, parameter: str = "--shipped") -> list[Ship
     models: list[ShippedModel] = []
     for index, entry in enumerate(entries):
         where = f"{card}: models[{index}]"
-        if not isinstance(entry, dict) or sorted(entry) != sorted(ENTRY_KEYS):
-            raise ParameterError(parameter, f"{where} must have exactly the keys {list(ENTRY_KEYS)}, got {entry!r}")
-        if not all(isinstance(entry[key], str) and entry[key] for key in ENTRY_KEYS):
+        if not isinstance(entry, dict) or not set(ENTRY_KEYS) <= set(entry) <= {*ENTRY_KEYS, *OPTIONAL_KEYS}:
+            raise ParameterError(
+                parameter,
+                f"{where} must have the keys {list(ENTRY_KEYS)} (and may have {list(OPTIONAL_KEYS)}), got {entry!r}",
+            )
+        if not all(isinstance(value, str) and value for value in entry.values()):
             raise ParameterError(parameter, f"{where}: every value must be a non-empty string")
         if entry["task"] not in ENV_IDS:
             raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
+        if "env_id" in entry and TASKS.get(entry["env_id"]) != entry["task"]:
+            ids = [env_id for env_id, task in TASKS.items() if task == entry["task"]]
+            raise ParameterError(parameter, f"{where}: env_id must be one of {ids}, got {entry['env_id']!r}")
         path = card.parent / entry["file"]
         if not path.is_file():
             raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
         if any((model.task, model.method) == (entry["task"], entry["method"]) for model in models):
             raise ParameterError(parameter, f"{where}: a second {entry['task']} {entry['method']} model")
-        models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"]))
+        models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"], entry.get("env_id")))
     return models

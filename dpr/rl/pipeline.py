@@ -48,7 +48,7 @@ from typing import Any
 import yaml
 
 from dpr.checks import ParameterError
-from dpr.envs import ENV_IDS, episode_steps
+from dpr.envs import episode_steps
 from dpr.policies.hyperparams import FINETUNE_PRESET
 from dpr.rl.model_card import ShippedModel
 from dpr.rl.pipeline_config import (
@@ -191,8 +191,11 @@ def run_pipeline(
             if seed is None:  # the wave and the teacher; every run was tested with its method above
                 _evaluate(config, task, method, seed, "test", out, show_progress, log, teacher)
     test_evaluations = report_evaluations(config, out)  # (file, method): runs of one method share its label
-    for task in dict.fromkeys(model.task for model in shipped if model.task not in config.tasks):
-        test_evaluations.append((_evaluate(config, task, BASELINE, None, "test", out, show_progress, log), BASELINE))
+    own_ids = {config.env_id(task) for task in config.tasks}
+    for env_id in dict.fromkeys(model.env_id for model in shipped if model.env_id not in own_ids):
+        path = out / "eval" / "shipped" / f"{BASELINE}-{env_id.removeprefix('dpr/')}.json"  # the shipped rows' bar
+        _evaluate_policy(config, env_id, BASELINE, path, path.stem, show_progress, log, config.test_seeds, "test")
+        test_evaluations.append((path, BASELINE))
     for model in shipped:
         path = _shipped_evaluation_path(out, model.path)
         _evaluate_policy(
@@ -256,7 +259,16 @@ def _choose_teacher(
         path = evaluation_path(out, task, f"{TEACHER}-{teacher.stem}", None, "validation")
         kwargs = _teacher_env_kwargs(config, teacher)
         _evaluate_policy(
-            config, ENV_IDS[task], teacher.policy, path, path.stem, show_progress, log, seeds, "validation", kwargs
+            config,
+            config.env_id(task),
+            teacher.policy,
+            path,
+            path.stem,
+            show_progress,
+            log,
+            seeds,
+            "validation",
+            kwargs,
         )
         medians[teacher] = _median_displacement(path)
     chosen = max(candidates, key=lambda teacher: medians[teacher])  # max keeps the first of equal ones
@@ -289,7 +301,7 @@ def _demonstrations(
         return
     kwargs = config.learner_env_kwargs(teacher.hold)
     spec = CollectSpec(
-        ENV_IDS[task],
+        config.env_id(task),
         policy=teacher.policy,
         n_robots=config.n_robots,
         steps=episode_steps(kwargs, config.steps),
@@ -324,7 +336,7 @@ def _train_run(
     from dpr.imitation.bc import behaviour_clone
     from dpr.rl.train import TrainConfig, resumable, train
 
-    env_id = ENV_IDS[task]
+    env_id = config.env_id(task)
     dataset = out / "datasets" / task
     model = model_path(out, task, method, seed)
     if method == "bc":
@@ -412,7 +424,7 @@ def _evaluate(
         policy = str(model_path(out, task, method, seed))
     seeds = _split_seeds(config, split)
     return _evaluate_policy(
-        config, ENV_IDS[task], policy, path, path.stem, show_progress, log, seeds, split, own_kwargs
+        config, config.env_id(task), policy, path, path.stem, show_progress, log, seeds, split, own_kwargs
     )
 
 
@@ -548,7 +560,15 @@ def _check_reproduces(
         again = Path(folder) / recorded.name
         seeds = _split_seeds(config, split)
         _evaluate_policy(
-            config, ENV_IDS[task], str(model), again, f"{recorded.stem} (retrained)", show_progress, log, seeds, split
+            config,
+            config.env_id(task),
+            str(model),
+            again,
+            f"{recorded.stem} (retrained)",
+            show_progress,
+            log,
+            seeds,
+            split,
         )
         scores = [
             [episode["projected_displacement"] for episode in load_evaluation(path)["episodes"]]

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from dpr.checks import ParameterError, check_int, check_number, check_seeds
-from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS
+from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, TASKS
 from dpr.envs.particle_env import HELD_STEPS_CAP
 from dpr.policies.hyperparams import FINETUNE_PRESET, load_hyperparams
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
@@ -91,11 +91,21 @@ class PipelineConfig:
     # the runs from scratch discount PHYSICS_DISCOUNT per physics step as the fine-tuning does, not the yaml's gamma
     # per decision (off: what every record before the setting existed ran)
     scratch_physics_discount: bool = False
+    # task -> an earlier registered id of it that the task runs on instead of its current one (ENV_IDS), as the
+    # records made before it do: {"gate": "dpr/Gate-v0"}
+    env_ids: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self):
         unknown = [task for task in self.tasks if task not in ENV_IDS]
         if not self.tasks or unknown:
             raise ValueError(f"tasks must be among {tuple(ENV_IDS)}, got {self.tasks!r}")
+        if not isinstance(self.env_ids, dict) or any(TASKS.get(i) != t for t, i in self.env_ids.items()):
+            raise ParameterError(
+                "env_ids", f"expected registered ids of the tasks ({', '.join(TASKS)}), got {self.env_ids!r}"
+            )
+        idle = [env_id for task, env_id in self.env_ids.items() if task not in self.tasks]
+        if idle:
+            raise ParameterError("env_ids", f"{idle} belong to tasks this run does not run ({self.tasks})")
         if self.actor not in ACTORS:
             raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
         if self.actor != "mlp" and DQN in self.scratch_algos:
@@ -164,10 +174,14 @@ class PipelineConfig:
             for task in self.tasks:
                 try:
                     load_hyperparams(
-                        algo, ENV_IDS[task], FINETUNE_PRESET, self.actor_hyperparams() | self.finetune_hyperparams
+                        algo, self.env_id(task), FINETUNE_PRESET, self.actor_hyperparams() | self.finetune_hyperparams
                     )
                 except ValueError as error:
                     raise ParameterError("finetune_hyperparams", str(error)) from None
+
+    def env_id(self, task: str) -> str:
+        """The registered id ``task`` runs on: its current one, unless ``env_ids`` names another."""
+        return self.env_ids.get(task, ENV_IDS[task])
 
     @property
     def rl_steps(self) -> int:
@@ -233,10 +247,18 @@ class PipelineConfig:
         return ["bc", *(f"bc-{algo}" for algo in self.finetune_algos)]
 
 
+# the ids every task ran on before ``env_ids`` existed: a pipeline.yaml without it ran Gate on v0
+IDS_BEFORE_ENV_IDS = {"gate": "dpr/Gate-v0"}
+
+
 def saved_settings(saved: dict[str, Any]) -> dict[str, Any]:
     """The settings a run folder's ``pipeline.yaml`` records under ``config``, as ``asdict(PipelineConfig)``: a
-    setting added since that run started had its default value there."""
-    return {**asdict(PipelineConfig()), **saved}
+    setting added since that run started had its default value there, but for ``env_ids`` (the ids of then)."""
+    settings = {**asdict(PipelineConfig()), **saved}
+    if "env_ids" not in saved:
+        tasks = settings["tasks"]
+        settings["env_ids"] = {task: env_id for task, env_id in IDS_BEFORE_ENV_IDS.items() if task in tasks}
+    return settings
 
 
 DEFAULT_PRESET = "small"

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dpr.checks import ParameterError
+from dpr.envs.tasks import EARLIER_ENV_IDS
 from dpr.metrics import summarize
 from dpr.policies.registry import WAVE
 from dpr.policies.sb3 import is_model_path
@@ -51,8 +52,10 @@ INTERVALS_NOTE = (
 
 
 def task_name(env_id: str) -> str:
-    """'dpr/Navigation-v0' -> 'Navigation'."""
-    return env_id.split("/")[-1].rsplit("-v", 1)[0]
+    """'dpr/Navigation-v0' -> 'Navigation'; an earlier version of a task keeps its version, so that it is not
+    taken for the current one: 'dpr/Gate-v0' -> 'Gate-v0'."""
+    name = env_id.split("/")[-1]
+    return name if env_id in EARLIER_ENV_IDS else name.rsplit("-v", 1)[0]
 
 
 def policy_label(policy: str, tasks=()) -> str:
@@ -63,8 +66,9 @@ def policy_label(policy: str, tasks=()) -> str:
         return policy
     stem = Path(policy).stem
     for task in tasks:
-        if stem.lower().startswith(f"{task.lower()}-"):
-            return stem[len(task) + 1 :]
+        prefix = task.rsplit("-v", 1)[0].lower()  # a Gate-v0 model is still gate-<method>.zip
+        if stem.lower().startswith(f"{prefix}-"):
+            return stem[len(prefix) + 1 :]
     return stem
 
 
@@ -170,7 +174,8 @@ def _labels_in_order(evaluations: list[dict]) -> list[str]:
 
 def _task_key(task: str) -> tuple[int, str]:
     # The paper's order; a task this module does not know comes last, by name.
-    return (TASK_ORDER.index(task), "") if task in TASK_ORDER else (len(TASK_ORDER), task)
+    base = task.rsplit("-v", 1)[0]  # an earlier version beside its task
+    return (TASK_ORDER.index(base), task) if base in TASK_ORDER else (len(TASK_ORDER), task)
 
 
 def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
@@ -253,6 +258,30 @@ def results_table(evaluations: list[dict]) -> str:
                 f"{format_seeds(group.seeds)} | {_percent_of_wave(group, wave)} |"
             )
     return "\n".join(lines)
+
+
+def passage_table(evaluations: list[dict]) -> str:
+    """Markdown table of the gate's passage measure, one row per (task, policy) whose episodes carry it (Gate-v1
+    and its evaluations since the measure exists): the median fraction of robots past the walls' near face at
+    the end, how many episodes touched a wall, and the median physics step of the first touch. Empty if none."""
+    lines = []
+    for task, groups in _groups(evaluations).items():
+        for label, group in groups.items():
+            episodes = [episode for episode in group.episodes if "gate_passage" in episode]
+            if not episodes:
+                continue
+            passage = float(np.median([episode["gate_passage"] for episode in episodes]))
+            touches = [episode["gate_contact_step"] for episode in episodes if episode["gate_contact_step"] >= 0]
+            first = f"{np.median(touches):.0f}" if touches else NO_VALUE
+            lines.append(f"| {task} | {label} | {100 * passage:.0f}% | {len(touches)} of {len(episodes)} | {first} |")
+    if not lines:
+        return ""
+    header = [
+        "| task | policy | robots past the walls' near face (median) | episodes touching a wall | first touch, "
+        "physics step (median) |",
+        "|---|---|---:|---:|---:|",
+    ]
+    return "\n".join(header + lines)
 
 
 def bar_figure(evaluations: list[dict], path) -> Path:
@@ -420,13 +449,15 @@ def write_report(
             raise FileExistsError(f"{output} already exists; choose another folder (reports are never overwritten)")
     evaluations = [load_evaluation(p, label) for p, label in zip(json_paths, labels or [None] * len(json_paths))]
     table = results_table(evaluations)
+    passage = passage_table(evaluations)
     methods = method_scores(evaluations)  # before writing anything: runs of one method must share their seeds
     plan = _trajectory_plan(evaluations, seed)  # and there may be nothing to draw
     rows = interval_rows(methods, bootstrap_reps)
     out_dir.mkdir(parents=True, exist_ok=True)
     results_md, bars_png, trajectories_png, intervals_png, profile_png = outputs
+    passage_section = f"## Passage through the gate\n\n{passage}\n\n" if passage else ""
     results_md.write_text(
-        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n"
+        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n{passage_section}"
         f"## Interval estimates\n\n{INTERVALS_NOTE}\n\n{interval_table(rows)}\n\n{_sources_line(evaluations)}\n"
     )
     bar_figure(evaluations, bars_png)

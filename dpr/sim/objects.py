@@ -60,13 +60,16 @@ def add_walls(space: pymunk.Space, polygons: list[np.ndarray]) -> list[pymunk.Po
     return shapes
 
 
-def gate_polygons(start, goal, opening: float, thickness: float = 100.0, length: float = 500.0) -> list[np.ndarray]:
-    """Two walls halfway between ``start`` and ``goal``, across the line joining them, leaving an
-    ``opening`` centred on that line. Returns two (4, 2) vertex arrays."""
+def gate_polygons(
+    start, goal, opening: float, thickness: float = 100.0, length: float = 500.0, at: float | None = None
+) -> list[np.ndarray]:
+    """Two walls across the line from ``start`` to ``goal``, leaving an ``opening`` centred on that line, their
+    near face ``at`` units from ``start`` toward the goal (None: the walls' middle halfway between the two, the
+    paper's placement). Returns two (4, 2) vertex arrays."""
     start, goal = np.asarray(start, float), np.asarray(goal, float)
-    middle = (start + goal) / 2
     along = goal - start
     along /= np.linalg.norm(along)
+    middle = (start + goal) / 2 if at is None else start + along * (at + thickness / 2)
     across = np.array([-along[1], along[0]])
     walls = []
     for side in (1.0, -1.0):

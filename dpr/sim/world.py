@@ -70,7 +70,7 @@ class World:
         self.swarm: Swarm = swarm_class(robot_model)(self.space, grid_centres(n_robots, centre), dead_mask)
         self.dead = dead_mask
         self.walls = [np.asarray(w, dtype=float) for w in (walls or [])]
-        add_walls(self.space, self.walls)
+        self.wall_shapes = add_walls(self.space, self.walls)
         self.object_spec = obj
         self.object_body = None
         self.object_shape = None
@@ -88,6 +88,14 @@ class World:
     @property
     def n_robots(self) -> int:
         return self.swarm.n
+
+    def robots_touch_walls(self) -> bool:
+        """Whether any robot's shape touches a wall now (pymunk's shape query, exact for paddles too)."""
+        return any(
+            hit.shape.body.body_type == pymunk.Body.DYNAMIC and hit.shape is not self.object_shape
+            for wall in self.wall_shapes
+            for hit in self.space.shape_query(wall)
+        )
 
     @property
     def robot_model(self) -> str:
