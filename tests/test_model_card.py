@@ -55,6 +55,23 @@ def test_the_repository_card_names_existing_models_of_every_task():
     models = load_model_card(REPO_CARD)
     assert {model.task for model in models} == set(ENV_IDS)
     assert all(model.path.is_file() and model.path.suffix == ".zip" for model in models)
+    entries = yaml.safe_load(REPO_CARD.read_text())["models"]
+    assert all(len(entry.get("sha256", "")) == 64 for entry in entries)  # each file pinned by its content
+
+
+def test_a_card_whose_file_changed_or_names_another_tasks_id_is_refused(tmp_path):
+    import hashlib
+
+    model = tmp_path / "navigation-bc.zip"
+    shutil.copy(REPO_CARD.parent / "navigation-bc.zip", model)
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()
+    assert load_model_card(write_card(tmp_path, [{**entry("navigation", model.name), "sha256": digest}]))
+    card = write_card(tmp_path, [{**entry("navigation", model.name), "sha256": "0" * 64}])
+    with pytest.raises(ValueError, match="sha256 differs"):
+        load_model_card(card)
+    card = write_card(tmp_path, [{**entry("gate", model.name), "env_id": "dpr/Navigation-v0"}])
+    with pytest.raises(ValueError, match=r"env_id must be one of \['dpr/Gate-v1', 'dpr/Gate-v0'\]"):
+        load_model_card(card)
 
 
 @pytest.mark.parametrize(
@@ -64,7 +81,7 @@ def test_the_repository_card_names_existing_models_of_every_task():
         ("format: 1\nmodels: [", "is not YAML"),
         ("models: []\n", "format: 1"),
         ("format: 1\nmodels: []\n", "non-empty list"),
-        ({"task": "navigation", "method": "bc-ppo", "file": "x.zip"}, "exactly the keys"),
+        ({"task": "navigation", "method": "bc-ppo", "file": "x.zip"}, "must have the keys"),
         ({**entry("swimming", "x.zip")}, "task must be one of"),
         ({**entry("navigation", "missing.zip")}, "names missing.zip, but there is no file"),
     ],
@@ -122,7 +139,7 @@ def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(t
         (evaluation,) = (out / "eval" / "shipped").glob(f"{stem}-*.json")
         payload = json.loads(evaluation.read_text())
         assert payload["seeds"] == [300, 301] and payload["policy"].endswith(f"{stem}.zip")
-    assert json.loads((out / "eval" / "test" / "gate-wave.json").read_text())["seeds"] == [300, 301]
+    assert json.loads((out / "eval" / "shipped" / "wave-Gate-v1.json").read_text())["seeds"] == [300, 301]
     text = (report / "results.md").read_text()
     for row in ("| Navigation | shipped bc-ppo |", "| Gate | wave |", "| Gate | shipped bc-ppo |"):
         assert row in text

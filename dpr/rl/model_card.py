@@ -9,14 +9,17 @@
         file: navigation-bc-ppo.zip   # beside the card
         made_by: dpr pipeline --preset full --tasks all (median training seed)
         env_id: dpr/Gate-v0       # optional: an earlier id of the task that the model was made on
+        sha256: 5f1c...           # optional: the file's sha256, checked on load
 
 ``models/README.md`` describes the same models for people; ``dpr pipeline --shipped models/card.yaml`` (what
 ``make run`` does) evaluates each of them on the pipeline's test seeds, so that the claim is checked where the
-user runs it. :func:`load_model_card` checks the whole card, files included, before anything runs.
+user runs it. :func:`load_model_card` checks the whole card, files included (their sha256 where the card gives it,
+and each loaded as a model, which unpickles nothing), before anything runs.
 """
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,10 +27,12 @@ import yaml
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, TASKS
+from dpr.policies.sb3 import load_model
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
-OPTIONAL_KEYS = ("env_id",)  # the task's registered id the model runs on, when not its current one
+# env_id: the task's registered id the model runs on, when not its current one; sha256: the file's, checked
+OPTIONAL_KEYS = ("env_id", "sha256")
 
 
 @dataclass(frozen=True)
@@ -81,5 +86,8 @@ def load_model_card(card: str | Path, parameter: str = "--shipped") -> list[Ship
             raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
         if any((model.task, model.method) == (entry["task"], entry["method"]) for model in models):
             raise ParameterError(parameter, f"{where}: a second {entry['task']} {entry['method']} model")
+        if "sha256" in entry and hashlib.sha256(path.read_bytes()).hexdigest() != entry["sha256"]:
+            raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
+        load_model(path, parameter=parameter)  # a corrupt or crafted file is refused now, not after hours of training
         models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"], entry.get("env_id")))
     return models

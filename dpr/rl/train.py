@@ -40,6 +40,7 @@ from dpr.policies.sb3 import (
     build_model,
     check_hyperparameters,
     load_initial_policy,
+    load_model,
     make_vec_env,
     read_model_info,
     save_model,
@@ -355,6 +356,7 @@ def train(
                     "it trains on every robot of a PettingZoo swarm, not on the centralised env: fine-tune it with "
                     "`dpr finetune-decentralised` (dpr.rl.finetune_per_robot)",
                 )
+            load_model(config.init_from, parameter=INIT_PARAMETER)  # and a corrupt or crafted one
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
         check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
     finally:

@@ -299,14 +299,14 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
 # -- live rollouts ----------------------------------------------------------------------------------------------
 def check_view_policy(policy: str) -> str:
     """``policy`` if ``dpr view`` can roll it out (a scripted policy, or a model file written by ``dpr train``);
-    a :class:`ViewParameterError` naming ``policy`` otherwise: unknown names list the choices, unreadable model
-    files are named."""
+    a :class:`ViewParameterError` naming ``policy`` otherwise: unknown names list the choices, model files that
+    do not load (:func:`dpr.policies.sb3.load_model`) are named."""
     from dpr.policies.registry import check_policy_name
-    from dpr.policies.sb3 import read_model_info
+    from dpr.policies.sb3 import load_model
 
     try:
         if policy.endswith(SB3_SUFFIX):
-            read_model_info(policy)
+            load_model(policy)  # a corrupt or crafted file is refused before any rollout
             return policy
         return check_policy_name(policy)
     except ValueError as error:
