@@ -86,8 +86,11 @@ def load_model_card(card: str | Path, parameter: str = "--shipped") -> list[Ship
             raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
         if any((model.task, model.method) == (entry["task"], entry["method"]) for model in models):
             raise ParameterError(parameter, f"{where}: a second {entry['task']} {entry['method']} model")
-        if "sha256" in entry and hashlib.sha256(path.read_bytes()).hexdigest() != entry["sha256"]:
-            raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
-        load_model(path, parameter=parameter)  # a corrupt or crafted file is refused now, not after hours of training
         models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"], entry.get("env_id")))
+    for index, (entry, model) in enumerate(zip(entries, models)):  # the files, once the card itself holds
+        if "sha256" in entry and hashlib.sha256(model.path.read_bytes()).hexdigest() != entry["sha256"]:
+            raise ParameterError(
+                parameter, f"{card}: models[{index}]: {model.path} is not the file the card names (its sha256 differs)"
+            )
+        load_model(model.path, parameter=parameter)  # a corrupt or crafted file is refused now, not hours later
     return models
