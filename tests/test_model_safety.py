@@ -139,3 +139,30 @@ def test_every_command_that_takes_a_model_refuses_the_crafted_file(tmp_path, cap
         assert "pickled entries no dpr model holds" in capsys.readouterr().err, argv
     assert not marker.exists()
     assert not any((tmp_path / name).exists() for name in ("runs", "ds", "pipeline", "v.rrd"))
+
+
+def test_pickled_policy_kwargs_are_read_from_their_plain_fields(tmp_path):
+    """SB3 pickles policy_kwargs that name classes (A2C's RMSprop); dpr reads the fields and maps the classes it
+    knows, never the pickle, and refuses a class it does not know."""
+    path, marker = crafted(tmp_path, "policy_kwargs")
+    data = json.loads(zipfile.ZipFile(path).read("data"))
+    assert load_model(path)[0].policy.optimizer_class.__name__ == "Adam"  # the plain fields: nothing named
+    data["policy_kwargs"]["optimizer_class"] = "<class 'torch.optim.rmsprop.RMSprop'>"
+    _rewrite_data(path, data)
+    assert load_model(path)[0].policy.optimizer_class.__name__ == "RMSprop"
+    data["policy_kwargs"]["activation_fn"] = "<class 'builtins.eval'>"
+    _rewrite_data(path, data)
+    with pytest.raises(ParameterError, match="policy_kwargs activation_fn is <class 'builtins.eval'>"):
+        load_model(path)
+    assert not marker.exists()
+
+
+def _rewrite_data(path: Path, data: dict) -> None:
+    members = {}
+    with zipfile.ZipFile(path) as archive:
+        for item in archive.infolist():
+            members[item.filename] = archive.read(item)
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)

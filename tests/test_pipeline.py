@@ -64,6 +64,10 @@ from dpr.rl.pipeline_config import PipelineConfig, saved_settings
         ({"action_repeat": 3}, r"action_repeat: must divide every teacher hold \[10\]"),
         ({"action_repeat": -1}, "action_repeat: must be >= 0"),
         ({"scratch_physics_discount": "yes"}, "scratch_physics_discount: expected true or false"),
+        ({"train_seeds": [300], "test_seeds": [300, 301]}, r"train_seeds: \[300\] are test seeds too"),
+        ({"train_seeds": [0, 200], "validation_seeds": [200]}, r"train_seeds: \[200\] are validation seeds too"),
+        ({"env_ids": {"gate": "dpr/Navigation-v0"}, "tasks": ["gate"]}, "env_ids: expected registered ids of"),
+        ({"env_ids": {"gate": "dpr/Gate-v0"}}, r"env_ids: \['dpr/Gate-v0'\] belong to tasks this run does not run"),
     ],
 )
 def test_pipeline_config_refuses_bad_settings(kwargs, message):
@@ -327,6 +331,23 @@ def test_each_record_resumes_with_the_flags_results_md_gives(record, flags):
     assert " ".join(["dpr pipeline --preset full --tasks all --out", f"runs/{record}", *flags, ""]) in shown
 
 
+def test_a_record_from_before_gate_v1_ran_gate_on_v0_and_a_new_run_on_v1():
+    """A pipeline.yaml without env_ids ran Gate on Gate-v0 (the id of then); a run of today runs Gate-v1, and
+    --env-id dpr/Gate-v0 makes the settings of the older records."""
+    from dpr.cli import build_parser
+    from dpr.cli.pipeline import pipeline_config
+
+    old = dataclasses.asdict(PipelineConfig(tasks=["navigation", "gate"]))
+    del old["env_ids"]
+    assert saved_settings(old)["env_ids"] == {"gate": "dpr/Gate-v0"}
+    assert saved_settings({**old, "tasks": ["navigation"]})["env_ids"] == {}
+    assert PipelineConfig(tasks=["gate"]).env_id("gate") == "dpr/Gate-v1"
+    args = build_parser().parse_args(["pipeline", "--tasks", "gate", "--env-id", "dpr/Gate-v0"])
+    assert pipeline_config(args).env_id("gate") == "dpr/Gate-v0"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["pipeline", "--env-id", "dpr/Gate-v1"])  # the current id is no earlier one
+
+
 def test_finetune_hyperparams_go_over_the_preset_and_null_drops_one():
     """--finetune-hyperparam NAME=VALUE goes over the preset's values; NAME=null drops the preset's, so the yaml's
     `finetune` entry stands for it (how the records before the full preset's learning rate are named)."""
@@ -417,6 +438,20 @@ def test_pipeline_resumes_from_a_record_without_datasets_and_training_runs(pipel
     assert not any((record / "models").glob("*-seed*.zip"))
     original = (pipeline[0] / "report" / "results.md").read_text()  # names its sources by path
     assert (record / "report" / "results.md").read_text() == original.replace(str(pipeline[0]), str(record))
+
+
+def test_a_report_stopped_part_way_is_kept_and_written_anew_beside_it(pipeline, tmp_path):
+    """results.md is the report's last file: a folder of figures without it (a kill while the report was written)
+    is not taken for a finished report; the rerun writes the report whole beside it."""
+    record = _evaluations_only(pipeline[0], tmp_path)
+    run_pipeline(PipelineConfig(**PIPELINE), record, **QUIET)
+    (record / "report" / "results.md").unlink()
+    figures = sorted(path.name for path in (record / "report").iterdir())
+    lines = []
+    report = run_pipeline(PipelineConfig(**PIPELINE), record, show_progress=False, log=lines.append)
+    assert report == record / "report-2" and (report / "results.md").exists()
+    assert sorted(path.name for path in (record / "report").iterdir()) == figures  # kept as it was
+    assert any("was stopped part-way" in line for line in lines)
 
 
 def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(three_seeds):

@@ -317,6 +317,39 @@ def _policy_class(path: Path, entry: dict, parameter: str):
     )
 
 
+def _classes_by_text() -> dict[str, type]:
+    """The classes a model's ``policy_kwargs`` may name (the optimizers and activations a yaml entry may set), by
+    the text SB3 writes of them beside the pickle: "<class 'torch.optim.rmsprop.RMSprop'>"."""
+    from torch import nn, optim
+
+    classes = (
+        optim.Adam,
+        optim.AdamW,
+        optim.RMSprop,
+        optim.SGD,
+        nn.ReLU,
+        nn.Tanh,
+        nn.ELU,
+        nn.LeakyReLU,
+        nn.GELU,
+        nn.SiLU,
+    )
+    return {f"<class '{cls.__module__}.{cls.__qualname__}'>": cls for cls in classes}
+
+
+def _policy_kwargs(path: Path, entry: dict, parameter: str) -> dict[str, Any]:
+    """A pickled ``policy_kwargs`` from its plain fields: values as written, and the classes among
+    :func:`_classes_by_text` that its text names; any other class is refused."""
+    known = _classes_by_text()
+    kwargs = {key: value for key, value in entry.items() if not key.startswith(":")}
+    for key, value in kwargs.items():
+        if isinstance(value, str) and value.startswith("<"):
+            if value not in known:
+                raise ParameterError(parameter, f"{path}: its policy_kwargs {key} is {value}, which dpr does not load")
+            kwargs[key] = known[value]
+    return kwargs
+
+
 def _model_spaces(info: ModelInfo):
     """The observation and action spaces a model of ``info`` acts in, made from its env id and kwargs as SB3
     sees them (image observations channel-first, as SB3 transposes them)."""
@@ -399,6 +432,8 @@ def model_objects(path: str | Path, info: ModelInfo, for_training: bool = False,
     }
     if "policy_class" in data:
         objects["policy_class"] = _policy_class(path, data["policy_class"], parameter)
+    if _pickled(data.get("policy_kwargs")):
+        objects["policy_kwargs"] = _policy_kwargs(path, data["policy_kwargs"], parameter)
     for name in ("observation_space", "action_space"):
         if isinstance(data.get(name), dict):
             _check_space(path, name, objects[name], data[name], parameter)

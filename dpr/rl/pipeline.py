@@ -113,12 +113,22 @@ def _shipped_evaluation_path(out: Path, model: Path) -> Path:
 
 def _report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]) -> Path:
     """The folder the report belongs in: the latest report (``report``, ``report-2``...) if none of ``sources`` is
-    newer than it, else a new folder beside it (reports are never overwritten; the older one is kept)."""
+    newer than it, else a new folder beside it (reports are never overwritten; the older one is kept). A report
+    folder without results.md (written last) was stopped part-way; it is kept, and the report goes beside it."""
     from dpr.rl.report import REPORT_FILES
 
-    written = [folder for folder in attempt_paths(out / "report") if (folder / REPORT_FILES[0]).exists()]
+    attempts = attempt_paths(out / "report")
+    written = [folder for folder in attempts if (folder / REPORT_FILES[0]).exists()]  # results.md comes last
     if not written:
-        return out / "report"
+        unfinished = [folder for folder in attempts if folder.is_dir() and any(folder.iterdir())]
+        if not unfinished:
+            return out / "report"
+        fresh = fresh_path(out / "report")
+        log(
+            f"dpr pipeline: {unfinished[-1]} was stopped part-way (no {REPORT_FILES[0]}): the report goes into "
+            f"{fresh}, {unfinished[-1]} is kept"
+        )
+        return fresh
     latest = written[-1]
     made = (latest / REPORT_FILES[0]).stat().st_mtime_ns
     if all(source.stat().st_mtime_ns <= made for source in sources):

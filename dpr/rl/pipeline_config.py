@@ -170,6 +170,12 @@ class PipelineConfig:
                 raise ParameterError(
                     name, f"{shared} are test seeds too; the seeds that choose must not be the ones that score"
                 )
+        for name in ("test_seeds", "validation_seeds", "teacher_seeds"):  # SB3 resets the training envs with them
+            seen = sorted(set(self.train_seeds) & set(getattr(self, name)))
+            if seen:
+                raise ParameterError(
+                    "train_seeds", f"{seen} are {name.replace('_', ' ')} too; training must not start from them"
+                )
         for algo in self.finetune_algos:  # a misspelt name or value is refused now, not hours later at fine-tuning
             for task in self.tasks:
                 try:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError
 from dpr.envs.tasks import EARLIER_ENV_IDS
 from dpr.metrics import summarize
@@ -436,7 +437,8 @@ def write_report(
     sources), bars.png, trajectories.png, intervals.png and profile.png from `dpr evaluate --json` files;
     ``labels``: one display name per file (files that share a label are training runs of one method).
     Checks everything first and writes nothing when a file is bad or an output already exists
-    (FileExistsError). Returns the paths written."""
+    (FileExistsError). results.md is written last, whole: a folder without it holds a report stopped part-way.
+    Returns the paths written."""
     json_paths = list(json_paths)
     if labels is not None and len(labels) != len(json_paths):
         raise ValueError(f"give one label per file: {len(json_paths)} file(s), {len(labels)} label(s)")
@@ -456,12 +458,13 @@ def write_report(
     out_dir.mkdir(parents=True, exist_ok=True)
     results_md, bars_png, trajectories_png, intervals_png, profile_png = outputs
     passage_section = f"## Passage through the gate\n\n{passage}\n\n" if passage else ""
-    results_md.write_text(
-        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n{passage_section}"
-        f"## Interval estimates\n\n{INTERVALS_NOTE}\n\n{interval_table(rows)}\n\n{_sources_line(evaluations)}\n"
-    )
     bar_figure(evaluations, bars_png)
     _draw_trajectories(plan, _labels_in_order(evaluations), trajectories_png)
     interval_figure(rows, intervals_png)
     profile_figure(methods, profile_png)
+    atomic_write_text(  # last, whole or not at all: the mark of a finished report
+        results_md,
+        f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n{passage_section}"
+        f"## Interval estimates\n\n{INTERVALS_NOTE}\n\n{interval_table(rows)}\n\n{_sources_line(evaluations)}\n",
+    )
     return outputs
