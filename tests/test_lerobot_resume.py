@@ -208,7 +208,7 @@ def test_sigkill_during_recording_keeps_every_committed_episode(tmp_path):
 def test_second_writer_on_the_same_dataset_is_refused(tmp_path):
     root = tmp_path / "ds"
     first = LeRobotWriter.create(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")
-    with pytest.raises(DatasetError, match="another writer"):
+    with pytest.raises(DatasetError, match=rf"another writer \(process {os.getpid()}\) holds this dataset open"):
         LeRobotWriter.open(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")
     first.finalize()
     LeRobotWriter.open(root, fps=10, features=VECTOR_FEATURES, robot_type="disk").finalize()

@@ -454,6 +454,23 @@ def test_a_report_stopped_part_way_is_kept_and_written_anew_beside_it(pipeline, 
     assert any("was stopped part-way" in line for line in lines)
 
 
+def test_a_second_pipeline_on_one_folder_is_refused_naming_the_first_and_a_dead_ones_lock_is_taken(pipeline, tmp_path):
+    import os
+
+    from dpr.locks import FolderLock
+    from dpr.rl.pipeline import RUN_LOCK
+
+    record = _evaluations_only(pipeline[0], tmp_path)
+    files = {path: path.stat().st_mtime_ns for path in record.rglob("*") if path.is_file()}
+    with FolderLock(record / RUN_LOCK):  # another pipeline running there
+        with pytest.raises(ParameterError, match=rf"another `dpr pipeline` \(process {os.getpid()}\) is running"):
+            run_pipeline(PipelineConfig(**PIPELINE), record, **QUIET)
+    assert {path: path.stat().st_mtime_ns for path in record.rglob("*") if path.is_file()} == files
+    (record / RUN_LOCK).write_text("4194304\n")  # left by a pipeline that was killed: no one holds it
+    assert run_pipeline(PipelineConfig(**PIPELINE), record, **QUIET) == record / "report"
+    assert not (record / RUN_LOCK).exists()
+
+
 def test_pipeline_with_training_seeds_chooses_the_median_run_on_validation_seeds(three_seeds):
     """Three training seeds: every run is scored on the validation seeds, the canonical model is the median
     run there (not the best), and the report's interval rows hold every run on the test seeds."""

@@ -48,6 +48,7 @@ COMMON_KWARGS = {
 TASK_KWARGS = {
     "dpr/Navigation-v0": {},
     "dpr/Gate-v0": {"gate_width": FLOAT_VALUES},
+    "dpr/Gate-v1": {"gate_width": FLOAT_VALUES, "gate_distance": st.one_of(st.none(), FLOAT_VALUES)},
     "dpr/Unresponsive-v0": {"n_dead": st.one_of(st.none(), INT_VALUES)},
     "dpr/Manipulation-v0": {
         "object_type": st.sampled_from(["ball", "box", "cube"]),

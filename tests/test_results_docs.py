@@ -58,10 +58,10 @@ def test_a_misquoted_figure_is_named(tool, record, tmp_path):
     _replace_once(docs / "models/README.md", tail, _misquoted(tail))
     seed = tool.card_seeds(record)["navigation-bc-ppo.zip"]
     card = (docs / "models/card.yaml").read_text().splitlines()  # Navigation's made_by may read as Gate's: by line
-    at = card.index("    file: navigation-bc-ppo.zip") + 1
+    at = next(i for i in range(card.index("    file: navigation-bc-ppo.zip"), len(card)) if "made_by:" in card[i])
     card[at] = card[at].replace(f"(seed {seed})", f"(seed {seed + 1})")
     (docs / "models/card.yaml").write_text("\n".join(card) + "\n")
-    shipped = next(row for row in tool.shipped_rows(record) if row.startswith("| Gate | shipped bc-ppo |"))
+    shipped = next(row for row in tool.shipped_rows(record) if row.startswith("| Gate-v0 | shipped bc-ppo |"))
     _replace_once(docs / "docs/learning.md", shipped, _misquoted(shipped))
     problems = tool.check(record, docs)
     assert len(problems) == 4, problems

@@ -12,7 +12,7 @@ from dpr.rl.run_folder import read_run_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "docs" / "results" / "full-lr3e4"
-FLAGS = ["--preset", "full", "--tasks", "gate", "--scratch-physics-discount"]
+FLAGS = ["--preset", "full", "--tasks", "gate", "--env-id", "dpr/Gate-v0", "--scratch-physics-discount"]
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +47,7 @@ def test_the_candidate_shares_the_kept_methods_and_resumes_with_its_flags(tool, 
     [
         (["bc"], ["--preset", "full", "--tasks", "gate", "navigation"], "--tasks: one task per candidate folder"),
         (["bc", "sac"], FLAGS, r"--keep: \['sac'\] are not methods of the candidate"),
+        (["bc"], ["--preset", "full", "--tasks", "gate"], "--env-id: the record ran gate on dpr/Gate-v0"),
     ],
 )
 def test_bad_requests_are_refused_before_anything_is_written(tool, tmp_path, keep, flags, message):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from dpr.cli import build_parser
 from dpr.cli.pipeline import pipeline_config
-from dpr.rl.pipeline_config import TEACHER, PipelineConfig
+from dpr.rl.pipeline_config import TEACHER, PipelineConfig, saved_settings
 from dpr.rl.run_folder import load_choices, model_path, read_run_settings, save_choices, write_run_settings
 
 
@@ -40,6 +40,9 @@ def start(record: Path, out: Path, keep: list[str], flags: list[str], models: Pa
         raise ValueError(f"--keep: {unknown} are not methods of the candidate ({config.learned_methods()})")
     if task not in read_run_settings(record)["config"]["tasks"]:
         raise ValueError(f"{record}: the record has no {task} runs")
+    record_id = PipelineConfig(**saved_settings(read_run_settings(record)["config"])).env_id(task)
+    if config.env_id(task) != record_id:  # the kept runs are the record's env's: the candidate must run it too
+        raise ValueError(f"--env-id: the record ran {task} on {record_id}; give --env-id {record_id}")
     choices = load_choices(record)
     names = [f"{task}-{TEACHER}", *(f"{task}-{method}" for method in keep)]
     sources = [models / model_path(Path("."), task, method, None).name for method in keep]

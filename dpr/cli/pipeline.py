@@ -22,7 +22,7 @@ from dpr.cli.common import (
 )
 
 PIPELINE_OUT = "runs/pipeline"
-PIPELINE_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam"}
+PIPELINE_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam", "env_ids": "--env-id"}
 
 
 def _pairs(mapping: dict) -> str:

@@ -49,6 +49,7 @@ import yaml
 
 from dpr.checks import ParameterError
 from dpr.envs import episode_steps
+from dpr.locks import FolderLock, LockHeld
 from dpr.policies.hyperparams import FINETUNE_PRESET
 from dpr.rl.model_card import ShippedModel
 from dpr.rl.pipeline_config import (
@@ -67,12 +68,15 @@ from dpr.rl.run_folder import (
     load_choices,
     model_path,
     report_evaluations,
+    report_folder,
     save_choices,
     task_done,
     tested_runs,
     write_run_settings,
 )
 from dpr.runs import attempt_paths, fresh_path
+
+RUN_LOCK = ".dpr-pipeline.lock"  # held by the one pipeline writing a run folder
 
 
 def _stage(done: Path, what: str, log: Callable[[str], None]) -> bool:
@@ -111,33 +115,6 @@ def _shipped_evaluation_path(out: Path, model: Path) -> Path:
     return out / "eval" / "shipped" / f"{model.stem}-{digest}.json"
 
 
-def _report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]) -> Path:
-    """The folder the report belongs in: the latest report (``report``, ``report-2``...) if none of ``sources`` is
-    newer than it, else a new folder beside it (reports are never overwritten; the older one is kept). A report
-    folder without results.md (written last) was stopped part-way; it is kept, and the report goes beside it."""
-    from dpr.rl.report import REPORT_FILES
-
-    attempts = attempt_paths(out / "report")
-    written = [folder for folder in attempts if (folder / REPORT_FILES[0]).exists()]  # results.md comes last
-    if not written:
-        unfinished = [folder for folder in attempts if folder.is_dir() and any(folder.iterdir())]
-        if not unfinished:
-            return out / "report"
-        fresh = fresh_path(out / "report")
-        log(
-            f"dpr pipeline: {unfinished[-1]} was stopped part-way (no {REPORT_FILES[0]}): the report goes into "
-            f"{fresh}, {unfinished[-1]} is kept"
-        )
-        return fresh
-    latest = written[-1]
-    made = (latest / REPORT_FILES[0]).stat().st_mtime_ns
-    if all(source.stat().st_mtime_ns <= made for source in sources):
-        return latest
-    fresh = fresh_path(out / "report")
-    log(f"dpr pipeline: evaluations newer than {latest}: the report goes into {fresh}, {latest} is kept")
-    return fresh
-
-
 def run_pipeline(
     config: PipelineConfig,
     out: str | Path,
@@ -148,15 +125,40 @@ def run_pipeline(
 ) -> Path:
     """Run (or resume) the pipeline into ``out``; returns the report folder. ``shipped`` (a model card's
     entries, :func:`dpr.rl.model_card.load_model_card`) are evaluated on the test seeds too, beside the wave on
-    their tasks, and reported as ``shipped <method>``."""
+    their tasks, and reported as ``shipped <method>``. One pipeline at a time writes a run folder: a second is
+    refused, naming the first's pid (``out/.dpr-pipeline.lock``, taken over once its holder is dead)."""
     from dpr.policies.sb3 import model_env_kwargs
-    from dpr.rl.report import REPORT_FILES, write_report
 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ParameterError("out", f"{out} exists and is not a folder")
     for model in shipped:  # a shipped model must run on the pipeline's swarm, or its row means nothing
         model_env_kwargs(model.path, model.env_id, {"n_robots": config.n_robots})
+    out.mkdir(parents=True, exist_ok=True)
+    lock = FolderLock(out / RUN_LOCK)
+    try:
+        lock.acquire()
+    except LockHeld as held:
+        holder = f" (process {held.pid})" if held.pid is not None else ""
+        raise ParameterError(
+            "out", f"another `dpr pipeline`{holder} is running in {out}; wait for it, or stop it and run this again"
+        ) from None
+    try:
+        return _run_pipeline(config, out, shipped, show_progress, log)
+    finally:
+        lock.release()
+
+
+def _run_pipeline(
+    config: PipelineConfig,
+    out: Path,
+    shipped: Sequence[ShippedModel],
+    show_progress: bool,
+    log: Callable[[str], None],
+) -> Path:
+    """:func:`run_pipeline` in ``out``, whose lock this process holds."""
+    from dpr.rl.report import REPORT_FILES, write_report
+
     config_path = out / "pipeline.yaml"
     resuming = config_path.exists()
     if resuming:
@@ -222,7 +224,7 @@ def run_pipeline(
         test_evaluations.append((path, f"shipped {model.method}"))
 
     sources = [path for path, _ in test_evaluations]
-    report = _report_folder(out, sources, log)
+    report = report_folder(out, sources, log)
     if (report / REPORT_FILES[0]).exists():
         log(f"dpr pipeline: report: {report} exists, skipped")
     else:

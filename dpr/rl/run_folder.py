@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ import yaml
 
 from dpr.atomic import atomic_write_text
 from dpr.rl.pipeline_config import BASELINE, TEACHER, PipelineConfig
+from dpr.runs import attempt_paths, fresh_path
 
 __all__ = [
     "evaluated",
@@ -138,3 +140,30 @@ def report_evaluations(config: PipelineConfig, out: Path) -> list[tuple[Path, st
         for task in config.tasks
         for method, seed in tested_runs(config)
     ]
+
+
+def report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]) -> Path:
+    """The folder the report belongs in: the latest report (``report``, ``report-2``...) if none of ``sources`` is
+    newer than it, else a new folder beside it (reports are never overwritten; the older one is kept). A report
+    folder without results.md (written last) was stopped part-way; it is kept, and the report goes beside it."""
+    from dpr.rl.report import REPORT_FILES
+
+    attempts = attempt_paths(out / "report")
+    written = [folder for folder in attempts if (folder / REPORT_FILES[0]).exists()]  # results.md comes last
+    if not written:
+        unfinished = [folder for folder in attempts if folder.is_dir() and any(folder.iterdir())]
+        if not unfinished:
+            return out / "report"
+        fresh = fresh_path(out / "report")
+        log(
+            f"dpr pipeline: {unfinished[-1]} was stopped part-way (no {REPORT_FILES[0]}): the report goes into "
+            f"{fresh}, {unfinished[-1]} is kept"
+        )
+        return fresh
+    latest = written[-1]
+    made = (latest / REPORT_FILES[0]).stat().st_mtime_ns
+    if all(source.stat().st_mtime_ns <= made for source in sources):
+        return latest
+    fresh = fresh_path(out / "report")
+    log(f"dpr pipeline: evaluations newer than {latest}: the report goes into {fresh}, {latest} is kept")
+    return fresh

@@ -2,69 +2,29 @@
 
 from __future__ import annotations
 
-import fcntl
-import os
 import re
 from pathlib import Path
 
 from dpr.atomic import TMP_SUFFIX
 from dpr.datasets.lerobot.format import LOCK_PATH, DatasetError, file_number, in_threads
+from dpr.locks import FolderLock, LockHeld
 
 CHUNK_DIR_RE = re.compile(r"^chunk-\d{3,}$")
 
 
-class WriterLock:
-    """An advisory ``flock`` on ``meta/.dpr-writer.lock``: one writer per dataset at a time.
-
-    The lock file exists only while a writer holds it: :meth:`release` deletes it (a finished dataset holds no lock
-    file). Deleting a flocked file is safe because :meth:`acquire` checks, once it holds the lock, that the file it
-    locked is still the one at the path, and starts again when a releasing writer unlinked it in between."""
+class WriterLock(FolderLock):
+    """The one-writer lock of a dataset, ``meta/.dpr-writer.lock`` (:class:`dpr.locks.FolderLock`): a finished
+    dataset holds no lock file; a second writer gets a :class:`DatasetError` naming the holder's pid."""
 
     def __init__(self, root: Path):
-        self.path = root / LOCK_PATH
-        self.created = False  # whether this writer made the lock file (a crashed writer may have left one)
-        self._fd: int | None = None
-
-    @property
-    def held(self) -> bool:
-        return self._fd is not None
+        super().__init__(root / LOCK_PATH)
 
     def acquire(self) -> None:
-        while True:
-            try:
-                fd, created = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
-            except FileExistsError:
-                try:
-                    fd, created = os.open(self.path, os.O_RDWR), False
-                except FileNotFoundError:
-                    continue  # its holder released it just now
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                os.close(fd)
-                raise DatasetError(f"{self.path}: another writer holds this dataset open") from None
-            try:
-                current = os.stat(self.path)
-            except FileNotFoundError:
-                current = None
-            locked = os.fstat(fd)
-            if current is None or (current.st_dev, current.st_ino) != (locked.st_dev, locked.st_ino):
-                os.close(fd)  # the previous holder deleted the file we locked: lock the one there now
-                continue
-            self._fd, self.created = fd, created
-            return
-
-    def release(self, *, remove: bool = True) -> None:
-        """Drop the lock; ``remove`` also deletes the lock file (while still holding it, so no one locks a file
-        about to vanish)."""
-        if self._fd is None:
-            return
         try:
-            if remove:
-                self.path.unlink(missing_ok=True)
-        finally:
-            os.close(self._fd)  # closing drops the flock
-            self._fd = None
+            super().acquire()
+        except LockHeld as held:
+            holder = f" (process {held.pid})" if held.pid is not None else ""
+            raise DatasetError(f"{self.path}: another writer{holder} holds this dataset open for writing") from None
 
 
 def remove_file(path: Path) -> None:
