@@ -94,7 +94,7 @@ def test_a_bad_card_is_refused_naming_the_card_and_the_entry(tmp_path, content, 
         card = write_card(tmp_path, [content])
     with pytest.raises(ParameterError, match=message) as raised:
         load_model_card(card)
-    assert raised.value.parameter == "--shipped"
+    assert raised.value.parameter == "shipped"
     if isinstance(content, dict):
         assert "models[0]" in str(raised.value)
 

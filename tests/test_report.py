@@ -288,3 +288,17 @@ def test_gate_evaluations_carry_the_passage_measure_into_the_report(tmp_path):
     (row,) = _rows(section)
     assert row[:2] == ["Gate", "wave"]
     assert row[3] == f"{sum(touched)} of 2"
+
+
+@pytest.mark.parametrize("field", ["projected_displacement", "trajectory"])
+def test_a_nan_episode_is_refused_naming_the_file_and_nothing_is_written(tmp_path, capsys, field):
+    episode = _episode(NAV, 0, 10.0)
+    if field == "trajectory":
+        episode["trajectory"][1][0] = float("nan")
+    else:
+        episode[field] = float("nan")
+    path = _write(tmp_path / "nan.json", "wave", [episode])
+    out = tmp_path / "report"
+    assert run(["report", str(path), "--out", str(out)]) == 2
+    assert f"{path}: episode 0" in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())

@@ -55,13 +55,14 @@ def build_parser() -> argparse.ArgumentParser:
         command_parser = sub.add_parser(
             command.name, help=command.help, description=command.description, arguments=command.arguments
         )
-        command_parser.set_defaults(func=command.run)
+        command_parser.set_defaults(func=command.run, command_parser=command_parser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    parser = args.command_parser  # errors are the command's, with its usage: "dpr pipeline: error: ..."
     if getattr(args, "env", None) and args.env != [ALL_ENVS]:
         requested = [args.env] if isinstance(args.env, str) else args.env
         unknown = [e for e in requested if e not in TASKS]

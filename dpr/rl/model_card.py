@@ -50,7 +50,7 @@ class ShippedModel:
         return self.task_env_id or ENV_IDS[self.task]
 
 
-def load_model_card(card: str | Path, parameter: str = "--shipped") -> list[ShippedModel]:
+def load_model_card(card: str | Path, parameter: str = "shipped") -> list[ShippedModel]:
     """The entries of the model card at ``card``; a :class:`ParameterError` about ``parameter`` naming the card,
     the entry and what was expected when the card is malformed, names an unknown task, repeats a (task, method)
     or names a model file that does not exist."""

@@ -87,6 +87,8 @@ def _check_points(value, shape: tuple[int | None, int], where: str) -> None:
     if array.ndim != len(shape) or array.shape[-1] != shape[-1] or (len(shape) == 2 and len(array) == 0):
         expected = "[x, y]" if len(shape) == 1 else "a non-empty list of [x, y]"
         raise ValueError(f"{where} must be {expected}, got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{where} must be finite numbers; it holds NaN or infinity")
 
 
 def _check_keys(record: dict, spec: dict[str, type | tuple[type, ...]], missing: str, wrong: str) -> None:
@@ -130,6 +132,10 @@ def load_evaluation(path, label: str | None = None) -> dict:
         _check_keys(
             episode, EPISODE_KEYS, f"{where} lacks {{missing}}", f"{where}: '{{key}}' has a wrong type: {{value!r:.60}}"
         )
+        if not np.isfinite(episode["projected_displacement"]):
+            raise ValueError(
+                f"{where}: projected_displacement is {episode['projected_displacement']}; expected a number"
+            )
         if "trajectory" in episode:  # absent from files written before trajectories were recorded
             if "goal" not in episode:
                 raise ValueError(f"{where} has a trajectory but no goal")
