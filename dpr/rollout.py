@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from dpr.envs.particle_env import AGENT_POSITION, PHYSICS_ERROR
+from dpr.interrupts import raise_if_interrupted
 from dpr.metrics import EpisodeMetrics, episode_metrics
 
 
@@ -118,6 +119,7 @@ def roll_out(
     terminated = truncated = False
     physics_error = None
     while not (terminated or truncated) and (steps is None or len(rewards) < steps):
+        raise_if_interrupted()  # a Ctrl-C that a callback from C code swallowed stops the loop here
         action = policy(observation)
         next_observation, reward, terminated, truncated, info = env.step(action)
         if PHYSICS_ERROR in info:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
+from dpr import interrupts
 from dpr.cli import bc, bench, data, evaluate, learn, pipeline, view
 from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, unwritable_destination
 from dpr.envs import TASKS
@@ -63,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     parser = args.command_parser  # errors are the command's, with its usage: "dpr pipeline: error: ..."
+    interrupts.install()  # a Ctrl-C is never lost in a callback from C code (dpr.interrupts)
     if getattr(args, "env", None) and args.env != [ALL_ENVS]:
         requested = [args.env] if isinstance(args.env, str) else args.env
         unknown = [e for e in requested if e not in TASKS]

@@ -29,6 +29,7 @@ import yaml
 from dpr import runs
 from dpr.checks import ParameterError, check_int
 from dpr.envs import ENV_IDS, episode_steps
+from dpr.interrupts import raise_if_interrupted
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     ALGOS,
@@ -212,7 +213,8 @@ SB3_STEPS = StepUnit()
 def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB3_STEPS, origin: int | None = None):
     """An SB3 callback showing a tqdm bar over the ``total`` steps (counted in ``unit``) of one ``learn`` call
     (counted from where the model's step count stood, so a run after a critic warm-up starts at 0; or from
-    ``origin``, where a resumed run's first ``learn`` call started), with the mean return of the last episodes."""
+    ``origin``, where a resumed run's first ``learn`` call started), with the mean return of the last episodes. It
+    also stops training at a Ctrl-C that was swallowed (:func:`dpr.interrupts.raise_if_interrupted`)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class ProgressBar(BaseCallback):
@@ -223,6 +225,7 @@ def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB
             self.first_step = self.model.num_timesteps if origin is None else origin
 
         def _on_step(self) -> bool:
+            raise_if_interrupted()  # a Ctrl-C swallowed by a callback from C code (dpr.interrupts) stops here
             self.bar.update(unit.from_sb3(self.model.num_timesteps - self.first_step) - self.bar.n)
             if self.model.ep_info_buffer and self.n_calls % 100 == 0:
                 mean = sum(e["r"] for e in self.model.ep_info_buffer) / len(self.model.ep_info_buffer)

@@ -1,0 +1,60 @@
+"""A Ctrl-C that a callback from C code swallowed still stops the work at the next step."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import gymnasium as gym
+import pytest
+
+import dpr  # noqa: F401
+from dpr import interrupts
+from dpr.policies.registry import make_policy
+from dpr.rollout import roll_out
+
+
+@pytest.fixture
+def installed():
+    previous = signal.getsignal(signal.SIGINT)
+    interrupts.install()
+    yield
+    signal.signal(signal.SIGINT, previous)
+    interrupts._pending = False
+
+
+def swallowed_ctrl_c() -> None:
+    """SIGINT delivered while Python code runs under C, whose callback machinery prints and drops exceptions."""
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):  # the handler runs at the next bytecode boundary
+            pass
+    except KeyboardInterrupt:
+        pass  # what cffi does with an exception raised in a callback
+
+
+def test_an_episode_stops_at_the_next_step_after_a_swallowed_ctrl_c(installed):
+    env = gym.make("dpr/Navigation-v0", robot_model="disk", n_robots=4)
+    policy = make_policy("wave", env)
+    steps = []
+
+    def on_step(step):
+        steps.append(step.index)
+        if step.index == 3:
+            swallowed_ctrl_c()
+
+    with pytest.raises(KeyboardInterrupt):
+        roll_out(env, policy, seed=0, steps=50, on_step=on_step)
+    assert steps == [1, 2, 3]
+    interrupts.raise_if_interrupted()  # raised once: the note is cleared
+    roll_out(env, policy, seed=0, steps=5)  # and the next episode runs
+
+
+def test_training_stops_at_the_next_step_after_a_swallowed_ctrl_c(installed, tmp_path):
+    from dpr.rl.train import TrainConfig, train
+
+    config = TrainConfig("ppo", "dpr/Navigation-v0", n_robots=4, timesteps=4096, steps_per_episode=32, eval_episodes=1)
+    swallowed_ctrl_c()
+    result = train(config, tmp_path / "run", show_progress=False, log=lambda line: None)
+    assert result.interrupted
+    assert result.model_path.is_file()  # what was learned so far is kept
