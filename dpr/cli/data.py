@@ -177,7 +177,7 @@ def cmd_collect(args, parser) -> int:
 
 
 def verify_dataset(root) -> int:
-    """`dpr collect --verify`: 0 when every episode and stats.json hold, 1 (with the file named) otherwise."""
+    """`dpr collect --verify`: 0 when every episode and stats.json hold, 2 (bad data, the file named) otherwise."""
     from dpr.datasets.lerobot import DatasetError, LeRobotReader
 
     try:
@@ -185,7 +185,7 @@ def verify_dataset(root) -> int:
         frames = reader.verify()
     except DatasetError as error:
         print(f"dpr collect: verify: {error}", file=sys.stderr)
-        return 1
+        return 2
     print(f"verified {root}: {reader.num_episodes} episodes, {frames} frames; checksums and stats.json hold")
     return 0
 
