@@ -205,6 +205,22 @@ def test_sigkill_during_recording_keeps_every_committed_episode(tmp_path):
         assert w.save_episode({"seed": committed}) == committed
 
 
+@pytest.mark.parametrize("key, value", [("total_episodes", 10**9), ("total_frames", 10**12), ("fps", 10**9)])
+def test_an_absurd_count_in_info_json_is_refused_before_any_allocation(tmp_path, key, value):
+    rng = np.random.default_rng(3)
+    root = tmp_path / "ds"
+    writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
+    add_episode(writer, make_episode(rng, 3), "navigate")
+    writer.save_episode()
+    writer.finalize()
+    info = json.loads((root / "meta" / "info.json").read_text())
+    (root / "meta" / "info.json").write_text(json.dumps({**info, key: value}))
+    with pytest.raises(DatasetError, match=f"{key} is {value}, beyond any dataset this reader takes"):
+        LeRobotReader(root)
+    with pytest.raises(DatasetError, match=f"{key} is {value}"):
+        LeRobotWriter.open(root, fps=10, features=FEATURES, robot_type="disk")
+
+
 def test_second_writer_on_the_same_dataset_is_refused(tmp_path):
     root = tmp_path / "ds"
     first = LeRobotWriter.create(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")

@@ -86,6 +86,9 @@ STANDARD_INFO_KEYS = frozenset(
         LIVE_FILES_KEY,
     }
 )
+# Sane bounds of info.json's counts: far beyond a real dataset (a million 2500-frame episodes; the fps of a 0.1 ms
+# physics step), small enough that nothing sized by them exhausts memory.
+MAX_COUNTS = {"fps": 10_000, "total_episodes": 1_000_000, "total_frames": 2_500_000_000}
 REQUIRED_INFO_KEYS = ("codebase_version", "fps", "features", "total_episodes", "total_frames", "data_path")
 JSON_FIELD_METADATA = {b"dpr.encoding": b"json"}  # marks an episodes column holding JSON text
 
@@ -266,6 +269,10 @@ def check_info(info: Any, path: Path) -> dict:
     for key in ("fps", "total_episodes", "total_frames"):
         if not isinstance(info[key], int) or isinstance(info[key], bool) or info[key] < 0:
             raise DatasetError(f"{path}: {key} must be a non-negative int, got {info[key]!r}")
+        if info[key] > MAX_COUNTS[key]:  # checked before anything is allocated for them
+            raise DatasetError(
+                f"{path}: {key} is {info[key]}, beyond any dataset this reader takes ({MAX_COUNTS[key]})"
+            )
     if info["fps"] < 1:
         raise DatasetError(f"{path}: fps must be >= 1, got {info['fps']}")
     features = info["features"]

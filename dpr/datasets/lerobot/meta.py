@@ -190,10 +190,10 @@ def episode_rows(root: Path, info: Mapping, table: pa.Table | None, row_paths: l
         if index in rows:
             raise DatasetError(f"{path}: episode {index} is listed twice in meta/episodes")
         rows[index] = split_row(row, table.schema, path)
-    missing = [i for i in range(total_episodes) if i not in rows]
+    missing = [i for i in range(total_episodes) if i not in rows][:5] if len(rows) < total_episodes else []
     if missing:
         raise DatasetError(
-            f"{root / 'meta' / 'episodes'}: committed episodes {missing[:5]} (of {total_episodes}) have no meta row"
+            f"{root / 'meta' / 'episodes'}: committed episodes {missing} (of {total_episodes}) have no meta row"
         )
     ordered = [rows[i] for i in range(total_episodes)]
     expected_from = 0
