@@ -221,6 +221,34 @@ def test_an_absurd_count_in_info_json_is_refused_before_any_allocation(tmp_path,
         LeRobotWriter.open(root, fps=10, features=FEATURES, robot_type="disk")
 
 
+@pytest.mark.parametrize("how", ["absolute", "parent", "symlink"])
+def test_a_data_path_leading_out_of_the_dataset_is_refused(tmp_path, how):
+    import shutil
+
+    rng = np.random.default_rng(4)
+    root = tmp_path / "ds"
+    writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
+    add_episode(writer, make_episode(rng, 3), "navigate")
+    writer.save_episode()
+    writer.finalize()
+    info_path = root / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    (data,) = (root / "data").rglob("*.parquet")
+    outside = tmp_path / "outside" / data.relative_to(root)
+    outside.parent.mkdir(parents=True)
+    shutil.copy(data, outside)
+    if how == "symlink":
+        data.unlink()
+        data.symlink_to(outside)
+    else:
+        template = (
+            str(tmp_path / "outside" / info["data_path"]) if how == "absolute" else f"../outside/{info['data_path']}"
+        )
+        info_path.write_text(json.dumps({**info, "data_path": template}))
+    with pytest.raises(DatasetError, match="leads out of the dataset"):
+        LeRobotReader(root).verify()
+
+
 def test_second_writer_on_the_same_dataset_is_refused(tmp_path):
     root = tmp_path / "ds"
     first = LeRobotWriter.create(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")

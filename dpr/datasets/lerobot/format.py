@@ -127,7 +127,19 @@ def file_number(path: Path) -> int | None:
 def numbered_path(root: Path, template: str, number: int) -> Path:
     """The path of file number ``number`` under ``template`` (DATA_PATH or EPISODES_PATH)."""
     chunk, file = chunk_file(number)
-    return root / template.format(chunk_index=chunk, file_index=file)
+    return inside(root, template.format(chunk_index=chunk, file_index=file))
+
+
+def inside(root: Path, relative: str) -> Path:
+    """``root / relative``, which must stay inside the dataset: a relative path without ``..``, and no symlink on
+    the way leading out of ``root`` (a DatasetError naming the path otherwise)."""
+    parts = Path(relative).parts
+    if Path(relative).is_absolute() or ".." in parts:
+        raise DatasetError(f"{root}: the path {relative!r} leads out of the dataset; paths are relative, without '..'")
+    path = root / relative
+    if not path.resolve().is_relative_to(root.resolve()):
+        raise DatasetError(f"{path}: a symlink leads out of the dataset, to {path.resolve()}")
+    return path
 
 
 def live_files(info: Mapping[str, Any]) -> tuple[int, int]:

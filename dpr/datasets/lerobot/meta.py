@@ -21,6 +21,7 @@ from dpr.datasets.lerobot.format import (
     chunk_file,
     file_number,
     in_threads,
+    inside,
     live_files,
     parquet_num_rows,
     read_parquet,
@@ -213,7 +214,7 @@ def data_file_path(root: Path, info: Mapping, meta: Mapping) -> Path:
     chunk, file = meta.get("data/chunk_index"), meta.get("data/file_index")
     if chunk is None or file is None:
         chunk, file = chunk_file(int(meta["episode_index"]))
-    return root / info["data_path"].format(chunk_index=int(chunk), file_index=int(file))
+    return inside(root, info["data_path"].format(chunk_index=int(chunk), file_index=int(file)))
 
 
 def check_data_files(root: Path, info: Mapping, episodes: list[Mapping]) -> dict[Path, int]:
