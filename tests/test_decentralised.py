@@ -282,3 +282,19 @@ def test_every_shipped_per_robot_model_drives_swarms_of_any_size(path):
     for n_robots in (4, 36):
         env = gym.make(ENV_IDS["navigation"], n_robots=n_robots, robot_model=spec.robot_model, max_episode_steps=20)
         drive(env, make_policy(str(path), env), steps=20, seed=0)
+
+
+@pytest.mark.parametrize("env_id", ["dpr/Gate-v1", "dpr/Unresponsive-v0"])
+def test_a_per_robot_model_runs_any_task_without_an_object(env_id):
+    """As models/README.md says: a Navigation per-robot model drives Gate and Unresponsive; Manipulation's object
+    is not in its observation, and is refused."""
+    from pathlib import Path
+
+    from dpr.checks import ParameterError
+    from dpr.rl.evaluation import run_episode
+
+    model = str(Path(__file__).resolve().parents[1] / "models" / "decentralised-disk-bc.zip")
+    result = run_episode(env_id, model, seed=0, steps=20)
+    assert result.metrics.steps == 20
+    with pytest.raises(ParameterError, match="cannot be run on dpr/Manipulation-v0"):
+        run_episode("dpr/Manipulation-v0", model, seed=0, steps=20)

@@ -130,15 +130,25 @@ def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> Mode
     return info
 
 
+def _drives_any_task_like(info: ModelInfo, env_id: str) -> bool:
+    """Whether a per-robot model of ``info`` runs on ``env_id``'s task too: its local observation has the same
+    parts on every task with the same object or none (dpr.policies.per_robot_spec.check_per_robot_env)."""
+    from dpr.envs import TASK_CLASSES, TASKS
+
+    if info.per_robot is None or env_id not in TASKS or info.env_id not in TASKS:
+        return False
+    return TASK_CLASSES[TASKS[env_id]].has_object == TASK_CLASSES[TASKS[info.env_id]].has_object
+
+
 def model_env_kwargs(path: str | Path, env_id: str, requested: dict[str, Any] | None = None) -> dict[str, Any]:
     """The env kwargs to run the model at ``path`` on ``env_id``: the model's own, plus any ``requested``
     kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values,
     except ``n_robots`` for a :data:`SWARM_POLICY` model, which acts at any swarm size, and ``robot_model`` for a
     centralised model: the paddle and disk models share their spaces, so a policy learned on one runs on, and
     fine-tunes on, the other (:data:`TRANSFERABLE_KWARGS`). Another env id is a :class:`ParameterError` about
-    ``env_id``."""
+    ``env_id``, but for a per-robot model on a task with the same object or none."""
     info = read_model_info(path)
-    if env_id != info.env_id:
+    if env_id != info.env_id and not _drives_any_task_like(info, env_id):
         raise ParameterError("env_id", f"model {path} was trained on {info.env_id}; it cannot be run on {env_id}")
     kwargs = dict(info.env_kwargs)
     transferable = {"n_robots"} if has_swarm_actor(path) else set()  # its actor is shared by the robots: any N
