@@ -576,3 +576,12 @@ def test_collect_verify_names_a_corrupt_file(small_dataset, tmp_path, capsys):
     assert run_cli([*argv, "--workers", "1", "--out", str(tampered), "--verify"]) == 2
     err = capsys.readouterr().err
     assert "verify:" in err and "file-000.parquet: episode 0: column 'next.reward' does not match its checksum" in err
+
+
+def test_a_compaction_that_freed_space_says_so():
+    from dpr.datasets.collect import CollectSummary, format_summary
+
+    summary = CollectSummary("ds", "dpr/Navigation-v0", "wave", 3, 0, 3, 0, 30, 1.5, -1_607_636, False, {})
+    text = format_summary(summary)
+    assert "freed       1.5 MiB" in text or "freed       1.6 MB" in text, text
+    assert "-" not in text.split("freed")[1].split("\n")[0]

@@ -236,7 +236,7 @@ class CollectSummary:
     frames_added: int
     frames_total: int
     seconds: float
-    bytes_written: int
+    bytes_written: int  # the dataset's growth: negative when a compaction freed more than was added
     interrupted: bool
     metrics: dict  # median / min / max of each metric over the added episodes, and the success rate
 
@@ -479,7 +479,8 @@ def format_summary(summary: CollectSummary) -> str:
         f"episodes    {summary.episodes_added} added, {summary.episodes_total} in total"
         + ("  (interrupted: run the same command again to resume)" if summary.interrupted else ""),
         f"frames      {summary.frames_added} added, {summary.frames_total} in total",
-        f"written     {_human_bytes(summary.bytes_written)} in {summary.seconds:.1f} s"
+        f"{'written' if summary.bytes_written >= 0 else 'freed':<12s}{_human_bytes(abs(summary.bytes_written))} "
+        f"in {summary.seconds:.1f} s"
         + (f" ({summary.frames_added / summary.seconds:.0f} frames/s)" if summary.seconds > 0 else ""),
     ]
     if summary.metrics:
