@@ -249,6 +249,20 @@ def test_a_data_path_leading_out_of_the_dataset_is_refused(tmp_path, how):
         LeRobotReader(root).verify()
 
 
+def test_a_damaged_stats_json_is_rewritten_on_resume_with_a_warning(tmp_path):
+    rng = np.random.default_rng(5)
+    root = tmp_path / "ds"
+    writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
+    add_episode(writer, make_episode(rng, 3), "navigate")
+    writer.save_episode()
+    writer.finalize()
+    stats = (root / "meta" / "stats.json").read_text()
+    (root / "meta" / "stats.json").write_text("{ not json")
+    with pytest.warns(RuntimeWarning, match="stats.json.*rewritten from the committed episodes' stats"):
+        LeRobotWriter.open(root, fps=10, features=FEATURES, robot_type="disk").finalize()
+    assert json.loads((root / "meta" / "stats.json").read_text()) == json.loads(stats)
+
+
 def test_second_writer_on_the_same_dataset_is_refused(tmp_path):
     root = tmp_path / "ds"
     first = LeRobotWriter.create(root, fps=10, features=VECTOR_FEATURES, robot_type="disk")

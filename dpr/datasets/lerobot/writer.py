@@ -261,8 +261,9 @@ class LeRobotWriter:
         stats_path = self.root / STATS_PATH
         try:
             current = read_json(stats_path) if stats_path.exists() else None
-        except DatasetError:
-            current = None  # unreadable: it is derived data, so rewrite it
+        except DatasetError as error:  # written atomically, so no crash leaves it unreadable: it was damaged
+            warnings.warn(f"{error}; rewritten from the committed episodes' stats", RuntimeWarning, stacklevel=3)
+            current = None  # it is derived data, so rewrite it
         if current != json.loads(json.dumps(stats)):
             atomic_write_json(stats_path, stats)
 
