@@ -372,3 +372,19 @@ def test_train_refuses_a_rerun_path_that_is_not_rrd_before_training(tmp_path, ca
     assert run(argv) == 2
     assert "must end in .rrd" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_the_viewer_draws_gate_v1s_walls_where_they_stand():
+    import gymnasium as gym
+    import numpy as np
+
+    from dpr.viz import rollout_episode
+
+    walls = {}
+    for env_id in ("dpr/Gate-v0", "dpr/Gate-v1"):
+        episode = rollout_episode(env_id, "wave", 300, n_robots=9, robot_model="disk", steps=5)
+        env = gym.make(env_id, robot_model="disk").unwrapped
+        env.reset(seed=300)
+        assert [np.asarray(w)[:4].tolist() for w in episode.walls] == [w.tolist() for w in env.world.walls]
+        walls[env_id] = np.asarray(episode.walls[0])[:4]
+    assert not np.allclose(walls["dpr/Gate-v0"], walls["dpr/Gate-v1"])
