@@ -134,7 +134,7 @@ class MarkovWavePolicy(WavePolicy):
         if not env.unwrapped.obs_last_action:
             raise ValueError(
                 "wave-markov reads the previous action and its held steps from the observation: "
-                "make the env with obs_last_action=True"
+                "make the env with obs_last_action=True (on the command line: --env-kwarg obs_last_action=true)"
             )
         return super().from_env(env, **overrides)
 

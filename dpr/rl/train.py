@@ -226,7 +226,8 @@ def progress_bar(desc: str, total: int, show_progress: bool, unit: StepUnit = SB
 
         def _on_step(self) -> bool:
             raise_if_interrupted()  # a Ctrl-C swallowed by a callback from C code (dpr.interrupts) stops here
-            self.bar.update(unit.from_sb3(self.model.num_timesteps - self.first_step) - self.bar.n)
+            done = unit.from_sb3(self.model.num_timesteps - self.first_step)
+            self.bar.update(min(done, total) - self.bar.n)  # SB3 ends with a whole rollout, past the total
             if self.model.ep_info_buffer and self.n_calls % 100 == 0:
                 mean = sum(e["r"] for e in self.model.ep_info_buffer) / len(self.model.ep_info_buffer)
                 self.bar.set_postfix(ep_rew_mean=f"{mean:.3g}", refresh=False)
@@ -459,7 +460,8 @@ def train(
     if not interrupted:
         resume_state.drop_snapshot(run_dir)
     best = run_dir / "best_model.zip"
-    log(f"dpr train: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
+    command = "finetune" if config.init_from else "train"
+    log(f"dpr {command}: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
     return TrainResult(
         run_dir, model_path, config_path, best if best.is_file() else None, timesteps, seconds, interrupted
     )
