@@ -26,10 +26,12 @@ Conventions (also in :class:`ParticleParallelEnv`'s docstring):
 import Stable-Baselines3 or torch) presents the agents as the N envs of an SB3 ``VecEnv``, so that one
 policy network is shared by every robot::
 
+    import torch
     from stable_baselines3 import PPO
     from dpr.envs import parallel_env
     from dpr.envs.parallel import AgentsAsVecEnv
 
+    torch.set_num_threads(1)  # small networks train fastest on one thread beside the envs
     venv = AgentsAsVecEnv(parallel_env("navigation", n_robots=4, robot_model="disk"))
     PPO("MlpPolicy", venv, n_steps=32, batch_size=64).learn(10_000)
 
