@@ -205,14 +205,18 @@ def test_sigkill_during_recording_keeps_every_committed_episode(tmp_path):
         assert w.save_episode({"seed": committed}) == committed
 
 
-@pytest.mark.parametrize("key, value", [("total_episodes", 10**9), ("total_frames", 10**12), ("fps", 10**9)])
-def test_an_absurd_count_in_info_json_is_refused_before_any_allocation(tmp_path, key, value):
-    rng = np.random.default_rng(3)
-    root = tmp_path / "ds"
+def finished_dataset(root: Path, seed: int) -> Path:
+    """A finalized dataset of one 3-frame episode at ``root``."""
     writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
-    add_episode(writer, make_episode(rng, 3), "navigate")
+    add_episode(writer, make_episode(np.random.default_rng(seed), 3), "navigate")
     writer.save_episode()
     writer.finalize()
+    return root
+
+
+@pytest.mark.parametrize("key, value", [("total_episodes", 10**9), ("total_frames", 10**12), ("fps", 10**9)])
+def test_an_absurd_count_in_info_json_is_refused_before_any_allocation(tmp_path, key, value):
+    root = finished_dataset(tmp_path / "ds", seed=3)
     info = json.loads((root / "meta" / "info.json").read_text())
     (root / "meta" / "info.json").write_text(json.dumps({**info, key: value}))
     with pytest.raises(DatasetError, match=f"{key} is {value}, beyond any dataset this reader takes"):
@@ -225,12 +229,7 @@ def test_an_absurd_count_in_info_json_is_refused_before_any_allocation(tmp_path,
 def test_a_data_path_leading_out_of_the_dataset_is_refused(tmp_path, how):
     import shutil
 
-    rng = np.random.default_rng(4)
-    root = tmp_path / "ds"
-    writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
-    add_episode(writer, make_episode(rng, 3), "navigate")
-    writer.save_episode()
-    writer.finalize()
+    root = finished_dataset(tmp_path / "ds", seed=4)
     info_path = root / "meta" / "info.json"
     info = json.loads(info_path.read_text())
     (data,) = (root / "data").rglob("*.parquet")
@@ -250,12 +249,7 @@ def test_a_data_path_leading_out_of_the_dataset_is_refused(tmp_path, how):
 
 
 def test_a_damaged_stats_json_is_rewritten_on_resume_with_a_warning(tmp_path):
-    rng = np.random.default_rng(5)
-    root = tmp_path / "ds"
-    writer = LeRobotWriter.create(root, fps=10, features=FEATURES, robot_type="disk")
-    add_episode(writer, make_episode(rng, 3), "navigate")
-    writer.save_episode()
-    writer.finalize()
+    root = finished_dataset(tmp_path / "ds", seed=5)
     stats = (root / "meta" / "stats.json").read_text()
     (root / "meta" / "stats.json").write_text("{ not json")
     with pytest.warns(RuntimeWarning, match="stats.json.*rewritten from the committed episodes' stats"):
