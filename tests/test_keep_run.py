@@ -112,3 +112,20 @@ def test_a_training_run_stopped_part_way_is_kept_and_resumes_from_its_snapshot(t
     for episode in retested + tested:
         del episode["policy"]  # the model's path, in one folder or the other
     assert retested == tested
+
+
+def test_a_run_stopped_by_ctrl_c_is_kept_though_it_saved_a_model(tool, finished, tmp_path):
+    """Ctrl-C saves the model as it is (config.yaml: interrupted) beside the snapshot; the run is still stopped."""
+    import shutil
+
+    import yaml
+
+    run = copy_without_run(finished, tmp_path / "run", "navigation-ppo-seed1")
+    with stopped_after_snapshots():
+        run_tiny(THREE_SEEDS, run)
+    stopped = run / "runs" / "navigation-ppo-seed1"
+    shutil.copyfile(finished / "models" / "navigation-ppo-seed0.zip", stopped / "model.zip")
+    record = yaml.safe_load((stopped / "config.yaml").read_text()) if (stopped / "config.yaml").exists() else {}
+    (stopped / "config.yaml").write_text(yaml.safe_dump({**(record or {}), "interrupted": True}))
+    assert tool.main([str(run), str(tmp_path / "kept")]) == 0
+    assert (tmp_path / "kept" / "runs" / "navigation-ppo-seed1" / "resume").is_dir()
