@@ -21,6 +21,11 @@ class LockHeld(RuntimeError):
         holder = f"process {pid}" if pid is not None else "another process"
         super().__init__(f"{path}: {holder} is writing here; wait for it to finish or stop it")
 
+    @property
+    def holder(self) -> str:
+        """`` (process N)`` to name the holder in a message, or nothing when it wrote no pid yet."""
+        return f" (process {self.pid})" if self.pid is not None else ""
+
 
 class FolderLock:
     """An exclusive ``flock`` on the file ``path``, which names the holder's pid while it is held."""

@@ -21,8 +21,6 @@ import shutil
 import sys
 from pathlib import Path
 
-import yaml
-
 from dpr.policies.sb3 import save_slim_copy
 from dpr.rl.pipeline_config import PipelineConfig, saved_settings
 from dpr.rl.resume import SNAPSHOT_DIR, snapshot_folder
@@ -49,19 +47,10 @@ def keep(run: Path, out: Path) -> list[Path]:
         save_slim_copy(model, out / "models" / model.name)
     for stopped in sorted((run / "runs").glob("*")) if (run / "runs").is_dir() else []:
         snapshot = snapshot_folder(stopped)  # resume/, or where a stop while it was replaced left it
-        if snapshot is not None and _stopped(stopped):
+        if snapshot is not None:  # a finished run drops its snapshot: one left is a run the pipeline resumes
             shutil.copytree(snapshot, out / "runs" / stopped.name / SNAPSHOT_DIR)
             shutil.copyfile(stopped / "config.yaml", out / "runs" / stopped.name / "config.yaml")
     return runs
-
-
-def _stopped(run_dir: Path) -> bool:
-    """Whether a training run with a snapshot stopped part-way: it has no model yet, or the model it saved when
-    interrupted (its config.yaml says so) is not its last."""
-    if not (run_dir / "model.zip").exists():
-        return True
-    record = yaml.safe_load((run_dir / "config.yaml").read_text()) if (run_dir / "config.yaml").exists() else {}
-    return bool((record or {}).get("interrupted"))
 
 
 def main(argv: list[str] | None = None) -> int:

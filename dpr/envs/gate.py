@@ -129,11 +129,11 @@ class GateEnv(ParticleSwarmEnv):
 
     def _walls(self, start: np.ndarray) -> list[np.ndarray]:
         """This episode's walls, and the passage measure's geometry and state."""
-        along = self.goal - start
-        self._gate_along = along / np.linalg.norm(along)
+        distance = np.linalg.norm(self.goal - start)
+        self._gate_along = (self.goal - start) / distance
         self._contact_step = -1
         if self.gate_distance is None:
-            self._gate_near = np.linalg.norm(self.goal - start) / 2 - WALL_THICKNESS / 2
+            self._gate_near = distance / 2 - WALL_THICKNESS / 2
         else:
             offsets = grid_centres(self.n_robots, (0.0, 0.0))
             self._gate_near = float(self._near_face(offsets, self._gate_along[None, :])[0])

@@ -139,9 +139,9 @@ def run_pipeline(
     try:
         lock.acquire()
     except LockHeld as held:
-        holder = f" (process {held.pid})" if held.pid is not None else ""
         raise ParameterError(
-            "out", f"another `dpr pipeline`{holder} is running in {out}; wait for it, or stop it and run this again"
+            "out",
+            f"another `dpr pipeline`{held.holder} is running in {out}; wait for it, or stop it and run this again",
         ) from None
     try:
         return _run_pipeline(config, out, shipped, show_progress, log)

@@ -150,20 +150,18 @@ def report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]
 
     attempts = attempt_paths(out / "report")
     written = [folder for folder in attempts if (folder / REPORT_FILES[0]).exists()]  # results.md comes last
-    if not written:
+    if written:
+        kept = written[-1]
+        made = (kept / REPORT_FILES[0]).stat().st_mtime_ns
+        if all(source.stat().st_mtime_ns <= made for source in sources):
+            return kept
+        why = f"evaluations newer than {kept}"
+    else:
         unfinished = [folder for folder in attempts if folder.is_dir() and any(folder.iterdir())]
         if not unfinished:
             return out / "report"
-        fresh = fresh_path(out / "report")
-        log(
-            f"dpr pipeline: {unfinished[-1]} was stopped part-way (no {REPORT_FILES[0]}): the report goes into "
-            f"{fresh}, {unfinished[-1]} is kept"
-        )
-        return fresh
-    latest = written[-1]
-    made = (latest / REPORT_FILES[0]).stat().st_mtime_ns
-    if all(source.stat().st_mtime_ns <= made for source in sources):
-        return latest
+        kept = unfinished[-1]
+        why = f"{kept} was stopped part-way (no {REPORT_FILES[0]})"
     fresh = fresh_path(out / "report")
-    log(f"dpr pipeline: evaluations newer than {latest}: the report goes into {fresh}, {latest} is kept")
+    log(f"dpr pipeline: {why}: the report goes into {fresh}, {kept} is kept")
     return fresh

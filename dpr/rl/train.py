@@ -43,7 +43,6 @@ from dpr.policies.sb3 import (
     load_initial_policy,
     load_model,
     make_vec_env,
-    read_model_info,
     save_model,
     single_thread_torch,
     write_model_info,
@@ -111,6 +110,11 @@ class TrainConfig:
         reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
             raise ValueError(f"env_kwargs must not set {reserved}: use n_robots, robot_model and steps_per_episode")
+
+    @property
+    def command(self) -> str:
+        """The command that makes this run: ``finetune`` from a model, else ``train``."""
+        return "finetune" if self.init_from else "train"
 
     def resolve(self) -> tuple[Hyperparams, dict[str, Any], int]:
         """The hyperparameters, the env kwargs (the algorithm's, then n_robots, robot_model and env_kwargs)
@@ -288,7 +292,7 @@ def _callbacks(
     checkpoints = StampingCheckpoints(
         save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"), name_prefix="model", verbose=0
     )
-    desc = f"{'finetune' if config.init_from else 'train'} {config.algo} {config.env_id}"
+    desc = f"{config.command} {config.algo} {config.env_id}"
     bar = progress_bar(desc, timesteps, show_progress, origin=snapshot and snapshot.origin)
     return CallbackList([bar, evaluation, checkpoints]), eval_env
 
@@ -352,15 +356,15 @@ def train(
         check_resumable(out, config)
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
     try:
-        if config.init_from is not None:  # so does a missing or foreign model file
-            if read_model_info(config.init_from, INIT_PARAMETER).per_robot is not None:
+        if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
+            _, source = load_model(config.init_from, parameter=INIT_PARAMETER)
+            if source.per_robot is not None:
                 raise ParameterError(
                     INIT_PARAMETER,
                     f"{config.init_from} is a per-robot model (one robot's local observation in, its action out); "
                     "it trains on every robot of a PettingZoo swarm, not on the centralised env: fine-tune it with "
                     "`dpr finetune-decentralised` (dpr.rl.finetune_per_robot)",
                 )
-            load_model(config.init_from, parameter=INIT_PARAMETER)  # and a corrupt or crafted one
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
         check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
     finally:
@@ -460,8 +464,7 @@ def train(
     if not interrupted:
         resume_state.drop_snapshot(run_dir)
     best = run_dir / "best_model.zip"
-    command = "finetune" if config.init_from else "train"
-    log(f"dpr {command}: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
+    log(f"dpr {config.command}: wrote {model_path} ({model.num_timesteps} steps in {seconds:.0f} s)")
     return TrainResult(
         run_dir, model_path, config_path, best if best.is_file() else None, timesteps, seconds, interrupted
     )

@@ -23,8 +23,9 @@ class WriterLock(FolderLock):
         try:
             super().acquire()
         except LockHeld as held:
-            holder = f" (process {held.pid})" if held.pid is not None else ""
-            raise DatasetError(f"{self.path}: another writer{holder} holds this dataset open for writing") from None
+            raise DatasetError(
+                f"{self.path}: another writer{held.holder} holds this dataset open for writing"
+            ) from None
 
 
 def remove_file(path: Path) -> None:
