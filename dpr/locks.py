@@ -30,8 +30,9 @@ class LockHeld(RuntimeError):
 class FolderLock:
     """An exclusive ``flock`` on the file ``path``, which names the holder's pid while it is held."""
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, wait: bool = False):
         self.path = Path(path)
+        self.wait = wait  # acquire waits for the holder instead of raising LockHeld
         self.created = False  # whether this holder made the lock file (a dead holder may have left one)
         self._fd: int | None = None
 
@@ -40,7 +41,8 @@ class FolderLock:
         return self._fd is not None
 
     def acquire(self) -> None:
-        """Take the lock, or raise :class:`LockHeld` naming the live holder's pid."""
+        """Take the lock, or raise :class:`LockHeld` naming the live holder's pid (unless ``wait``: then wait for
+        it)."""
         while True:
             try:
                 fd, created = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
@@ -50,7 +52,7 @@ class FolderLock:
                 except FileNotFoundError:
                     continue  # its holder released it just now
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if self.wait else fcntl.LOCK_NB))
             except OSError:
                 holder = _pid_in(fd)
                 os.close(fd)

@@ -91,6 +91,7 @@ def test_evaluate_never_overwrites_a_result(tmp_path, capsys):
 LIBRARY_PARAMETERS = {
     "evaluate": {"policy", "env_id", "env_ids"},
     "report": {"seed"},
+    "compare": {"current", "candidate", "tasks"},
     "train": {
         *("n_robots", "robot_model", "n_envs", "steps_per_episode", "eval_episodes", "timesteps", "seed"),
         *("out", "env_id", "env_kwargs"),
@@ -128,9 +129,11 @@ HEAVY_MODULES = ("torch", "stable_baselines3", "rerun", "pyarrow", "pandas", "ma
 
 
 def _command_flags(command) -> set[str]:
+    """A command's flags, and its positional arguments as its usage names them (``dpr compare CURRENT ...``)."""
     parser = argparse.ArgumentParser()
     command.arguments(parser)
-    return set(parser._option_string_actions)
+    positionals = {action.metavar or action.dest for action in parser._actions if not action.option_strings}
+    return set(parser._option_string_actions) | positionals
 
 
 def test_every_command_lists_its_library_parameters():

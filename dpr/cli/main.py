@@ -6,7 +6,7 @@ import argparse
 from collections.abc import Callable
 
 from dpr import interrupts
-from dpr.cli import bc, bench, data, evaluate, learn, pipeline, view
+from dpr.cli import bc, bench, compare, data, evaluate, learn, pipeline, view
 from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, unwritable_destination
 from dpr.envs import TASKS
 
@@ -14,6 +14,7 @@ COMMANDS = (
     *evaluate.COMMANDS,
     *learn.COMMANDS,
     *pipeline.COMMANDS,
+    *compare.COMMANDS,
     *bc.COMMANDS,
     *data.COMMANDS,
     *bench.COMMANDS,

@@ -22,7 +22,12 @@ from dpr.cli.common import (
 )
 
 PIPELINE_OUT = "runs/pipeline"
-PIPELINE_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam", "env_ids": "--env-id"}
+PIPELINE_FLAGS = {
+    "finetune_hyperparams": "--finetune-hyperparam",
+    "scratch_hyperparams": "--scratch-hyperparam",
+    "env_ids": "--env-id",
+}
+HYPERPARAM_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam", "scratch_hyperparams": "--scratch-hyperparam"}
 
 
 def _pairs(mapping: dict) -> str:
@@ -42,27 +47,31 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
     from dpr.envs import EARLIER_ENV_IDS
     from dpr.policies.sb3 import FINETUNE_ALGOS
-    from dpr.rl.pipeline_config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS
+    from dpr.rl.pipeline_config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS, preset_path, read_settings
+    from dpr.rl.stages import BACKENDS
 
-    presets = {name: dataclasses.asdict(config) for name, config in PRESETS.items()}
+    presets = {name: read_settings(preset_path(name)) for name in PRESETS}
 
-    def preset_argument(
-        flag: str, what: str, type: Callable = positive_int, show: Callable = shown, aliases=(), **kwargs
-    ) -> None:
-        """A flag that overrides the preset's value (None when not given); its help lists every preset's."""
+    def preset_argument(flag: str, what: str, type: Callable = positive_int, show: Callable = shown, **kwargs) -> None:
+        """A flag that overrides one setting of the config (None when not given); its help lists every preset's."""
         name = flag[2:].replace("-", "_")
         values = ", ".join(f"{preset} {show(config[name])}" for preset, config in presets.items())
-        parser.add_argument(
-            flag, *aliases, dest=name, type=type, default=None, help=f"{what} (preset: {values})", **kwargs
-        )
+        parser.add_argument(flag, dest=name, type=type, default=None, help=f"{what} (preset: {values})", **kwargs)
 
     parser.add_argument("--out", default=PIPELINE_OUT, help=f"run folder (default {PIPELINE_OUT}; resumed if present)")
-    parser.add_argument(
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument(
         "--preset",
-        choices=list(PRESETS),
-        default=DEFAULT_PRESET,
-        help=f"the budgets and seed sets to start from (default {DEFAULT_PRESET}: `make run`'s minutes; full: the "
-        "headline, hours per task); the flags below override single values",
+        choices=PRESETS,
+        default=None,
+        help=f"the shipped settings to start from (default {DEFAULT_PRESET}: `make run`'s minutes; tiny: the tests' "
+        "seconds per stage; full: the headline, hours per task); the flags below override single values",
+    )
+    source.add_argument(
+        "--config",
+        metavar="FILE.yaml",
+        help="settings from this yaml file (any of the settings below, by their names with underscores; the rest "
+        "keep the small preset's values), or a run folder's pipeline.yaml, whose stored stages are then reused",
     )
     preset_argument("--tasks", f"tasks to run, or '{ALL_ENVS}'", type=str, nargs="+", choices=(*TASK_NAMES, ALL_ENVS))
     parser.add_argument(
@@ -72,29 +81,16 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         type=earlier_env_id,
         metavar="ID",
         default=None,
-        help="run a task on this earlier registered id of it instead of its current one, as the records made before "
-        f"it do (repeatable; {', '.join(EARLIER_ENV_IDS)})",
+        help="run a task on this earlier registered id of it instead of its current one (repeatable; "
+        f"{', '.join(EARLIER_ENV_IDS)})",
     )
     preset_argument("--n-robots", "swarm size N")
     preset_argument("--episodes", "demonstration episodes per task")
     preset_argument("--demo-seed", "first demonstration seed", type=non_negative_int)
     preset_argument("--bc-epochs", "behaviour-cloning epochs")
-    preset_argument("--critic-warmup", "value-only steps before fine-tuning", type=non_negative_int)
-    preset_argument("--finetune-steps", "fine-tuning steps")
-    parser.add_argument(
-        "--anchor",
-        action="store_true",
-        default=None,
-        help="anchor fine-tuning to the task's demonstrations "
-        "(`dpr finetune --anchor` with its default weight and decay)",
-    )
-    parser.add_argument(
-        "--scratch-physics-discount",
-        action="store_true",
-        default=None,
-        help="the runs from scratch discount 0.99 per physics step (0.99^K per decision of K steps), as the "
-        "fine-tuning does, instead of the yaml's gamma per decision",
-    )
+    preset_argument("--critic-warmup", "value-only physics steps before fine-tuning", type=non_negative_int)
+    preset_argument("--finetune-steps", "fine-tuning physics steps")
+    preset_argument("--n-envs", "envs each RL run trains on, in its one process (a setting of the recipe)")
     preset_argument(
         "--approach-reward",
         "Manipulation only: RL (fine-tuning and from scratch) trains with this weight of the swarm-ball approach "
@@ -107,7 +103,7 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     )
     preset_argument(
         "--scratch-algos",
-        "algorithms trained from scratch for the same total env steps",
+        "algorithms trained from scratch for the same total physics steps",
         type=str,
         nargs="*",
         choices=SCRATCH_ALGOS,
@@ -117,7 +113,6 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         "seeds of BC and RL: one training run of every method per seed",
         type=lambda text: parse_seeds(text, "--train-seeds"),
         show=seeds_text,
-        aliases=("--seed",),
     )
     preset_argument(
         "--validation-seeds",
@@ -131,23 +126,24 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         "seeds that score every run and the wave for the report, and nothing else",
         type=lambda text: parse_seeds(text, "--test-seeds"),
         show=seeds_text,
-        aliases=("--eval-seeds",),
     )
-    parser.add_argument(
-        "--finetune-hyperparam",
-        dest="finetune_hyperparams",
-        action="append",
-        type=hyperparam,
-        metavar="NAME=VALUE",
-        help="a fine-tuning hyperparameter over the preset's (preset: "
-        + ", ".join(f"{name} {_pairs(config['finetune_hyperparams'])}" for name, config in presets.items())
-        + ") and the yaml's `finetune` entry, e.g. learning_rate=1e-4; NAME=null drops the preset's value, so the "
-        "yaml's stands (repeatable)",
-    )
+    for name, flag in HYPERPARAM_FLAGS.items():
+        what = "fine-tuning" if name.startswith("finetune") else "from-scratch"
+        entry = "the yaml's `finetune` entry" if name.startswith("finetune") else "the yaml's entry of the env id"
+        parser.add_argument(
+            flag,
+            dest=name,
+            action="append",
+            type=hyperparam,
+            metavar="NAME=VALUE",
+            help=f"a {what} hyperparameter over the config's (preset: "
+            + ", ".join(f"{preset} {_pairs(config[name])}" for preset, config in presets.items())
+            + f") and {entry}, e.g. learning_rate=1e-4; NAME=null drops the config's value (repeatable)",
+        )
     preset_argument(
         "--actor",
-        "every learner's actor: mlp (one MLP from the whole state to every robot's action) or swarm (one network "
-        "shared by the robots, seeing the whole swarm: dpr.policies.swarm_policy)",
+        "every learner's actor: swarm (one network shared by the robots, seeing the whole swarm: "
+        "dpr.policies.swarm_policy) or mlp (one MLP from the whole state to every robot's action)",
         type=str,
         choices=list(ACTORS),
     )
@@ -184,19 +180,37 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="K",
     )
     parser.add_argument(
+        "--reuse",
+        action="append",
+        default=[],
+        metavar="RUN",
+        help="another run folder whose stored stages this run takes where they match (read, never written; "
+        "repeatable): a candidate recipe trains only what differs from the record",
+    )
+    parser.add_argument(
         "--shipped",
         metavar="CARD",
         help="also evaluate the shipped models that this model card lists (e.g. models/card.yaml, what `make run` "
         "passes) on the test seeds, beside the wave on their tasks: the headline checked on your machine",
     )
-    workers_argument(parser, "worker processes for collection, RL envs and evaluation")
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help="where the stages run: local (this machine's processes) or ray (a new local Ray cluster, or the one "
+        "at --address). Either gives the same report (default local)",
+    )
+    parser.add_argument("--address", help="with --backend ray: host:port of a running Ray cluster to join")
+    workers_argument(
+        parser, "stages run at once, each a process on one CPU with one torch thread; never changes a result"
+    )
 
 
 def pipeline_config(args):
-    """The :class:`dpr.rl.pipeline_config.PipelineConfig` the parsed flags say: the preset, and every flag given
-    over it (checked: a ValueError names the setting)."""
+    """The :class:`dpr.rl.pipeline_config.PipelineConfig` the parsed flags say: the config file or preset, and every
+    flag given over it (checked: a ParameterError names the setting)."""
     from dpr.envs import ENV_IDS, TASKS
-    from dpr.rl.pipeline_config import PRESETS, PipelineConfig, preset_config
+    from dpr.rl.pipeline_config import PipelineConfig, load_config, preset_path, read_settings
 
     overrides = {
         field.name: getattr(args, field.name)
@@ -207,21 +221,39 @@ def pipeline_config(args):
         overrides["tasks"] = list(ENV_IDS)
     if "env_ids" in overrides:  # --env-id dpr/Gate-v0 -> {"gate": "dpr/Gate-v0"}
         overrides["env_ids"] = {TASKS[env_id]: env_id for env_id in overrides["env_ids"]}
-    if "finetune_hyperparams" in overrides:  # NAME=VALUE pairs over the preset's; NAME=null drops the preset's
-        preset = PRESETS[args.preset].finetune_hyperparams  # (argparse allows only known presets)
-        merged = {**preset, **dict(overrides["finetune_hyperparams"])}
-        overrides["finetune_hyperparams"] = {name: value for name, value in merged.items() if value is not None}
-    return preset_config(args.preset, **overrides)
+    base = read_settings(args.config) if args.config else read_settings(preset_path(args.preset or "small"))
+    for name in HYPERPARAM_FLAGS:  # NAME=VALUE pairs over the config's; NAME=null drops the config's value
+        if name in overrides:
+            merged = {**base.get(name, {}), **dict(overrides[name])}
+            overrides[name] = {key: value for key, value in merged.items() if value is not None}
+    if args.config:
+        return load_config(args.config, **overrides)
+    return load_config(preset=args.preset, **overrides)
 
 
 def cmd_pipeline(args, parser) -> int:
+    from pathlib import Path
+
     from dpr.rl.model_card import load_model_card
     from dpr.rl.pipeline import run_pipeline
 
     try:
         config = pipeline_config(args)
         shipped = load_model_card(args.shipped) if args.shipped else []
-        report = run_pipeline(config, args.out, shipped=shipped)
+        reuse = list(args.reuse)
+        if args.config and Path(args.config).name == "pipeline.yaml":  # a run folder's settings: reuse its stages
+            folder = Path(args.config).parent
+            if (folder / "stages").is_dir() and folder.resolve() != Path(args.out).resolve():
+                reuse.append(folder)
+        report = run_pipeline(
+            config,
+            args.out,
+            shipped=shipped,
+            backend=args.backend,
+            workers=args.workers,
+            address=args.address,
+            reuse=reuse,
+        )
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, PIPELINE_FLAGS))
     except KeyboardInterrupt:
@@ -239,9 +271,11 @@ COMMANDS = (
         "with PPO/A2C, train RL from scratch for the same total env steps, evaluate everything and the wave policy "
         "on seeds no choice saw, and write OUT/report/results.md (with interval estimates over training runs) and "
         "its figures. Training seeds, validation seeds (every choice) and test seeds (the report) never overlap. "
-        "Every stage is skipped when its output exists: the same command resumes an interrupted run. --preset "
-        "small (the default) is `make run` (Navigation, N=9, about 5 minutes on 2 CPU cores); --preset full "
-        "--tasks all is the headline.",
+        "Every stage is stored in OUT/stages by a key of what it depends on, and never made twice: the same "
+        "command resumes an interrupted run, another task may run into the same folder meanwhile, and --reuse (or "
+        "--config RUN/pipeline.yaml) takes a record's stages that a new recipe shares. Settings come from a "
+        "preset or a yaml file (--config), flags override single values. --preset small (the default) is `make "
+        "run` (Navigation, N=9, minutes on 2 CPU cores); --preset full is the headline.",
         arguments=pipeline_arguments,
         flags=PIPELINE_FLAGS,
         run=cmd_pipeline,

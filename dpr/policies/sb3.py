@@ -338,11 +338,16 @@ def make_env_fn(env_id: str, env_kwargs: dict[str, Any], steps: int) -> Callable
 
 
 def make_vec_env(
-    env_id: str, env_kwargs: dict[str, Any], steps: int, n_envs: int, episodes: list[dict | None] | None = None
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    steps: int,
+    n_envs: int,
+    episodes: list[dict | None] | None = None,
+    processes: bool = True,
 ):
     """``n_envs`` envs in subprocesses (forked: cheap, and the ids are already registered), or in this
-    process when there is one; with ``episodes`` (a resumed run's ReplayLog records, one per env) each env is
-    brought back to where its episode stood (:func:`dpr.envs.replay.replay`)."""
+    process when there is one or ``processes`` is False; with ``episodes`` (a resumed run's ReplayLog records, one
+    per env) each env is brought back to where its episode stood (:func:`dpr.envs.replay.replay`)."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     from dpr.envs.replay import replay
@@ -352,7 +357,7 @@ def make_vec_env(
     fns = [make_env_fn(env_id, env_kwargs, steps) for _ in range(n_envs)]
     if episodes is not None:
         fns = [functools.partial(replay, fn, episode) for fn, episode in zip(fns, episodes, strict=True)]
-    if n_envs > 1:
+    if n_envs > 1 and processes:
         return SubprocVecEnv(fns, start_method="fork")
     return DummyVecEnv(fns)
 

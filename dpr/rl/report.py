@@ -15,6 +15,7 @@ so that importing this module stays cheap and the process's pyplot backend is le
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -421,9 +422,12 @@ def trajectory_figure(evaluations: list[dict], path, seed: int | None = None) ->
     return _draw_trajectories(_trajectory_plan(evaluations, seed), _labels_in_order(evaluations), path)
 
 
-def _sources_line(evaluations: list[dict]) -> str:
+def _sources_line(evaluations: list[dict], root: str | Path | None = None) -> str:
+    def named(source: str) -> str:
+        return source if root is None else os.path.relpath(source, root)
+
     parts = [
-        f"`{e['source']}` ({_label(e)}: {', '.join(task_name(env_id) for env_id in e['env_ids'])}; "
+        f"`{named(e['source'])}` ({_label(e)}: {', '.join(task_name(env_id) for env_id in e['env_ids'])}; "
         f"seeds {format_seeds(e['seeds'])}, {e['steps']} steps)"
         for e in evaluations
     ]
@@ -444,12 +448,14 @@ def write_report(
     labels: list[str] | None = None,
     seed: int | None = None,
     bootstrap_reps: int = BOOTSTRAP_REPS,
+    root: str | Path | None = None,
 ) -> list[Path]:
     """Write ``out_dir``/results.md (the table, the interval estimates of :mod:`dpr.rl.statistics` and the
     sources), bars.png, trajectories.png, intervals.png and profile.png from `dpr evaluate --json` files;
     ``labels``: one display name per file (files that share a label are training runs of one method).
     Checks everything first and writes nothing when a file is bad or an output already exists
     (FileExistsError). results.md is written last, whole: a folder without it holds a report stopped part-way.
+    The sources are named relative to ``root`` when given (a run folder's report reads the same wherever it is).
     Returns the paths written."""
     json_paths = list(json_paths)
     if labels is not None and len(labels) != len(json_paths):
@@ -477,6 +483,6 @@ def write_report(
     atomic_write_text(  # last, whole or not at all: the mark of a finished report
         results_md,
         f"# Results\n\nProjected displacement (units) over seeds.\n\n{table}\n\n{passage_section}"
-        f"## Interval estimates\n\n{INTERVALS_NOTE}\n\n{interval_table(rows)}\n\n{_sources_line(evaluations)}\n",
+        f"## Interval estimates\n\n{INTERVALS_NOTE}\n\n{interval_table(rows)}\n\n{_sources_line(evaluations, root)}\n",
     )
     return outputs

@@ -1,18 +1,16 @@
-"""Where a ``dpr pipeline`` run folder keeps each file, and what of a run is done: the layout that the pipeline,
-``tools/merge_runs.py`` and ``tools/keep_run.py`` share.
+"""Where a ``dpr pipeline`` run folder gives each model and evaluation its readable name, and where its report
+goes (the layout the pipeline, ``dpr compare`` and the docs' tools share):
 
 - ``pipeline.yaml``: the settings; ``choices.yaml``: every choice made on the validation (or teacher) seeds;
 - ``models/<task>-<method>-seed<s>.zip``: a training run; ``models/<task>-<method>.zip``: the method's canonical
   model (its median run on the validation seeds);
 - ``eval/<split>/<task>-<method>[-seed<s>].json``: an evaluation on the validation or test seeds;
-- ``datasets/``, ``runs/`` and ``report/``: the demonstrations, the training runs' own folders, the report.
+- ``report/``: the report (``report-2``... beside it when a newer one is written).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -23,18 +21,13 @@ from dpr.rl.pipeline_config import BASELINE, TEACHER, PipelineConfig
 from dpr.runs import attempt_paths, fresh_path
 
 __all__ = [
-    "evaluated",
     "evaluation_path",
     "evaluation_splits",
     "load_choices",
     "model_path",
-    "models_still_needed",
     "read_run_settings",
-    "report_evaluations",
     "save_choices",
-    "task_done",
     "tested_runs",
-    "write_run_settings",
 ]
 
 
@@ -55,14 +48,6 @@ def read_run_settings(run: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
     return yaml.safe_load(path.read_text())
-
-
-def write_run_settings(run: Path, config: PipelineConfig, started: str | None = None, **extra: Any) -> None:
-    """Write ``run``'s ``pipeline.yaml``: ``config`` under ``config``, its RL budget, when it started (now unless
-    given) and ``extra`` entries (where a merged or candidate folder came from)."""
-    started = started or time.strftime("%Y-%m-%dT%H:%M:%S%z")
-    record = {"config": asdict(config), "rl_steps": config.rl_steps, "started": started, **extra}
-    atomic_write_text(run / "pipeline.yaml", yaml.safe_dump(record, sort_keys=False))
 
 
 def load_choices(out: Path) -> dict[str, Any]:
@@ -88,58 +73,6 @@ def evaluation_splits(config: PipelineConfig) -> list[str]:
     """The seed sets every training run is evaluated on: the validation seeds when there is a choice to make (several
     training seeds), then the test seeds."""
     return ["validation", "test"] if len(config.train_seeds) > 1 else ["test"]
-
-
-def evaluated(config: PipelineConfig, task: str, method: str, seed: int, out: Path) -> bool:
-    """Whether a training run has every evaluation the pipeline makes of it (:func:`evaluation_splits`): its model
-    is then needed only if it becomes the canonical one."""
-    return all(evaluation_path(out, task, method, seed, split).exists() for split in evaluation_splits(config))
-
-
-def task_done(config: PipelineConfig, task: str, out: Path) -> bool:
-    """Whether ``task`` needs nothing more: every method's canonical model and every test evaluation exist. Its
-    demonstrations and training runs are then not needed, so a record of the run without them (the models, the
-    evaluations and ``choices.yaml``) resumes as it is."""
-    return all(model_path(out, task, method, None).exists() for method in config.learned_methods()) and all(
-        evaluation_path(out, task, method, seed, "test").exists() for method, seed in tested_runs(config)
-    )
-
-
-def models_still_needed(config: PipelineConfig, out: Path) -> list[Path]:
-    """The training runs' models in the run folder ``out`` that resuming it would still use: a run with an
-    evaluation still to make; any run of a method whose canonical model is missing, when its choice is not made
-    or falls on it; and a clone whose fine-tuning is still to train. Everything else a resume needs is its
-    ``pipeline.yaml``, ``choices.yaml``, ``eval/`` and canonical models (the datasets the same settings record
-    again)."""
-    out, choices = Path(out), load_choices(out)
-
-    def used(task: str, method: str, seed: int) -> bool:  # by a resume, which trains the run first if missing
-        chosen = choices.get(f"{task}-{method}", {}).get("chosen_seed")
-        unchosen = not model_path(out, task, method, None).exists() and chosen in (None, seed)
-        return unchosen or not evaluated(config, task, method, seed, out)
-
-    def trained(task: str, method: str, seed: int) -> bool:  # by a resume
-        return not model_path(out, task, method, seed).exists() and used(task, method, seed)
-
-    fine_tuned = config.cloned_methods()[1:]
-    return [
-        model_path(out, task, method, seed)
-        for task in config.tasks
-        for method in config.learned_methods()
-        for seed in config.train_seeds
-        if model_path(out, task, method, seed).exists()
-        and (used(task, method, seed) or (method == "bc" and any(trained(task, f, seed) for f in fine_tuned)))
-    ]
-
-
-def report_evaluations(config: PipelineConfig, out: Path) -> list[tuple[Path, str]]:
-    """(file, method) of every test evaluation of ``config``'s tasks in the run folder ``out``, in the report's
-    order: per task the wave, the teacher, then each method's training runs."""
-    return [
-        (evaluation_path(Path(out), task, method, seed, "test"), method)
-        for task in config.tasks
-        for method, seed in tested_runs(config)
-    ]
 
 
 def report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]) -> Path:

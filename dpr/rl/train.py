@@ -71,11 +71,12 @@ class TrainConfig:
     timesteps: int | None = None  # None: the preset's n_timesteps
     seed: int = 0
     n_envs: int = 1
+    env_processes: bool = True  # each of several envs in a process of its own (False: all in this one)
     preset: str = DEFAULT_PRESET
     steps_per_episode: int | None = None  # env steps; None: a whole episode (dpr.envs.episode_steps)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml entry
-    eval_episodes: int = 2
+    eval_episodes: int = 2  # per evaluation during training (best_model.zip); 0: none
     init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
     critic_warmup: int = 0  # with init_from: steps that train the value head only, before the actor moves
     anchor_datasets: list[str] = field(default_factory=list)  # demonstrations the updates are anchored to
@@ -91,8 +92,9 @@ class TrainConfig:
             raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
         if self.steps_per_episode is None:
             self.steps_per_episode = episode_steps(self.env_kwargs)
-        for name in ("n_robots", "n_envs", "steps_per_episode", "eval_episodes"):
+        for name in ("n_robots", "n_envs", "steps_per_episode"):
             check_int(name, getattr(self, name), 1)
+        check_int("eval_episodes", self.eval_episodes, 0)
         if self.timesteps is not None:
             check_int("timesteps", self.timesteps, 1)
         check_int("seed", self.seed, 0)
@@ -294,7 +296,7 @@ def _callbacks(
     )
     desc = f"{config.command} {config.algo} {config.env_id}"
     bar = progress_bar(desc, timesteps, show_progress, origin=snapshot and snapshot.origin)
-    return CallbackList([bar, evaluation, checkpoints]), eval_env
+    return CallbackList([bar, evaluation, checkpoints] if config.eval_episodes else [bar, checkpoints]), eval_env
 
 
 def _close_quietly(vec_env) -> None:
@@ -408,7 +410,12 @@ def train(
     )
 
     env = make_vec_env(
-        config.env_id, env_kwargs, config.steps_per_episode, config.n_envs, snapshot and snapshot.train_episodes
+        config.env_id,
+        env_kwargs,
+        config.steps_per_episode,
+        config.n_envs,
+        snapshot and snapshot.train_episodes,
+        processes=config.env_processes,
     )
     eval_env = None
     started = time.perf_counter()
