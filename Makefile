@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# torch first: this pin resolves to the local CPU wheel; an unpinned torch pulls a CUDA build.
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e '.[dev]' -c constraints.txt
+	$(BIN)/python -m pip install --quiet -e '.[dev,distributed]' -c constraints.txt
 	touch $(STAMP)
 
 # Main job at its small default: the learning pipeline on Navigation, N=9 (demonstrations of the Markov wave ->

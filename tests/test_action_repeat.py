@@ -11,7 +11,14 @@ from dpr.datasets.collect import CollectSpec
 from dpr.envs import MAX_EPISODE_STEPS, episode_steps
 from dpr.metrics import MetricTracker
 from dpr.rl.evaluation import evaluate
-from dpr.rl.pipeline_config import PER_PHASE, PIPELINE_ENV_KWARGS, PipelineConfig, preset_config
+from dpr.rl.pipeline_config import (
+    PER_PHASE,
+    PIPELINE_ENV_KWARGS,
+    PipelineConfig,
+    learner_env_kwargs,
+    physics_discount,
+    preset_config,
+)
 from dpr.rl.train import TrainConfig
 
 
@@ -96,12 +103,10 @@ def test_collection_and_training_default_to_a_whole_episode_of_decisions():
 
 def test_the_pipeline_budgets_physics_steps_and_refuses_a_repeat_that_breaks_the_teachers_gait():
     config = PipelineConfig(action_repeat=10, finetune_steps=30_000, critic_warmup=10_000, episodes=4)
-    assert config.learner_env_kwargs(10) == {**PIPELINE_ENV_KWARGS, "action_repeat": 10}
-    assert config.rl_env_kwargs("manipulation", 10)["action_repeat"] == 10
-    assert PipelineConfig(action_repeat=1).learner_env_kwargs(10) == PIPELINE_ENV_KWARGS  # k=1 models keep theirs
-    per_phase = PipelineConfig(action_repeat=PER_PHASE, teacher_holds=[7, 8], validation_seeds=[200])
-    assert per_phase.learner_env_kwargs(7)["action_repeat"] == 7  # once per phase of the task's teacher
-    assert per_phase.finetune_hyperparams_at(7)["gamma"] == round(0.99**7, 3)
+    assert learner_env_kwargs(10, 10) == {**PIPELINE_ENV_KWARGS, "action_repeat": 10}
+    assert learner_env_kwargs(1, 10) == PIPELINE_ENV_KWARGS  # k=1 models keep theirs
+    assert learner_env_kwargs(PER_PHASE, 7)["action_repeat"] == 7  # once per phase of the task's teacher
+    assert physics_discount(7) == round(0.99**7, 3)
     assert config.rl_steps == 4 * MAX_EPISODE_STEPS + 10_000 + 30_000
     for bad in (3, 4, -1):
         with pytest.raises(ParameterError, match="action_repeat"):

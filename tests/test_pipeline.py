@@ -199,7 +199,8 @@ def test_a_candidate_that_changes_only_fine_tuning_reuses_the_teacher_demonstrat
         "navigation: bc-ppo, seed 0",
         "navigation: evaluate bc-ppo, seed 0, on the test seeds",
     ]
-    assert {path.name for path in (tmp_path / "candidate" / "stages").iterdir()} == {"teacher", "clone", "evaluate", "rl"}
+    kinds = {path.name for path in (tmp_path / "candidate" / "stages").iterdir()}
+    assert kinds == {"teacher", "clone", "evaluate", "rl"}
     with pytest.raises(ParameterError, match="reuse: .* holds no stages/ folder"):
         run_tiny(PIPELINE, tmp_path / "other", reuse=[tmp_path / "nothing"])
 

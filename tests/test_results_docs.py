@@ -104,3 +104,18 @@ def test_the_earlier_records_print_their_tables_too(tool, name):
     assert record.tasks == ["navigation", "gate", "unresponsive", "manipulation"]
     assert len(tool.canonical_rows(record)) == 4
     assert {row.split(" | ")[1] for row in tool.headline_rows(record)} >= {"wave", "BC", "BC→PPO", "PPO from scratch"}
+
+
+def test_the_headline_record_reprints_its_report_from_its_sources(tool, tmp_path):
+    """`dpr report` over the files and labels the record's results.md names gives its tables again: the record is
+    evidence on its own, with no campaign tool and no resume. (The record was written before dpr/Gate-v1, when the
+    report named its Gate-v0 rows "Gate".)"""
+    from dpr.rl.report import write_report
+
+    text = (tool.HEADLINE_RECORD / "report" / "results.md").read_text()
+    sources = re.findall(r"`([^`]+\.json)` \(([^:]+):", text.splitlines()[-1])
+    assert len(sources) == 4 * (2 + 3 * 3)  # per task: the wave, the teacher, three runs of three methods
+    write_report([ROOT / path for path, _ in sources], tmp_path, labels=[label for _, label in sources], root=ROOT)
+    rows = [line.replace("| Gate-v0 |", "| Gate |") for line in (tmp_path / "results.md").read_text().splitlines()]
+    rows = [line for line in rows if line.startswith("|")]
+    assert rows == [line for line in text.splitlines() if line.startswith("|")]

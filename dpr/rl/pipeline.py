@@ -56,7 +56,7 @@ from dpr.rl.run_folder import (
     save_choices,
     tested_runs,
 )
-from dpr.rl.stages import Stage, StageStore, prepare_backend, run_stages
+from dpr.rl.stages import Stage, StageStore, backend_session, run_stages
 
 STORE = "stages"
 SETTINGS_LOCK = ".dpr-settings.lock"  # held while pipeline.yaml or choices.yaml is read and written
@@ -176,9 +176,10 @@ def task_stages(config: PipelineConfig, task: str) -> TaskStages:
     return stages
 
 
-def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> list[tuple[Stage, str]]:
-    """(evaluation stage, report label) of each shipped model on the test seeds, and of the wave on the ids of theirs
-    that the run's tasks do not cover (the bar of their rows). A model is keyed by its content's SHA-256."""
+def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> list[tuple[Stage, str, str]]:
+    """(evaluation stage, report label, file name in ``eval/shipped``) of each shipped model on the test seeds, and
+    of the wave on the ids of theirs that the run's tasks do not cover (the bar of their rows). A model is keyed,
+    and named, by its content's SHA-256: a model replaced in ``models/`` is evaluated again, beside the old one."""
     import hashlib
 
     scoring = {"steps": config.steps, "seeds": config.test_seeds}
@@ -187,10 +188,11 @@ def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> l
     for env_id in dict.fromkeys(model.env_id for model in shipped if model.env_id not in own):
         settings = {**scoring, "env_id": env_id, "policy": BASELINE, "label": BASELINE}
         settings["env_kwargs"] = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS}
-        out.append((Stage("evaluate", f"{env_id}: evaluate the wave", settings, build.evaluate_policy), BASELINE))
+        stage = Stage("evaluate", f"{env_id}: evaluate the wave", settings, build.evaluate_policy)
+        out.append((stage, BASELINE, f"{BASELINE}-{env_id.removeprefix('dpr/')}.json"))
     for model in shipped:
         digest = hashlib.sha256(model.path.read_bytes()).hexdigest()
-        settings = {**scoring, "env_id": model.env_id, "sha256": digest, "label": f"shipped {model.path.name}"}
+        settings = {**scoring, "env_id": model.env_id, "sha256": digest, "label": str(model.path)}
         stage = Stage(
             "evaluate",
             f"shipped {model.path.name}",
@@ -198,7 +200,7 @@ def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> l
             build.evaluate_policy,
             unkeyed={"path": str(model.path.resolve())},
         )
-        out.append((stage, f"shipped {model.method}"))
+        out.append((stage, f"shipped {model.method}", f"{model.path.stem}-{digest[:12]}.json"))
     return out
 
 
@@ -226,31 +228,39 @@ def run_pipeline(
         raise ParameterError("out", f"{out} exists and is not a folder")
     for model in shipped:  # a shipped model must run on the pipeline's swarm, or its row means nothing
         model_env_kwargs(model.path, model.env_id, {"n_robots": config.n_robots})
-    prepare_backend(backend, workers, address)
     for folder in reuse:
         if not (Path(folder) / STORE).is_dir():
             raise ParameterError("reuse", f"{folder} holds no {STORE}/ folder; expected a `dpr pipeline` run folder")
-    out.mkdir(parents=True, exist_ok=True)
-    folder_config = _join_folder(config, out)
-    started = time.perf_counter()
-    graph = {task: task_stages(config, task) for task in config.tasks}
-    extra = shipped_stages(config, shipped)
-    targets = [stage for stages in graph.values() for stage in (stages.teacher, *stages.evaluations.values())]
-    targets += [stage for stages in graph.values() for stage in stages.models.values()]
-    store = StageStore(out / STORE, [Path(folder) / STORE for folder in reuse])
-    run_stages(
-        [*targets, *(stage for stage, _ in extra)],
-        store,
-        backend=backend,
-        workers=workers,
-        address=address,
-        show_progress=show_progress,
-        log=log,
-    )
+    with backend_session(backend, workers, address):  # a bad backend setting is refused before any work
+        out.mkdir(parents=True, exist_ok=True)
+        folder_config = _join_folder(config, out)
+        started = time.perf_counter()
+        graph = {task: task_stages(config, task) for task in config.tasks}
+        extra = shipped_stages(config, shipped)
+        targets = [
+            stage
+            for stages in graph.values()
+            for stage in (stages.teacher, *stages.candidates.values(), *stages.evaluations.values())
+        ]
+        targets += [stage for stages in graph.values() for stage in stages.models.values()]
+        store = StageStore(out / STORE, [Path(folder) / STORE for folder in reuse])
+        run_stages(
+            [*targets, *(stage for stage, _, _ in extra)],
+            store,
+            backend=backend,
+            workers=workers,
+            address=address,
+            show_progress=show_progress,
+            log=log,
+        )
     with FolderLock(out / SETTINGS_LOCK, wait=True):
         for task, stages in graph.items():
             _record_task(config, task, stages, store, out, log)
-    return _write_report(folder_config, out, store, extra, started, log)
+    shipped_evaluations = []
+    for stage, label, name in extra:
+        _name(store.path(stage) / build.EVALUATION, out / "eval" / "shipped" / name, log)
+        shipped_evaluations.append((out / "eval" / "shipped" / name, label))
+    return _write_report(folder_config, out, shipped_evaluations, started, log)
 
 
 def _join_folder(config: PipelineConfig, out: Path) -> PipelineConfig:
@@ -351,8 +361,7 @@ def _name(source: Path, name: Path, log: Callable[[str], None]) -> None:
 def _write_report(
     config: PipelineConfig,
     out: Path,
-    store: StageStore,
-    extra: list[tuple[Stage, str]],
+    shipped: list[tuple[Path, str]],
     started: float,
     log: Callable[[str], None],
 ) -> Path:
@@ -365,7 +374,7 @@ def _write_report(
         files = [(evaluation_path(out, task, method, seed, "test"), method) for method, seed in tested_runs(config)]
         if all(path.exists() for path, _ in files):
             sources += files
-    sources += [(store.path(stage) / build.EVALUATION, label) for stage, label in extra]
+    sources += shipped
     report = report_folder(out, [path for path, _ in sources], log)
     if (report / REPORT_FILES[0]).exists():
         log(f"dpr pipeline: report: {report} exists, skipped")

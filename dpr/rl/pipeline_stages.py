@@ -177,7 +177,7 @@ def evaluate_policy(
         teacher = Teacher(*settings["candidate"])
         policy, env_kwargs = teacher.policy, {"n_robots": settings["n_robots"], **learner_kwargs(settings, teacher)}
     else:
-        policy = settings.get("path", settings["policy"])
+        policy = settings["path"] if "path" in settings else settings["policy"]  # a shipped model file, or by name
     env_id = settings["env_id"]
     kwargs = policy_env_kwargs(policy, env_id, env_kwargs)
     with tqdm(total=len(settings["seeds"]), desc="evaluate", unit="episode", disable=not show_progress) as bar:

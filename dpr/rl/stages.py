@@ -23,6 +23,7 @@ ran.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -30,7 +31,7 @@ import shutil
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -227,43 +228,43 @@ def run_stages(
     already) or a reuse store's run folder. A stage is built only when it is missing and a target needs it; one
     line is logged per finished stage. ``workers`` stages run at once; ``backend`` "ray" joins the cluster at
     ``address`` (a new local one when None)."""
-    prepare_backend(backend, workers, address)
-    required = {stage.key for stage in targets}  # grows by what each stage to build needs
-    origin: dict[str, str] = {}
-    needed: list[Stage] = []
-    for stage in reversed(closure(targets)):  # dependents first
-        if stage.key not in required:
-            continue
-        found = store.find(stage, log)
-        if found is None:
-            needed.append(stage)
-            required.update(need.key for need in stage.needs.values())
+    with backend_session(backend, workers, address):
+        required = {stage.key for stage in targets}  # grows by what each stage to build needs
+        origin: dict[str, str] = {}
+        needed: list[Stage] = []
+        for stage in reversed(closure(targets)):  # dependents first
+            if stage.key not in required:
+                continue
+            found = store.find(stage, log)
+            if found is None:
+                needed.append(stage)
+                required.update(need.key for need in stage.needs.values())
+            else:
+                origin[stage.key] = found
+        needed.reverse()
+        reused = [where for where in origin.values() if where != "here"]
+        log(
+            f"dpr pipeline: {len(origin) + len(needed)} stages: {len(origin)} stored"
+            + (f" ({len(reused)} reused from {', '.join(sorted(set(reused)))})" if reused else "")
+            + f", {len(needed)} to build"
+            + (f" by {workers} {backend} workers" if workers > 1 or backend == "ray" else "")
+        )
+        started = time.perf_counter()
+
+        def finished(index: int, name: str, seconds: float) -> None:
+            elapsed = time.perf_counter() - started
+            log(f"dpr pipeline: [{index}/{len(needed)}] {name}: done in {seconds:.0f} s ({elapsed:.0f} s elapsed)")
+
+        if not needed:
+            return origin
+        if backend == "ray":
+            _run_on_ray(needed, store, finished)
+        elif workers == 1:
+            for index, stage in enumerate(needed, 1):
+                finished(index, *build_stage(stage, str(store.root), show_progress))
         else:
-            origin[stage.key] = found
-    needed.reverse()
-    reused = [where for where in origin.values() if where != "here"]
-    log(
-        f"dpr pipeline: {len(origin) + len(needed)} stages: {len(origin)} stored"
-        + (f" ({len(reused)} reused from {', '.join(sorted(set(reused)))})" if reused else "")
-        + f", {len(needed)} to build"
-        + (f" by {workers} {backend} workers" if workers > 1 or backend == "ray" else "")
-    )
-    started = time.perf_counter()
-
-    def finished(index: int, name: str, seconds: float) -> None:
-        elapsed = time.perf_counter() - started
-        log(f"dpr pipeline: [{index}/{len(needed)}] {name}: done in {seconds:.0f} s ({elapsed:.0f} s elapsed)")
-
-    if not needed:
-        return origin
-    if backend == "ray":
-        _run_on_ray(needed, store, finished)
-    elif workers == 1:
-        for index, stage in enumerate(needed, 1):
-            finished(index, *build_stage(stage, str(store.root), show_progress))
-    else:
-        _run_in_processes(needed, store, workers, finished)
-    return origin | {stage.key: "built" for stage in needed}
+            _run_in_processes(needed, store, workers, finished)
+        return origin | {stage.key: "built" for stage in needed}
 
 
 def _run_in_processes(needed: list[Stage], store: StageStore, workers: int, finished: Callable) -> None:
@@ -314,20 +315,27 @@ def _run_on_ray(needed: list[Stage], store: StageStore, finished: Callable) -> N
         raise
 
 
-def prepare_backend(backend: str, workers: int, address: str | None) -> None:
-    """Check the backend settings, and join (or start) the Ray cluster for backend "ray": a ParameterError names a
-    bad one before any work."""
+@contextlib.contextmanager
+def backend_session(backend: str, workers: int, address: str | None) -> Iterator[None]:
+    """Check the backend settings, and for backend "ray" join (or start) the Ray cluster, left again at the end if
+    this session started the connection: a ParameterError names a bad setting before any work."""
     check_choice("backend", backend, BACKENDS)
     check_int("workers", workers, 1)
     if address is not None and backend != "ray":
         raise ParameterError("address", "joins a Ray cluster; it needs backend 'ray'")
-    if backend == "ray":
-        connect_ray(address, workers)
+    connected = backend == "ray" and connect_ray(address, workers)
+    try:
+        yield
+    finally:
+        if connected:
+            import ray
+
+            ray.shutdown()
 
 
-def connect_ray(address: str | None, workers: int) -> None:
-    """Join the Ray cluster at ``address`` (``host:port``), or start a local one of ``workers`` CPUs. An address
-    where nothing answers is a ParameterError naming it, before any work."""
+def connect_ray(address: str | None, workers: int) -> bool:
+    """Join the Ray cluster at ``address`` (``host:port``), or start a local one of ``workers`` CPUs; False when
+    this process is connected already. An address where nothing answers is a ParameterError naming it."""
     try:
         import ray
     except ImportError:
@@ -335,7 +343,7 @@ def connect_ray(address: str | None, workers: int) -> None:
             "backend", "'ray' needs Ray: pip install -e '.[distributed]' (or pip install 'ray>=2.50,<3')"
         ) from None
     if ray.is_initialized():
-        return
+        return False
     if address is not None and address != "auto":
         host, _, port = address.rpartition(":")
         try:
@@ -347,3 +355,4 @@ def connect_ray(address: str | None, workers: int) -> None:
         ray.init(num_cpus=workers, include_dashboard=False, configure_logging=False, log_to_driver=True)
     else:
         ray.init(address=address, configure_logging=False, log_to_driver=True)
+    return True
