@@ -253,14 +253,14 @@ def run_pipeline(
             show_progress=show_progress,
             log=log,
         )
-    with FolderLock(out / SETTINGS_LOCK, wait=True):
+    with FolderLock(out / SETTINGS_LOCK, wait=True):  # one run at a time names its outputs and writes the report
         for task, stages in graph.items():
             _record_task(config, task, stages, store, out, log)
-    shipped_evaluations = []
-    for stage, label, name in extra:
-        _name(store.path(stage) / build.EVALUATION, out / "eval" / "shipped" / name, log)
-        shipped_evaluations.append((out / "eval" / "shipped" / name, label))
-    return _write_report(folder_config, out, shipped_evaluations, started, log)
+        shipped_evaluations = []
+        for stage, label, name in extra:
+            _name(store.path(stage) / build.EVALUATION, out / "eval" / "shipped" / name, log)
+            shipped_evaluations.append((out / "eval" / "shipped" / name, label))
+        return _write_report(folder_config, out, shipped_evaluations, started, log)
 
 
 def _join_folder(config: PipelineConfig, out: Path) -> PipelineConfig:

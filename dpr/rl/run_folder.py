@@ -10,6 +10,8 @@ goes (the layout the pipeline, ``dpr compare`` and the docs' tools share):
 
 from __future__ import annotations
 
+import os
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -76,9 +78,10 @@ def evaluation_splits(config: PipelineConfig) -> list[str]:
 
 
 def report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]) -> Path:
-    """The folder the report belongs in: the latest report (``report``, ``report-2``...) if none of ``sources`` is
-    newer than it, else a new folder beside it (reports are never overwritten; the older one is kept). A report
-    folder without results.md (written last) was stopped part-way; it is kept, and the report goes beside it."""
+    """The folder the report belongs in: the latest report (``report``, ``report-2``...) if it was made of
+    ``sources`` and none is newer than it, else a new folder beside it (reports are never overwritten; the older one
+    is kept). A report folder without results.md (written last) was stopped part-way; it is kept, and the report
+    goes beside it."""
     from dpr.rl.report import REPORT_FILES
 
     attempts = attempt_paths(out / "report")
@@ -86,9 +89,11 @@ def report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]
     if written:
         kept = written[-1]
         made = (kept / REPORT_FILES[0]).stat().st_mtime_ns
-        if all(source.stat().st_mtime_ns <= made for source in sources):
+        named = re.findall(r"`([^`]+)`", (kept / REPORT_FILES[0]).read_text().rstrip().rsplit("\n", 1)[-1])
+        same = named == [os.path.relpath(source, out) for source in sources]
+        if same and all(source.stat().st_mtime_ns <= made for source in sources):
             return kept
-        why = f"evaluations newer than {kept}"
+        why = f"evaluations newer than {kept}" if same else f"{kept} reports other evaluations"
     else:
         unfinished = [folder for folder in attempts if folder.is_dir() and any(folder.iterdir())]
         if not unfinished:

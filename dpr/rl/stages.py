@@ -274,7 +274,9 @@ def _run_in_processes(needed: list[Stage], store: StageStore, workers: int, fini
 
     waiting, done, running = list(needed), set(), {}
     building = {stage.key for stage in needed}
-    context = multiprocessing.get_context("spawn")  # a fresh interpreter: no state forked from this one
+    # forked: the workers start with this process's imports (torch, SB3) instead of importing them again; every
+    # builder seeds what it draws, so nothing a worker inherits changes an output
+    context = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
         try:
             while waiting or running:
