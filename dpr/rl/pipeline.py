@@ -38,6 +38,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -81,76 +82,69 @@ def task_stages(config: PipelineConfig, task: str) -> TaskStages:
         "steps": config.steps,
         "action_repeat": config.action_repeat,
     }
+    stages = _teacher_stages(config, task, env)
+    _learner_stages(config, task, env, stages)
+    _evaluation_stages(config, task, env, stages)
+    return stages
+
+
+def _teacher_stages(config: PipelineConfig, task: str, env: dict[str, Any]) -> TaskStages:
+    """The teacher's choice, from the scoring of each candidate on the teacher seeds when there is a choice."""
     candidates = config.teachers()
-    scored: dict[
-        str, Stage
-    ] = {}  # role candidate<i> -> the scoring of the i-th candidate teacher, when there is a choice
+    scored: dict[str, Stage] = {}  # by stem
     if len(candidates) > 1:
-        for index, candidate in enumerate(candidates):
+        for candidate in candidates:
             settings = {**env, "candidate": [candidate.hold, candidate.bin_width], "label": candidate.policy}
             settings["seeds"] = config.teacher_choice_seeds()
             name = f"{task}: teacher candidate {candidate.stem}"
-            scored[f"candidate{index}"] = Stage("evaluate", name, settings, build.evaluate_policy)
+            scored[candidate.stem] = Stage("evaluate", name, settings, build.evaluate_policy)
     pairs = [[candidate.hold, candidate.bin_width] for candidate in candidates]
+    needs = {f"candidate{index}": stage for index, stage in enumerate(scored.values())}
     teacher = Stage(
-        "teacher", f"{task}: teacher", {"env_id": env["env_id"], "candidates": pairs}, build.choose_teacher, scored
+        "teacher", f"{task}: teacher", {"env_id": env["env_id"], "candidates": pairs}, build.choose_teacher, needs
     )
-    stages = TaskStages(teacher, {c.stem: scored[f"candidate{i}"] for i, c in enumerate(candidates) if scored})
+    return TaskStages(teacher, scored)
+
+
+def _learner_stages(config: PipelineConfig, task: str, env: dict[str, Any], stages: TaskStages) -> None:
+    """The demonstrations, and per training seed the clone, its fine-tuning and the runs from scratch."""
     demonstrations = Stage(
         "demonstrations",
         f"{task}: {config.episodes} demonstrations",
         {**env, "episodes": config.episodes, "demo_seed": config.demo_seed},
         build.record_demonstrations,
-        {TEACHER: teacher},
+        {TEACHER: stages.teacher},
     )
     rl = {**env, "n_envs": config.n_envs}
     if task == "manipulation" and config.approach_reward:
         rl["approach_reward"] = float(config.approach_reward)
     for seed in config.train_seeds:
-        clone = Stage(
-            "clone",
-            f"{task}: bc, seed {seed}",
-            {
-                "env_id": env["env_id"],
-                "algo": BC_ALGO,
-                "epochs": config.bc_epochs,
-                "hyperparams": config.actor_hyperparams(),
-                "seed": seed,
-            },
-            build.clone,
-            {"demonstrations": demonstrations},
-        )
+        cloning = {"env_id": env["env_id"], "algo": BC_ALGO, "epochs": config.bc_epochs, "seed": seed}
+        cloning["hyperparams"] = config.actor_hyperparams()
+        clone = Stage("clone", f"{task}: bc, seed {seed}", cloning, build.clone, {"demonstrations": demonstrations})
         stages.models["bc", seed] = clone
         for algo in config.finetune_algos:
+            settings = {**rl, "algo": algo, "seed": seed, "physics_steps": config.finetune_steps}
+            settings["critic_warmup"] = config.critic_warmup
+            settings["hyperparams"] = config.actor_hyperparams() | config.finetune_hyperparams
             stages.models[f"bc-{algo}", seed] = Stage(
                 "rl",
                 f"{task}: bc-{algo}, seed {seed}",
-                {
-                    **rl,
-                    "algo": algo,
-                    "seed": seed,
-                    "physics_steps": config.finetune_steps,
-                    "critic_warmup": config.critic_warmup,
-                    "hyperparams": config.actor_hyperparams() | config.finetune_hyperparams,
-                },
+                settings,
                 build.train_rl,
-                {TEACHER: teacher, "clone": clone},
+                {TEACHER: stages.teacher, "clone": clone},
             )
         for algo in config.scratch_algos:
+            settings = {**rl, "algo": algo, "seed": seed, "physics_steps": config.rl_steps, "critic_warmup": 0}
+            settings["hyperparams"] = config.scratch_hyperparams_at(0)
             stages.models[algo, seed] = Stage(
-                "rl",
-                f"{task}: {algo}, seed {seed}",
-                {
-                    **rl,
-                    "algo": algo,
-                    "seed": seed,
-                    "physics_steps": config.rl_steps,
-                    "critic_warmup": 0,
-                    "hyperparams": config.scratch_hyperparams_at(0),
-                },
-                build.train_rl,
-                {TEACHER: teacher},
+                "rl", f"{task}: {algo}, seed {seed}", settings, build.train_rl, {TEACHER: stages.teacher}
             )
+
+
+def _evaluation_stages(config: PipelineConfig, task: str, env: dict[str, Any], stages: TaskStages) -> None:
+    """Every training run on the validation seeds (when there is a choice) and the test seeds; the wave and the
+    teacher on the test seeds."""
     scoring = {"env_id": env["env_id"], "steps": config.steps}
     for (method, seed), model in stages.models.items():
         for split in evaluation_splits(config):
@@ -171,9 +165,8 @@ def task_stages(config: PipelineConfig, task: str) -> TaskStages:
             f"{task}: evaluate the teacher",
             {**env, "seeds": config.test_seeds, "label": TEACHER},
             build.evaluate_policy,
-            {TEACHER: teacher},
+            {TEACHER: stages.teacher},
         )
-    return stages
 
 
 def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> list[tuple[Stage, str, str]]:
