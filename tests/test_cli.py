@@ -105,8 +105,7 @@ LIBRARY_PARAMETERS = {
         *("eval_episodes", "env_kwargs", "hyperparams", "out", "shared_reward"),
     },
     "pipeline": {
-        "out",
-        "preset",
+        *("out", "preset", "config", "reuse", "backend", "workers", "address"),
         *(field.name for field in dataclasses.fields(PipelineConfig)),
     },  # each field is checked
     "bc": {
