@@ -13,6 +13,8 @@ from dpr.rl.compare import compare, validation_runs
 from dpr.rl.statistics import iqm
 
 RECORDS = Path(__file__).resolve().parents[1] / "docs" / "results"
+HEADLINE = RECORDS / "full-lr3e4"  # the headline record: three runs of each method on the validation seeds
+PARTIAL = RECORDS / "gate-v1-partial"  # a run folder with validation evaluations (its teacher's), but no runs yet
 TASKS = ["navigation", "gate", "unresponsive", "manipulation"]
 
 
@@ -31,8 +33,8 @@ def _copy_validation(record: str, dest: Path, tasks, scale: float = 1.0) -> Path
 
 
 def test_the_rule_is_the_mean_of_the_per_task_iqm_ratios(tmp_path, capsys):
-    current = _copy_validation("full", tmp_path / "current", TASKS)
-    better = _copy_validation("full", tmp_path / "better", TASKS, scale=1.1)
+    current = _copy_validation("full-lr3e4", tmp_path / "current", TASKS)
+    better = _copy_validation("full-lr3e4", tmp_path / "better", TASKS, scale=1.1)
     rows, mean = compare(current, better, TASKS, "bc-ppo")
     assert {(row["task"], row["method"]) for row in rows} == {(t, m) for t in TASKS for m in ("bc", "bc-ppo", "ppo")}
     assert all(row["runs"] == (3, 3) and row["ratio"] == pytest.approx(1.1) for row in rows)
@@ -52,37 +54,27 @@ def test_the_rule_is_the_mean_of_the_per_task_iqm_ratios(tmp_path, capsys):
     assert "-> keep the current recipe" in out  # 1/1.1 < 1
 
 
-def test_the_records_compare_and_no_decision_comes_from_unfinished_tasks(tmp_path, capsys):
-    """Each record against the one before it gives the ratio RESULTS.md quotes for its adoption; a candidate with
-    one task finished, or a task with fewer runs, gets its rows and no verdict."""
-    _, mean = compare(RECORDS / "full-hold10", RECORDS / "full", TASKS, "bc-ppo")
-    assert mean == pytest.approx(1.065, abs=0.001)
-    _, mean = compare(RECORDS / "full", RECORDS / "full-bins", TASKS, "bc-ppo")
-    assert mean == pytest.approx(1.202, abs=0.001)
-    _, mean = compare(RECORDS / "full-bins", RECORDS / "full-ft600", TASKS, "bc-ppo")
-    assert mean == pytest.approx(1.060, abs=0.001)
-    _, mean = compare(RECORDS / "full-ft600", RECORDS / "full-swarm", TASKS, "bc-ppo")
-    assert mean == pytest.approx(1.205, abs=0.001)
-    _, mean = compare(RECORDS / "full-swarm", RECORDS / "full-lr3e4", TASKS, "bc-ppo")
-    assert mean == pytest.approx(1.032, abs=0.001)
-    partial = _copy_validation("full", tmp_path / "partial", ["navigation"])
-    assert run_cli(["compare", str(RECORDS / "full"), str(partial)]) == 0
+def test_no_decision_comes_from_unfinished_tasks(tmp_path, capsys):
+    """A candidate with one task finished, or a task with fewer runs, gets its rows and no verdict."""
+    assert compare(HEADLINE, HEADLINE, TASKS, "bc-ppo")[1] == pytest.approx(1.0)
+    partial = _copy_validation("full-lr3e4", tmp_path / "partial", ["navigation"])
+    assert run_cli(["compare", str(HEADLINE), str(partial)]) == 0
     out = capsys.readouterr().out
     assert "| navigation | bc-ppo | 3 / 3 |" in out and "| gate |" not in out and "no decision yet" in out
     # one task asked for, and finished: a verdict on it alone
-    assert run_cli(["compare", str(RECORDS / "full"), str(partial), "--tasks", "navigation", "--method", "bc"]) == 0
+    assert run_cli(["compare", str(HEADLINE), str(partial), "--tasks", "navigation", "--method", "bc"]) == 0
     assert "mean bc ratio over 1 tasks: 1.000 -> keep the current recipe" in capsys.readouterr().out
     # every task present, but one of them with two of its three runs: still no verdict
-    tasks_in_progress = _copy_validation("full", tmp_path / "in-progress", TASKS, scale=1.1)
+    tasks_in_progress = _copy_validation("full-lr3e4", tmp_path / "in-progress", TASKS, scale=1.1)
     (tasks_in_progress / "eval" / "validation" / "gate-bc-ppo-seed2.json").unlink()
-    rows, mean = compare(RECORDS / "full", tasks_in_progress, TASKS, "bc-ppo")
+    rows, mean = compare(HEADLINE, tasks_in_progress, TASKS, "bc-ppo")
     assert mean is None and next(r for r in rows if r["task"] == "gate" and r["method"] == "bc-ppo")["runs"] == (3, 2)
-    assert run_cli(["compare", str(RECORDS / "full"), str(tasks_in_progress)]) == 0
+    assert run_cli(["compare", str(HEADLINE), str(tasks_in_progress)]) == 0
     assert "no decision yet" in capsys.readouterr().out
 
 
 def test_folders_that_cannot_be_compared_are_refused(tmp_path, capsys):
-    other = _copy_validation("full", tmp_path / "other", ["navigation"])
+    other = _copy_validation("full-lr3e4", tmp_path / "other", ["navigation"])
     for seed in range(3):
         path = other / "eval" / "validation" / f"navigation-bc-seed{seed}.json"
         payload = json.loads(path.read_text())
@@ -90,32 +82,32 @@ def test_folders_that_cannot_be_compared_are_refused(tmp_path, capsys):
         path.write_text(json.dumps(payload))
         if seed == 0:  # the runs of one method disagree
             with pytest.raises(ValueError, match="navigation-bc-seed1.json: scored on other validation seeds"):
-                compare(RECORDS / "full", other, ["navigation"], "bc-ppo")
+                compare(HEADLINE, other, ["navigation"], "bc-ppo")
     with pytest.raises(ParameterError, match="navigation-bc: the two folders used different validation seeds"):
-        compare(RECORDS / "full", other, ["navigation"], "bc-ppo")
-    assert run_cli(["compare", str(RECORDS / "full"), str(other)]) == 2
+        compare(HEADLINE, other, ["navigation"], "bc-ppo")
+    assert run_cli(["compare", str(HEADLINE), str(other)]) == 2
     assert "CANDIDATE: navigation-bc: the two folders used different validation seeds" in capsys.readouterr().err
     shutil.rmtree(other / "eval" / "validation")
     with pytest.raises(ParameterError, match="no eval/validation folder") as error:
-        compare(RECORDS / "full", other, ["navigation"], "bc-ppo")
+        compare(HEADLINE, other, ["navigation"], "bc-ppo")
     assert error.value.parameter == "candidate"
-    assert run_cli(["compare", str(RECORDS / "full"), str(other)]) == 2
+    assert run_cli(["compare", str(HEADLINE), str(other)]) == 2
     assert f"dpr compare: error: CANDIDATE: {other}: no eval/validation folder" in capsys.readouterr().err
-    assert run_cli(["compare", str(other), str(RECORDS / "full")]) == 2
+    assert run_cli(["compare", str(other), str(HEADLINE)]) == 2
     assert f"error: CURRENT: {other}: no eval/validation folder" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["nowhere", "docs/results/full"], "CURRENT: nowhere: no such folder"),
-        (["docs/results/full", "docs/results/full-bins", "nowhere"], "CANDIDATE: nowhere: no such folder"),
+        (["nowhere", "docs/results/full-lr3e4"], "CURRENT: nowhere: no such folder"),
+        (["docs/results/full-lr3e4", "docs/results/gate-v1-partial", "nowhere"], "CANDIDATE: nowhere: no such folder"),
         (
-            ["docs/results/full", "docs/results/full-bins", "docs/results/full-bins/"],
-            "CANDIDATE: docs/results/full-bins: given twice",
+            ["docs/results/full-lr3e4", "docs/results/gate-v1-partial", "docs/results/gate-v1-partial/"],
+            "CANDIDATE: docs/results/gate-v1-partial: given twice",
         ),
-        (["docs/results/full", "docs/results/full-bins", "--tasks", "swimming"], "--tasks: invalid choice"),
-        (["docs/results/full"], "the following arguments are required: CANDIDATE"),
+        (["docs/results/full-lr3e4", "docs/results/gate-v1-partial", "--tasks", "swimming"], "--tasks: invalid choice"),
+        (["docs/results/full-lr3e4"], "the following arguments are required: CANDIDATE"),
     ],
 )
 def test_bad_input_is_refused_naming_its_argument(argv, message, capsys, monkeypatch):
@@ -127,15 +119,15 @@ def test_bad_input_is_refused_naming_its_argument(argv, message, capsys, monkeyp
 
 def test_the_library_refuses_bad_arguments_before_reading_any_run():
     with pytest.raises(ParameterError, match="given twice") as error:
-        compare(RECORDS / "full", [RECORDS / "full-bins", RECORDS / "full-bins"])
+        compare(HEADLINE, [PARTIAL, PARTIAL])
     assert error.value.parameter == "candidate"
     with pytest.raises(ParameterError, match="swimming") as error:
-        compare(RECORDS / "full", RECORDS / "full-bins", ["navigation", "swimming"])
+        compare(HEADLINE, PARTIAL, ["navigation", "swimming"])
     assert error.value.parameter == "tasks"
     with pytest.raises(ParameterError, match="each task must appear once"):
-        compare(RECORDS / "full", RECORDS / "full-bins", ["gate", "gate"])
+        compare(HEADLINE, PARTIAL, ["gate", "gate"])
     with pytest.raises(ParameterError, match="at least one run folder"):
-        compare(RECORDS / "full", [])
+        compare(HEADLINE, [])
 
 
 def test_help_states_the_rule_and_reads_only_validation_seeds(capsys):
@@ -150,13 +142,13 @@ def test_help_states_the_rule_and_reads_only_validation_seeds(capsys):
 def test_a_candidate_run_task_by_task_is_judged_across_its_folders(tmp_path, capsys):
     """Tasks run side by side, each in a folder of its own, compare as one folder holding them all; a task in two
     folders is refused."""
-    whole = _copy_validation("full-bins", tmp_path / "whole", TASKS)
-    per_task = [_copy_validation("full-bins", tmp_path / task, [task]) for task in TASKS]
-    assert compare(RECORDS / "full", per_task, TASKS, "bc-ppo") == compare(RECORDS / "full", whole, TASKS, "bc-ppo")
+    whole = _copy_validation("full-lr3e4", tmp_path / "whole", TASKS, scale=1.1)
+    per_task = [_copy_validation("full-lr3e4", tmp_path / task, [task], scale=1.1) for task in TASKS]
+    assert compare(HEADLINE, per_task, TASKS, "bc-ppo") == compare(HEADLINE, whole, TASKS, "bc-ppo")
     assert validation_runs(*per_task).keys() == validation_runs(whole).keys()
-    assert run_cli(["compare", str(RECORDS / "full"), *map(str, per_task)]) == 0
-    assert "mean bc-ppo ratio over 4 tasks: 1.202 -> adopt the candidate" in capsys.readouterr().out
+    assert run_cli(["compare", str(HEADLINE), *map(str, per_task)]) == 0
+    assert "mean bc-ppo ratio over 4 tasks: 1.100 -> adopt the candidate" in capsys.readouterr().out
     with pytest.raises(ParameterError, match=r"gate: runs in both .*whole and .*gate"):
-        compare(RECORDS / "full", [whole, per_task[1]], TASKS, "bc-ppo")
-    assert run_cli(["compare", str(RECORDS / "full"), str(whole), str(per_task[1])]) == 2
+        compare(HEADLINE, [whole, per_task[1]], TASKS, "bc-ppo")
+    assert run_cli(["compare", str(HEADLINE), str(whole), str(per_task[1])]) == 2
     assert "CANDIDATE: gate: runs in both" in capsys.readouterr().err

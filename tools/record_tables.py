@@ -11,7 +11,7 @@ This tool prints those rows from the record; ``--write`` puts them in the docs i
 ``--check`` lists every row the docs lack or misquote (exit status 1), which the tests run on the headline record.
 
     python tools/record_tables.py                        # the headline record's rows
-    python tools/record_tables.py docs/results/full-bins
+    python tools/record_tables.py runs/full-new          # another finished full-preset run folder's
     python tools/record_tables.py docs/results/full-new --write   # adopting a record: its rows into the docs
     python tools/record_tables.py --check                # do the docs agree with the headline record?
 """
@@ -92,7 +92,7 @@ def _table_body(lines: list[str], header: str, where: Path) -> tuple[int, int]:
 
 
 def _teacher_name(record: Record, task: str) -> str:
-    teacher = record.choices[f"{task}-teacher"]  # records before the bin-width choice name only the hold
+    teacher = record.choices[f"{task}-teacher"]  # an entry that names no bin width chose at the wave's
     return f"teacher (hold {teacher['hold_steps']}, bins {teacher.get('bin_width', BIN_WIDTH):g})"
 
 

@@ -14,7 +14,7 @@ def compare_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.rl.compare import compare
 
     parser.add_argument(
-        "current", metavar="CURRENT", type=Path, help="run folder of the recipe in force (e.g. docs/results/full)"
+        "current", metavar="CURRENT", type=Path, help="run folder of the recipe in force (e.g. docs/results/full-lr3e4)"
     )
     parser.add_argument(
         "candidate",

@@ -1,13 +1,13 @@
 """`dpr compare`: two recipes compared on validation seeds, and the rule that decides whether a candidate replaces
 the recipe in force.
 
-Each recipe is one `dpr pipeline` run folder (or a record of one, such as ``docs/results/full``), or for a candidate
-whose tasks ran side by side, one folder per task. For every task and learned method both recipes hold, the episodes
-of every training run on the validation seeds (``eval/validation/<task>-<method>-seed<S>.json``) are pooled, and
-their IQM in each recipe and the ratio candidate / current are reported. The candidate wins if the mean over tasks
-of ``method``'s ratios (default ``bc-ppo``) is above 1, once every task has as many runs in both. Test evaluations
-are never read, so a candidate's test seeds stay unseen until it is judged; runs scored on different validation
-seeds are refused.
+Each recipe is one `dpr pipeline` run folder (or a record of one, such as ``docs/results/full-lr3e4``), or for a
+candidate whose tasks ran side by side, one folder per task. For every task and learned method both recipes hold, the
+episodes of every training run on the validation seeds (``eval/validation/<task>-<method>-seed<S>.json``) are
+pooled, and their IQM in each recipe and the ratio candidate / current are reported. The candidate wins if the mean
+over tasks of ``method``'s ratios (default ``bc-ppo``) is above 1, once every task has as many runs in both. Test
+evaluations are never read, so a candidate's test seeds stay unseen until it is judged; runs scored on different
+validation seeds are refused.
 """
 
 from __future__ import annotations
