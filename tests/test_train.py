@@ -327,3 +327,14 @@ def test_hyperparameters_sb3_refuses_leave_no_run_folder(tmp_path):
     with pytest.raises(ParameterError, match="hyperparams: ppo refuses them"):
         train(config, tmp_path / "run", show_progress=False)
     assert not (tmp_path / "run").exists()
+
+
+def test_a_run_without_periodic_evaluations_keeps_no_best_model(tmp_path):
+    """eval_episodes=0 (`--eval-episodes 0`): no evaluation during training, so no best_model.zip; the run's own
+    envs, all in this process when env_processes is False."""
+    config = tiny_config("ppo", eval_episodes=0, n_envs=2, env_processes=False)
+    result = train(config, tmp_path / "run", show_progress=False, log=lambda line: None)
+    assert result.model_path.is_file() and result.best_model_path is None
+    assert not (tmp_path / "run" / "eval").exists()
+    with pytest.raises(ValueError, match="eval_episodes: must be >= 0"):
+        tiny_config("ppo", eval_episodes=-1)

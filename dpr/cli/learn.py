@@ -16,6 +16,7 @@ from dpr.cli.common import (
     env_kwarg_argument,
     flag_message,
     name_and_value,
+    non_negative_int,
     positive_int,
     rerun_argument,
     swarm_arguments,
@@ -53,7 +54,13 @@ def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> 
 
     config = defaults(TrainConfig)
     default_argument(parser, "--seed", config["seed"], "seed of the model and the envs", type=int)
-    default_argument(parser, "--eval-episodes", config["eval_episodes"], "episodes per periodic evaluation")
+    default_argument(
+        parser,
+        "--eval-episodes",
+        config["eval_episodes"],
+        "episodes per periodic evaluation, which keeps best_model.zip (0: none)",
+        type=non_negative_int,
+    )
     env_kwarg_argument(parser, "reward=projected")
     parser.add_argument(
         "--hyperparam",

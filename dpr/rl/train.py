@@ -376,7 +376,7 @@ def train(
     info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
     if tensorboard_log is None:
-        log("dpr train: tensorboard is not installed; no TensorBoard logs (pip install tensorboard to get them)")
+        log(f"dpr {config.command}: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
     record = {
         "algo": config.algo,
         "env_id": config.env_id,
@@ -405,8 +405,8 @@ def train(
     start = f" from {config.init_from} ({config.critic_warmup} critic warm-up steps first)" if config.init_from else ""
     again = f", resumed at step {snapshot.reached}" if snapshot is not None else ""
     log(
-        f"dpr train: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, seed {config.seed}"
-        f"{again} -> {run_dir}"
+        f"dpr {config.command}: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, "
+        f"seed {config.seed}{again} -> {run_dir}"
     )
 
     env = make_vec_env(
@@ -455,7 +455,7 @@ def train(
                 interrupted = False
             except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
                 interrupted = True
-                log("dpr train: interrupted; saving the model as it is")
+                log(f"dpr {config.command}: interrupted; saving the model as it is")
         model_path = save_model(model, run_dir / "model.zip", info)
     finally:
         for vec_env in (env, eval_env):
