@@ -14,7 +14,7 @@ DOCUMENTS = sorted(
 )
 # the research log's entry on the recipes before the pipeline names their models, which are not shipped, beside the
 # commands that made them
-HAND_RUN_RECIPES = ROOT / "docs" / "research" / "2026-11-21-hand-run-recipes.md"
+HAND_RUN_RECIPES = ROOT / "docs" / "research" / "hand-run-recipes.md"
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 MODEL_FILE = re.compile(r"(?<![\w/.-])models/[\w.-]+\.zip")
 
