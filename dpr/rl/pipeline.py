@@ -288,14 +288,6 @@ def _join_folder(config: PipelineConfig, out: Path) -> PipelineConfig:
     return PipelineConfig(**settings)
 
 
-def _median_score(evaluation: Path) -> float:
-    import numpy as np
-
-    from dpr.rl.report import load_evaluation
-
-    return float(np.median([e["projected_displacement"] for e in load_evaluation(evaluation)["episodes"]]))
-
-
 def _record_task(
     config: PipelineConfig, task: str, stages: TaskStages, store: StageStore, out: Path, log: Callable[[str], None]
 ) -> None:
@@ -322,7 +314,7 @@ def _record_task(
             medians = {chosen_seed: None}
         else:
             medians = {
-                seed: _median_score(evaluation_path(out, task, method, seed, "validation"))
+                seed: build.median_score(evaluation_path(out, task, method, seed, "validation"))
                 for seed in config.train_seeds
             }
             ranked = sorted(medians, key=lambda seed: (medians[seed], seed))

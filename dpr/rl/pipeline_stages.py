@@ -39,14 +39,11 @@ def learner_kwargs(settings: Mapping[str, Any], teacher: Teacher) -> dict[str, A
 def choose_teacher(settings: Mapping[str, Any], inputs: Mapping[str, Path], out: Path, work: Path, _: bool) -> None:
     """Among the candidates (``settings["candidates"]``: [hold, bin width] pairs), the one with the highest median
     on its evaluation (``inputs["candidate<i>"]``; the first listed of equal ones). One candidate is no choice."""
-    from dpr.rl.report import load_evaluation
-
     candidates = [Teacher(int(hold), float(width)) for hold, width in settings["candidates"]]
     medians = {}
     for index, teacher in enumerate(candidates):
         if f"candidate{index}" in inputs:
-            episodes = load_evaluation(inputs[f"candidate{index}"] / EVALUATION)["episodes"]
-            medians[teacher] = _median([episode["projected_displacement"] for episode in episodes])
+            medians[teacher] = median_score(inputs[f"candidate{index}"] / EVALUATION)
     chosen = max(candidates, key=lambda teacher: medians.get(teacher, 0.0))  # max keeps the first of equal ones
     record = {
         "hold_steps": chosen.hold,
@@ -57,10 +54,14 @@ def choose_teacher(settings: Mapping[str, Any], inputs: Mapping[str, Path], out:
     atomic_write_text(out / TEACHER_FILE, yaml.safe_dump(record, sort_keys=False))
 
 
-def _median(values: list[float]) -> float:
+def median_score(evaluation: Path) -> float:
+    """The median projected displacement over an evaluation file's episodes (read through the report's checked
+    loader: a damaged file is an error naming it)."""
     import numpy as np
 
-    return float(np.median(values))
+    from dpr.rl.report import load_evaluation
+
+    return float(np.median([episode["projected_displacement"] for episode in load_evaluation(evaluation)["episodes"]]))
 
 
 def record_demonstrations(
@@ -149,8 +150,8 @@ def train_rl(
     )
     run = work / "run"
     resume = run.is_dir() and resumable(run, config)
-    if run.exists() and not resume:
-        shutil.rmtree(run)  # stopped before its first snapshot: nothing to go on from
+    if not resume:
+        _fresh(run)  # stopped before its first snapshot: nothing to go on from
     result = train(config, run, show_progress=show_progress, resume=resume, log=_quiet)
     if result.interrupted:
         raise KeyboardInterrupt
