@@ -171,11 +171,8 @@ def evaluate_policy(
     env_kwargs = settings.get("env_kwargs")
     if "model" in inputs:
         policy = str(inputs["model"] / MODEL)
-    elif TEACHER in inputs:
-        teacher = read_teacher(inputs[TEACHER])
-        policy, env_kwargs = teacher.policy, {"n_robots": settings["n_robots"], **learner_kwargs(settings, teacher)}
-    elif "candidate" in settings:
-        teacher = Teacher(*settings["candidate"])
+    elif TEACHER in inputs or "candidate" in settings:  # the chosen teacher, or a candidate: as its learners run
+        teacher = read_teacher(inputs[TEACHER]) if TEACHER in inputs else Teacher(*settings["candidate"])
         policy, env_kwargs = teacher.policy, {"n_robots": settings["n_robots"], **learner_kwargs(settings, teacher)}
     else:
         policy = settings["path"] if "path" in settings else settings["policy"]  # a shipped model file, or by name
