@@ -26,8 +26,8 @@ test: $(STAMP)
 
 # Style kept by machines: lint and import order, formatting, and the layering contract (pyproject.toml).
 lint: $(STAMP)
-	$(BIN)/ruff check dpr tests tools
-	$(BIN)/ruff format --check dpr tests tools
+	$(BIN)/ruff check dpr tests tools examples
+	$(BIN)/ruff format --check dpr tests tools examples
 	$(BIN)/lint-imports
 
 test-slow: $(STAMP)

@@ -7,7 +7,7 @@ from PIL import Image
 from test_report import _episode, _write
 
 from dpr.rl.report import load_evaluation, method_scores, results_table, write_report
-from dpr.rl.statistics import interval_rows, probability_of_improvement
+from dpr.rl.statistics import interval_rows, interval_table, probability_of_improvement
 
 NAV = "dpr/Navigation-v0"
 SEEDS = range(100, 120)
@@ -98,3 +98,13 @@ def test_the_ratio_to_the_wave_is_paired_on_seeds(tmp_path):
     _, row = _interval_rows(paths, labels)
     assert row.ratio == pytest.approx((1.2, 1.2, 1.2))
     assert row.iqm[2] - row.iqm[1] > 5.0
+
+
+def test_no_ratio_interval_where_the_waves_iqm_can_fall_to_zero(tmp_path):
+    # A wave that barely moves (a few starts forward, most at 0 or behind): some bootstrap samples give it an IQM
+    # of 0 or less, and a ratio to that is unbounded. The ratio is left out; P(> wave) stays.
+    paths, labels = _evaluations(tmp_path, {"bc": [1.0]}, wave=lambda seed: [-0.2, 0.0, 0.0, 0.1, 0.9][seed % 5])
+    wave_row, row = _interval_rows(paths, labels)
+    assert row.ratio is None and row.p_improvement is not None
+    assert "| Navigation | bc | 1 × 20 |" in interval_table([wave_row, row])
+    assert "| — |" in interval_table([row])

@@ -25,8 +25,8 @@ from dpr.envs.particle_env import SWARM_KWARGS, ParticleSwarmEnv
 from dpr.sim.models import ROBOT_MODELS
 
 ALL_ENVS = "all"  # --env all / --tasks all: every task
-TASK_NAMES = tuple(ENV_IDS)  # navigation, gate, unresponsive, manipulation
-ENV_ID_LIST = ", ".join(ENV_IDS.values())  # for help texts
+TASK_NAMES = tuple(ENV_IDS)  # the built-in tasks: navigation, gate, unresponsive, manipulation
+ENV_ID_LIST = ", ".join(ENV_IDS.values()) + " or a task of an --env-package"  # for help texts
 EXAMPLE_ENV_ID = ENV_IDS["navigation"]
 # Worker processes by default: two, the cores the laptop-sized budgets were measured on (fewer on a smaller machine).
 DEFAULT_WORKERS = min(2, os.cpu_count() or 1)

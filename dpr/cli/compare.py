@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from dpr.cli.common import TASK_NAMES, Command, defaults, flag_message
+from dpr.envs import ENV_IDS
 
 COMPARE_FLAGS = {"current": "CURRENT", "candidate": "CANDIDATE"}
 
@@ -27,9 +28,9 @@ def compare_arguments(parser: argparse.ArgumentParser) -> None:
         "--tasks",
         nargs="+",
         default=list(TASK_NAMES),
-        choices=TASK_NAMES,
+        choices=tuple(ENV_IDS),  # the registered ones: an --env-package's too
         metavar="TASK",
-        help=f"the tasks the rule averages over, of {', '.join(TASK_NAMES)} (default: all four)",
+        help=f"the tasks the rule averages over, of {', '.join(ENV_IDS)} (default: the built-in four)",
     )
     method = defaults(compare)["method"]
     parser.add_argument(

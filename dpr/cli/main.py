@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dpr import interrupts
 from dpr.cli import bc, bench, compare, data, evaluate, learn, pipeline, view
 from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, unwritable_destination
-from dpr.envs import TASKS
+from dpr.envs import TASKS, load_env_packages
 
 COMMANDS = (
     *evaluate.COMMANDS,
@@ -52,17 +52,47 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dpr", description="Deep Particle Robot: particle-robot swarms for robot learning."
     )
+    env_package_argument(parser)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=CommandParser)
     for command in COMMANDS:
         command_parser = sub.add_parser(
             command.name, help=command.help, description=command.description, arguments=command.arguments
         )
+        env_package_argument(command_parser)
         command_parser.set_defaults(func=command.run, command_parser=command_parser)
     return parser
 
 
+ENV_PACKAGE_FLAG = "--env-package"
+
+
+def env_package_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        ENV_PACKAGE_FLAG,
+        action="append",
+        default=[],
+        metavar="PKG",
+        help="import PKG first, a package whose import registers more tasks (dpr.envs.register_task), so that "
+        "every --env, --tasks and dataset or model of them is accepted; repeat for several "
+        "(also: DPR_ENV_PACKAGES=PKG1,PKG2; docs/add-a-task.md)",
+    )
+
+
+def requested_env_packages(argv: list[str] | None) -> list[str]:
+    """The --env-package values anywhere on the command line: they are imported before the command's arguments
+    are defined, since its choices of tasks are the registered ones."""
+    scan = argparse.ArgumentParser(add_help=False, allow_abbrev=False)  # --env is not --env-package
+    env_package_argument(scan)
+    known, _ = scan.parse_known_args(argv)
+    return known.env_package
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    try:
+        load_env_packages(requested_env_packages(argv))
+    except ValueError as error:
+        parser.error(f"{ENV_PACKAGE_FLAG}: {error}")
     args = parser.parse_args(argv)
     parser = args.command_parser  # errors are the command's, with its usage: "dpr pipeline: error: ..."
     interrupts.install()  # a Ctrl-C is never lost in a callback from C code (dpr.interrupts)
@@ -70,7 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         requested = [args.env] if isinstance(args.env, str) else args.env
         unknown = [e for e in requested if e not in TASKS]
         if unknown:
-            parser.error(f"--env: unknown env id(s) {unknown}; choose from {list(TASKS)} or '{ALL_ENVS}'")
+            parser.error(
+                f"--env: unknown env id(s) {unknown}; choose from {list(TASKS)} or '{ALL_ENVS}' "
+                f"(a task of another package: {ENV_PACKAGE_FLAG} PKG)"
+            )
     for name in OUTPUT_FLAGS:
         value = getattr(args, name, None)
         problem = unwritable_destination(value) if isinstance(value, str) else None

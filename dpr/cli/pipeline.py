@@ -10,7 +10,6 @@ from collections.abc import Callable
 
 from dpr.cli.common import (
     ALL_ENVS,
-    TASK_NAMES,
     Command,
     flag_message,
     non_negative_int,
@@ -20,6 +19,7 @@ from dpr.cli.common import (
     shown,
     workers_argument,
 )
+from dpr.envs import ENV_IDS
 
 PIPELINE_OUT = "runs/pipeline"
 PIPELINE_FLAGS = {
@@ -73,7 +73,8 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         help="settings from this yaml file (any of the settings below, by their names with underscores; the rest "
         "keep the small preset's values), or a run folder's pipeline.yaml, whose stored stages are then reused",
     )
-    preset_argument("--tasks", f"tasks to run, or '{ALL_ENVS}'", type=str, nargs="+", choices=(*TASK_NAMES, ALL_ENVS))
+    tasks = (*ENV_IDS, ALL_ENVS)  # the registered ones: an --env-package's too
+    preset_argument("--tasks", f"tasks to run, or '{ALL_ENVS}'", type=str, nargs="+", choices=tasks)
     parser.add_argument(
         "--env-id",
         dest="env_ids",

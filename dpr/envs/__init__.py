@@ -2,7 +2,8 @@
 
 ``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v1``, ``dpr/Unresponsive-v0`` and
 ``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``), and ``dpr/Gate-v0``, the gate at the
-paper's placement, which the swarm does not reach in an episode.
+paper's placement, which the swarm does not reach in an episode. Tasks of other packages come in through
+:func:`register_task`; the packages that ``DPR_ENV_PACKAGES`` names are imported last (``dpr --env-package``).
 """
 
 from gymnasium.envs.registration import register, registry
@@ -21,7 +22,16 @@ from dpr.envs.particle_env import (
     ParticleSwarmEnv,
     episode_steps,
 )
-from dpr.envs.tasks import EARLIER_ENV_IDS, ENV_IDS, TASK_CLASSES, TASKS
+from dpr.envs.tasks import (
+    BUILT_IN_TASKS,
+    EARLIER_ENV_IDS,
+    ENV_IDS,
+    TASK_CLASSES,
+    TASKS,
+    load_env_packages,
+    load_listed_env_packages,
+    register_task,
+)
 from dpr.envs.unresponsive import UnresponsiveEnv
 
 for _env_id, _task in TASKS.items():
@@ -37,6 +47,7 @@ for _env_id, _task in TASKS.items():
 __all__ = [
     "ACTION_TYPES",
     "AGENT_POSITION",
+    "BUILT_IN_TASKS",
     "EARLIER_ENV_IDS",
     "ENV_IDS",
     "MAX_EPISODE_STEPS",
@@ -51,5 +62,9 @@ __all__ = [
     "ParticleSwarmEnv",
     "UnresponsiveEnv",
     "episode_steps",
+    "load_env_packages",
     "parallel_env",
+    "register_task",
 ]
+
+load_listed_env_packages()  # last: a package of tasks imports its base class and register_task from here

@@ -26,6 +26,7 @@ import yaml
 
 from dpr.checks import ParameterError, check_int
 from dpr.envs import TASKS
+from dpr.envs.tasks import HYPERPARAMS_OF
 from dpr.policies.sb3 import ALGOS, SWARM_POLICY, algo_class
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
@@ -134,7 +135,8 @@ def load_hyperparams(
     if env_id not in TASKS:
         raise ValueError(f"env must be one of {tuple(TASKS)}, got {env_id!r}")
     entries = read_entries(algo)
-    key = PAPER_PRESET if preset == PAPER_PRESET else env_id
+    # a user's task (dpr.envs.register_task) takes the entry of the built-in task it names
+    key = PAPER_PRESET if preset == PAPER_PRESET else HYPERPARAMS_OF.get(env_id, env_id)
     keys = [key, FINETUNE_PRESET] if preset == FINETUNE_PRESET else [key]
     for name in keys:
         if name not in entries:

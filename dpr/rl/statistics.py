@@ -120,6 +120,7 @@ def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> Interv
     score_iqm = iqm(scores.ravel())
     wave_iqm = 0.0 if wave is None else iqm(wave)
     paired = wave_iqm > 0
+    bounded = True
     samples, ratios, improvements = [], [], []
     for first in range(0, reps, BOOTSTRAP_CHUNK):
         # Each run is a stratum: its test seeds are drawn with replacement, and the wave gets the same seeds.
@@ -129,7 +130,10 @@ def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> Interv
         samples.append((np.median(pooled, axis=1), iqm(pooled)))
         if paired:
             wave_resampled = wave[index]
-            ratios.append(samples[-1][1] / np.maximum(iqm(wave_resampled.reshape(len(index), -1)), 1e-12))
+            wave_iqms = iqm(wave_resampled.reshape(len(index), -1))
+            # a bootstrap sample where the wave's IQM is not above 0 leaves the ratio without bound: no interval
+            bounded = bounded and bool((wave_iqms > 0).all())
+            ratios.append(samples[-1][1] / np.maximum(wave_iqms, 1e-12))
             improvements.append(_improvement(resampled, wave_resampled))
     medians, iqms = (np.concatenate(parts) for parts in zip(*samples))
     row = IntervalRow(
@@ -141,7 +145,8 @@ def _estimates(scores: np.ndarray, wave: np.ndarray | None, reps: int) -> Interv
         iqm=_percentile_interval(score_iqm, iqms),
     )
     if paired:
-        row.ratio = _percentile_interval(score_iqm / wave_iqm, np.concatenate(ratios))
+        if bounded:
+            row.ratio = _percentile_interval(score_iqm / wave_iqm, np.concatenate(ratios))
         point = probability_of_improvement(scores, np.repeat(wave[:, None], n_runs, axis=1))
         row.p_improvement = _percentile_interval(point, np.concatenate(improvements))
     return row
