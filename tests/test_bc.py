@@ -9,6 +9,7 @@ import pytest
 import torch
 import yaml
 from helpers import run_cli as run
+from stable_baselines3.common.policies import ActorCriticPolicy
 
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.frames import FrameDataset
@@ -17,6 +18,7 @@ from dpr.imitation import behaviour_clone
 from dpr.imitation.bc import measure
 from dpr.imitation.loss import check_features
 from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
+from dpr.policies.swarm_policy import SwarmActorCriticPolicy
 from dpr.rl.evaluation import evaluate
 
 ENV = "dpr/Navigation-v0"
@@ -43,6 +45,8 @@ def test_run_folder_holds_model_log_and_config(cloned, dataset):
     info = read_model_info(cloned.model_path)
     assert (info.algo, info.env_id, info.max_episode_steps) == ("ppo", ENV, 64)
     assert info.env_kwargs == {"n_robots": 4, "robot_model": "disk"}  # max_episode_steps is kept apart
+    # the network it was built with (the library keeps the yaml's MLP): what fine-tuning must build again
+    assert info.architecture == {"policy": "MlpPolicy", "policy_kwargs": {"net_arch": [64, 128, 128, 128, 64]}}
     with zipfile.ZipFile(cloned.model_path) as archive:
         assert METADATA_MEMBER in archive.namelist()
     log = json.loads(cloned.log_path.read_text())
@@ -152,6 +156,30 @@ def test_cli_bc_then_evaluate(dataset, tmp_path, capsys):
         )
         == 0
     )
+
+
+def test_cli_bc_clones_an_actor_critic_into_the_swarm_actor_by_default(dataset, tmp_path):
+    """`dpr bc`: PPO's and A2C's actor is SwarmPolicy unless --hyperparam policy=... says otherwise; DQN keeps the
+    yaml's policy. Each model file records the network it holds."""
+    base = ["bc", "--dataset", str(dataset), "--env", ENV, "--epochs", "1", "--batch-size", "128"]
+    runs = {
+        "ppo": [],
+        "a2c": ["--algo", "a2c"],
+        "mlp": ["--hyperparam", "policy=MlpPolicy"],
+        "dqn": ["--algo", "dqn"],
+    }
+    for name, extra in runs.items():
+        assert run([*base, *extra, "--out", str(tmp_path / name)]) == 0, name
+    net = {"net_arch": [64, 128, 128, 128, 64]}
+    for name, (policy, kind) in {
+        "ppo": ("SwarmPolicy", SwarmActorCriticPolicy),
+        "a2c": ("SwarmPolicy", SwarmActorCriticPolicy),
+        "mlp": ("MlpPolicy", ActorCriticPolicy),
+    }.items():
+        model, info = load_model(tmp_path / name / "model.zip")
+        assert type(model.policy) is kind and info.architecture == {"policy": policy, "policy_kwargs": net}, name
+    dqn = read_model_info(tmp_path / "dqn" / "model.zip").architecture
+    assert dqn["policy"] == "MlpPolicy"
 
 
 # -- bad input -----------------------------------------------------------------------------------------------------

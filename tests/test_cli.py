@@ -177,6 +177,22 @@ def test_help_imports_nothing_heavy(argv):
     assert loaded.isdisjoint(HEAVY_MODULES), sorted(loaded & set(HEAVY_MODULES))
 
 
+def test_help_says_the_recipe_the_single_commands_default_to(capsys):
+    """What `dpr bc`, `dpr finetune` and `dpr collect` do unless told: the pipeline's recipe, said in their help."""
+    helps = {}
+    for command in ("bc", "finetune", "finetune-decentralised", "collect"):
+        assert run([command, "--help"]) == 0
+        helps[command] = " ".join(capsys.readouterr().out.split())
+    warmup = "default: a tenth of --timesteps, at most 10000"
+    assert warmup in helps["finetune"] and warmup in helps["finetune-decentralised"]
+    assert "gamma = 0.99^K and n_steps=512 batch_size=128 n_epochs=10" in helps["finetune"]
+    assert "The actor of ppo and a2c is SwarmPolicy unless set here" in helps["bc"]
+    assert "policy=MlpPolicy gives the yaml's MLP" in helps["bc"]
+    assert "records with --env-kwarg obs_last_action=true by default" in helps["collect"]
+    finetune = build_parser().parse_args(["finetune", "--from", "m.zip", "--env", "dpr/Navigation-v0"])
+    assert finetune.critic_warmup is None  # resolved from the run's timesteps (dpr.rl.recipe.default_critic_warmup)
+
+
 def test_defaults_come_from_the_library():
     from dpr.envs import MAX_EPISODE_STEPS
     from dpr.rl.train import TrainConfig

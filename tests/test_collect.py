@@ -492,6 +492,24 @@ def test_cli_collect_refuses_bad_arguments(tmp_path, capsys, extra, message):
     assert not out.exists()
 
 
+def test_cli_collect_records_the_markov_wave_with_the_last_action_it_reads(tmp_path, capsys):
+    """`--policy wave-markov` (or a Markov-wave labeller) sets obs_last_action=True where no flag does, and says so;
+    obs_last_action=false is refused with the flag that fixes it and the command's own usage."""
+    for name, extra in (
+        ("drive", ["--policy", "wave-markov"]),
+        ("label", ["--label-policy", "wave-markov:hold_steps=5"]),
+    ):
+        assert run_cli(collect_argv(tmp_path / name, *extra)) == 0, name
+        assert "recording with obs_last_action=True" in capsys.readouterr().err
+        assert LeRobotReader(tmp_path / name).episodes[0]["env_kwargs"]["obs_last_action"] is True
+    out = tmp_path / "plain"
+    assert run_cli(collect_argv(out, "--policy", "wave-markov", "--env-kwarg", "obs_last_action=false")) == 2
+    error = capsys.readouterr().err
+    assert "usage: dpr collect " in error and "dpr collect: error: --policy wave-markov reads the previous" in error
+    assert "needs --env-kwarg obs_last_action=true (got obs_last_action=False)" in error
+    assert not out.exists()
+
+
 def test_cli_collect_refuses_a_file_as_out(tmp_path, capsys):
     out = tmp_path / "file"
     out.write_text("keep me")

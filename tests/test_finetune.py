@@ -1,8 +1,10 @@
 """Fine-tuning a behaviour-cloned model (`dpr finetune`: the finetune preset, init_from, the critic warm-up); the
 whole pipeline is tests/test_pipeline.py."""
 
+import io
 import json
 import re
+import zipfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -19,6 +21,9 @@ from dpr.imitation import behaviour_clone
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import make_policy
 from dpr.policies.sb3 import (
+    METADATA_MEMBER,
+    SWARM_POLICY,
+    ModelInfo,
     actor_parameters,
     build_model,
     load_initial_policy,
@@ -26,7 +31,9 @@ from dpr.policies.sb3 import (
     make_vec_env,
     read_model_info,
 )
+from dpr.policies.swarm_policy import SwarmActorCriticPolicy
 from dpr.rl.evaluation import evaluate
+from dpr.rl.recipe import FINETUNE_AT_REPEAT, default_critic_warmup, finetune_defaults, physics_discount
 from dpr.rl.train import TrainConfig, train, warm_up_critic
 
 ENV = "dpr/Navigation-v0"
@@ -387,3 +394,155 @@ def test_task_names_are_the_env_ids_keys():
     from dpr.cli import TASK_NAMES
 
     assert TASK_NAMES == tuple(ENV_IDS)
+
+
+# -- the recipe: what `dpr finetune` takes from the model unless told ----------------------------------------------
+REPEAT = 10  # the clone below decides every 10 physics steps, as the pipeline's learners do
+AT_REPEAT = {**MEMORY, "action_repeat": REPEAT}
+
+
+@pytest.fixture(scope="module")
+def swarm_clone(tmp_path_factory):
+    """`dpr bc` with its defaults (one epoch) on three 12-decision Markov-wave episodes of 4 disk robots deciding
+    every 10 physics steps."""
+    root = tmp_path_factory.mktemp("recipe")
+    spec = CollectSpec(ENV, policy="wave-markov", steps=12, env_kwargs=AT_REPEAT, **SMALL_ENV)
+    collect(root / "demos", spec, episodes=3, workers=1)
+    argv = ["bc", "--dataset", str(root / "demos"), "--env", ENV, "--epochs", "1", "--out", str(root / "bc")]
+    assert run(argv) == 0
+    return root / "bc" / "model.zip"
+
+
+def _finetune_argv(source, out, *extra: str) -> list[str]:
+    return ["finetune", "--from", str(source), "--env", ENV, "--n-envs", "1", "--eval-episodes", "0"] + [
+        *extra,
+        "--out",
+        str(out),
+    ]
+
+
+def _rewrite_metadata(source, target, change) -> None:
+    """A copy of the model file ``source`` whose metadata is ``change(metadata)``."""
+    with zipfile.ZipFile(source) as old, zipfile.ZipFile(target, "w") as new:
+        for item in old.infolist():
+            data = old.read(item)
+            if item.filename == METADATA_MEMBER:
+                data = json.dumps(change(json.loads(data)), indent=2, sort_keys=True)
+            new.writestr(item, data)
+
+
+def _strip_architecture(source, target) -> None:
+    """A copy of the model file ``source`` as written before models recorded their network."""
+    _rewrite_metadata(source, target, lambda metadata: {k: v for k, v in metadata.items() if k != "architecture"})
+
+
+def test_dpr_bc_records_the_swarm_actor_it_built(swarm_clone):
+    info = read_model_info(swarm_clone)
+    assert info.architecture == {"policy": SWARM_POLICY, "policy_kwargs": {"net_arch": PAPER_NET}}
+    assert info.env_kwargs["action_repeat"] == REPEAT
+    model, _ = load_model(swarm_clone)
+    assert isinstance(model.policy, SwarmActorCriticPolicy)
+
+
+def test_dpr_finetune_takes_the_network_and_the_recipe_from_the_model(swarm_clone, tmp_path, capsys):
+    """No --hyperparam: the clone's SwarmPolicy, gamma 0.99^10 and the pipeline's rollouts (512 decisions: one
+    rollout after a one-decision warm-up of a 16-decision run)."""
+    out = tmp_path / "run"
+    assert run(_finetune_argv(swarm_clone, out, "--timesteps", "16")) == 0
+    err = capsys.readouterr().err
+    assert f"dpr finetune: from {swarm_clone}: policy=SwarmPolicy policy_kwargs={{net_arch: " in err
+    assert "gamma=0.904 n_steps=512 batch_size=128 n_epochs=10 (for its decisions every 10 physics steps)" in err
+    assert f"dpr finetune: wrote {out / 'model.zip'}" in err
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    hyper = config["hyperparameters"]
+    assert hyper["policy"] == SWARM_POLICY and hyper["policy_kwargs"] == {"net_arch": PAPER_NET}
+    assert hyper["gamma"] == physics_discount(REPEAT) == round(0.99**REPEAT, 3)
+    assert {key: hyper[key] for key in FINETUNE_AT_REPEAT} == {"n_steps": 512, "batch_size": 128, "n_epochs": 10}
+    assert hyper["learning_rate"] == 3e-5 and hyper["clip_range"] == 0.1  # the rest is the finetune preset's
+    assert config["critic_warmup"] == default_critic_warmup(16) == 1
+    model, info = load_model(out / "model.zip")
+    assert isinstance(model.policy, SwarmActorCriticPolicy) and info.architecture["policy"] == SWARM_POLICY
+
+
+def test_a_hyperparam_of_the_user_wins_over_the_models(swarm_clone, tmp_path, capsys):
+    out = tmp_path / "run"
+    mine = {"gamma": 0.5, "n_steps": 16, "batch_size": 16, "n_epochs": 1}
+    given = [arg for name, value in mine.items() for arg in ("--hyperparam", f"{name}={value}")]
+    assert run(_finetune_argv(swarm_clone, out, "--timesteps", "40", *given)) == 0
+    err = capsys.readouterr().err
+    assert "policy=SwarmPolicy" in err and "gamma=" not in err and "n_steps=" not in err
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    assert {key: config["hyperparameters"][key] for key in mine} == mine
+    assert config["hyperparameters"]["policy"] == SWARM_POLICY  # what the user left alone comes from the model
+    assert config["critic_warmup"] == 4  # a tenth of --timesteps
+    assert (
+        run(_finetune_argv(swarm_clone, tmp_path / "mlp", "--timesteps", "16", "--hyperparam", "policy=MlpPolicy")) == 2
+    )
+    assert "has another network than this run's" in capsys.readouterr().err  # the user's choice, and its error
+
+
+def test_a_model_file_without_its_network_fine_tunes_as_before(cloned, tmp_path, capsys):
+    """A model written before files recorded their network: the yaml's network, and no recipe without an
+    action_repeat; its hyperparameters are the user's alone."""
+    old = tmp_path / "old.zip"
+    _strip_architecture(cloned.model_path, old)
+    assert read_model_info(old).architecture is None
+    assert read_model_info(cloned.model_path).architecture == {
+        "policy": "MlpPolicy",
+        "policy_kwargs": {"net_arch": PAPER_NET},
+    }
+    given = [arg for name, value in TINY_PPO.items() for arg in ("--hyperparam", f"{name}={value}")]
+    out = tmp_path / "run"
+    assert run(_finetune_argv(old, out, "--timesteps", "32", "--critic-warmup", "16", *given)) == 0
+    assert "dpr finetune: from" not in capsys.readouterr().err  # nothing came from the model
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    assert config["hyperparameter_overrides"] == TINY_PPO and config["critic_warmup"] == 16
+    assert config["hyperparameters"]["policy"] == "MlpPolicy" and config["hyperparameters"]["gamma"] == 0.99
+
+
+def test_finetune_defaults_and_the_default_critic_warmup():
+    at_repeat = ModelInfo("ppo", ENV, {"action_repeat": 10})
+    assert finetune_defaults(at_repeat) == {"gamma": 0.904, **FINETUNE_AT_REPEAT}
+    assert finetune_defaults(at_repeat, "a2c") == {"gamma": 0.904}  # A2C has no batches or epochs
+    assert finetune_defaults(ModelInfo("ppo", ENV, {"action_repeat": 6})) == {"gamma": 0.941, **FINETUNE_AT_REPEAT}
+    assert finetune_defaults(ModelInfo("ppo", ENV, {"action_repeat": 1})) == {}
+    network = {"policy": SWARM_POLICY, "policy_kwargs": {"robot_net": [8]}}
+    assert finetune_defaults(ModelInfo("ppo", ENV, {}, architecture=network)) == network
+    assert [default_critic_warmup(n) for n in (5, 16, 3000, 30_000, 100_000, 1_000_000)] == [
+        *(0, 1, 300, 3000, 10_000, 10_000)
+    ]
+
+
+def test_the_recorded_network_is_optional_and_checked(cloned, tmp_path):
+    info = ModelInfo("ppo", ENV, {"n_robots": 4})
+    assert "architecture" not in json.loads(info.as_json())  # files without it keep their old form
+    bad = tmp_path / "bad.zip"
+    for architecture in ({"policy": 3, "policy_kwargs": {}}, {"policy": "MlpPolicy"}, ["MlpPolicy"]):
+        _rewrite_metadata(
+            cloned.model_path, bad, lambda metadata, wrong=architecture: {**metadata, "architecture": wrong}
+        )
+        with pytest.raises(
+            ValueError, match=rf"^policy: {re.escape(str(bad))}: {METADATA_MEMBER} is malformed.*architecture"
+        ):
+            read_model_info(bad)
+
+
+def test_a_finetune_run_says_finetune_and_its_bars_stop_at_their_totals(cloned, tmp_path, monkeypatch):
+    """SB3 rounds both the warm-up and the run up to whole 32-step rollouts (20 -> 32, 40 -> 64): the bars stop at
+    the steps asked for, not past them."""
+    import tqdm
+
+    bars = []
+
+    class Recorded(tqdm.tqdm):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **{**kwargs, "disable": False, "file": io.StringIO()})
+            bars.append(self)
+
+    monkeypatch.setattr(tqdm, "tqdm", Recorded)
+    lines = []
+    config = finetune_config(cloned.model_path, timesteps=40, critic_warmup=20, eval_episodes=0)
+    result = train(config, tmp_path / "run", show_progress=True, log=lines.append)
+    assert yaml.safe_load(result.config_path.read_text())["timesteps_done"] == 32 + 64
+    assert [(bar.desc.split()[0], bar.total, bar.n) for bar in bars] == [("critic", 20, 20), ("finetune", 40, 40)]
+    assert lines[-1].startswith(f"dpr finetune: wrote {result.model_path}")

@@ -202,6 +202,14 @@ def test_a_per_robot_model_runs_only_on_its_own_robot_model(cloned):
         model_env_kwargs(cloned.model_path, ENV, {"robot_model": "paddle"})
 
 
+def test_critic_warmup_none_is_a_tenth_of_the_run(cloned, tmp_path):
+    """What `dpr finetune-decentralised` passes without --critic-warmup: a tenth of the swarm steps, at most 10000;
+    the library's own default is none."""
+    assert PerRobotFinetuneConfig(str(cloned.model_path), ENV).critic_warmup == 0
+    result = finetune(cloned, tmp_path / "run", timesteps=40, critic_warmup=None)
+    assert yaml.safe_load(result.config_path.read_text())["critic_warmup"] == 4
+
+
 # -- the command ----------------------------------------------------------------------------------------------------
 def test_cli_finetune_decentralised_then_evaluate_at_another_size(cloned, centralised_model, tmp_path, capsys):
     out = tmp_path / "cli"

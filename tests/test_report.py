@@ -306,9 +306,10 @@ def test_a_nan_episode_is_refused_naming_the_file_and_nothing_is_written(tmp_pat
 
 def test_models_of_two_run_folders_are_two_methods_without_labels(tmp_path):
     """`dpr train` names every run's model model.zip: the report names each by its run folder, not one 'model'."""
+    runs = ("runs/ft/nav9", "runs/ft/nav9-lr", "runs/bc/nav9")  # the last two share their folder's name
     paths = [
-        _write(tmp_path / f"{run}.json", f"runs/ft/{run}/model.zip", [_episode(NAV, s, 10.0 + s) for s in (0, 1)])
-        for run in ("nav9", "nav9-lr")
+        _write(tmp_path / f"{i}.json", f"{run}/model.zip", [_episode(NAV, s, 10.0 + s) for s in (0, 1)])
+        for i, run in enumerate(runs)
     ]
     rows = _rows(results_table([load_evaluation(path) for path in paths]))
-    assert [row[1] for row in rows] == ["nav9/model", "nav9-lr/model"]
+    assert [row[1] for row in rows] == [f"{run}/model" for run in runs]

@@ -45,7 +45,7 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
     from dpr.imitation.bc import behaviour_clone
     from dpr.imitation.dagger import dagger
-    from dpr.policies.sb3 import BC_ALGOS
+    from dpr.policies.sb3 import BC_ALGOS, SWARM_POLICY
 
     clone = defaults(behaviour_clone)
     dagger_run = defaults(dagger)
@@ -71,8 +71,10 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         type=hyperparam,
         metavar="NAME=VALUE",
-        help="override a value of the yaml entry the model is built from, e.g. policy=SwarmPolicy (an actor shared "
-        "by the robots) or 'policy_kwargs={net_arch: [256, 256]}'; fine-tune it with the same (repeatable)",
+        help="override a value of the yaml entry the model is built from, e.g. 'policy_kwargs={net_arch: [256, "
+        f"256]}}' (repeatable). The actor of ppo and a2c is {SWARM_POLICY} unless set here (one network shared by "
+        "the robots, the pipeline's choice); policy=MlpPolicy gives the yaml's MLP over the whole observation. "
+        "dqn keeps the yaml's policy. The model file records its network, and `dpr finetune` builds the same",
     )
     parser.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
     parser.add_argument(
@@ -100,6 +102,16 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
     workers_argument(parser, "processes that roll out DAgger episodes")
 
 
+def bc_hyperparams(algo: str, given: dict) -> dict:
+    """The hyperparameter overrides of a `dpr bc` run: the --hyperparam values ``given``, over the default actor of
+    an actor-critic, :data:`dpr.policies.sb3.SWARM_POLICY` (what cloning into PPO or A2C takes, MultiBinary actions
+    from the state observation, is what it acts on); DQN keeps the yaml's policy. The library's behaviour_clone
+    keeps the yaml's too: the pipeline names its actor itself."""
+    from dpr.policies.sb3 import FINETUNE_ALGOS, SWARM_POLICY
+
+    return {"policy": SWARM_POLICY, **given} if algo in FINETUNE_ALGOS else dict(given)
+
+
 def cmd_bc(args, parser) -> int:
     from dpr.imitation.bc import behaviour_clone
 
@@ -120,7 +132,7 @@ def cmd_bc(args, parser) -> int:
         patience=args.patience,
         seed=args.seed,
         env_kwargs=requested,
-        hyperparams=dict(args.hyperparam or []),
+        hyperparams=bc_hyperparams(args.algo, dict(args.hyperparam or [])),
         show_progress=True,
     )
     try:
@@ -240,7 +252,8 @@ COMMANDS = (
         "bc",
         help="behaviour-clone a recorded dataset into a PPO/A2C model",
         description="Train the policy of a new SB3 model (built as `dpr train` builds it, with the env kwargs the "
-        "dataset was recorded with) to maximise the likelihood of the dataset's actions; whole episodes are held "
+        "dataset was recorded with; a PPO or A2C model's actor is SwarmPolicy unless --hyperparam policy=... says "
+        "otherwise) to maximise the likelihood of the dataset's actions; whole episodes are held "
         "out for validation, training stops early on the validation log-likelihood and the best weights are kept. "
         "Saves model.zip, bc_log.json and config.yaml into a new run folder; "
         "`dpr evaluate --policy RUN/model.zip --env ID` runs the model.",

@@ -24,8 +24,6 @@ from dpr.cli.common import (
 )
 from dpr.sim.models import ROBOT_MODELS
 
-# Value-head-only steps before a fine-tuned actor moves; the library's TrainConfig does none unless asked.
-FINETUNE_CRITIC_WARMUP = 20_000
 # --from names the model file a fine-tuning run starts from: TrainConfig.init_from, and the model file that
 # dpr.policies.sb3.read_model_info reads ("policy" by default).
 FINETUNE_FLAGS = {"init_from": "--from", "policy": "--from", "anchor_datasets": "--anchor"}
@@ -46,6 +44,18 @@ def hyperparam(text: str) -> tuple[str, object]:
         except ValueError:
             pass
     return key, parsed
+
+
+def _critic_warmup_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """--critic-warmup, whose default (None) is dpr.rl.recipe.default_critic_warmup of the run's steps; the library's
+    TrainConfig does none unless asked."""
+    from dpr.rl.recipe import MAX_CRITIC_WARMUP
+
+    parser.add_argument(
+        "--critic-warmup",
+        type=int,
+        help=f"{what}; 0 to skip (default: a tenth of --timesteps, at most {MAX_CRITIC_WARMUP})",
+    )
 
 
 def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> None:
@@ -209,14 +219,13 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
         help="the robot model to fine-tune on (default: the model's); both make the same spaces, so a model "
         "learned on the fast disk model fine-tunes on the paddle model",
     )
-    parser.add_argument("--timesteps", type=positive_int, help="env steps after the warm-up (default: the yaml's)")
-    default_argument(
-        parser,
-        "--critic-warmup",
-        FINETUNE_CRITIC_WARMUP,
-        "env steps that train only the value head first; 0 to skip",
-        type=int,
+    parser.add_argument(
+        "--timesteps",
+        type=positive_int,
+        help="env steps after the warm-up (default: the n_timesteps of the finetune preset of "
+        "dpr/rl/hyperparams/<algo>.yml)",
     )
+    _critic_warmup_argument(parser, "env steps that train only the value head first")
     parser.add_argument(
         "--anchor",
         nargs="+",
@@ -238,14 +247,44 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
     )
     workers_argument(parser, "parallel envs, subprocesses when > 1", flag="--n-envs")
-    _run_arguments(parser, "learning_rate=1e-5")
+    _run_arguments(
+        parser,
+        "learning_rate=1e-5. Unless set here: the network the model was built with (its policy and "
+        "policy_kwargs, when its file records them) and, for a model deciding every action_repeat = K > 1 physics "
+        "steps, gamma = 0.99^K and n_steps=512 batch_size=128 n_epochs=10, the pipeline's recipe",
+    )
+
+
+def _as_hyperparam(value) -> str:
+    """``value`` as --hyperparam reads it back (yaml flow style)."""
+    import yaml
+
+    return yaml.safe_dump(value, default_flow_style=True, width=10_000).removesuffix("...\n").strip()
+
+
+def _model_defaults_line(info, source: str, defaults: dict, overrides: dict) -> str | None:
+    """The log line that says which hyperparameters of a `dpr finetune` run come from the model ``info`` describes
+    (None: none do): its network, and the recipe of its decision interval (dpr.rl.recipe.finetune_defaults)."""
+    taken = {name: value for name, value in defaults.items() if name not in overrides}
+    network = " ".join(f"{k}={_as_hyperparam(v)}" for k, v in taken.items() if k in ("policy", "policy_kwargs"))
+    recipe = " ".join(f"{k}={_as_hyperparam(v)}" for k, v in taken.items() if k not in ("policy", "policy_kwargs"))
+    parts = [f"{network} (its network)"] if network else []
+    if recipe:
+        parts.append(f"{recipe} (for its decisions every {info.env_kwargs['action_repeat']} physics steps)")
+    if not parts:
+        return None
+    return f"dpr finetune: from {source}: {'; '.join(parts)}; a --hyperparam of the same name overrides"
 
 
 def cmd_finetune(args, parser) -> int:
+    import dataclasses
+    import sys
+
     from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.hyperparams import FINETUNE_PRESET
     from dpr.policies.sb3 import model_env_kwargs, read_model_info
+    from dpr.rl.recipe import default_critic_warmup, finetune_defaults
     from dpr.rl.train import TrainConfig, train
 
     _check_resume(args, parser)
@@ -262,8 +301,11 @@ def cmd_finetune(args, parser) -> int:
             raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
         requested = {**({"robot_model": args.robot_model} if args.robot_model else {}), **dict(args.env_kwarg or [])}
         swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, requested))
+        overrides = dict(args.hyperparam or [])
+        algo = args.algo or info.algo
+        defaults = finetune_defaults(info, algo)  # the model's network and the recipe at its decision interval
         config = TrainConfig(
-            args.algo or info.algo,
+            algo,
             args.env,
             **swarm,
             timesteps=args.timesteps,
@@ -272,14 +314,19 @@ def cmd_finetune(args, parser) -> int:
             preset=FINETUNE_PRESET,
             steps_per_episode=info.max_episode_steps or episode_steps(info.env_kwargs),
             env_kwargs=env_kwargs,
-            hyperparams=dict(args.hyperparam or []),
+            hyperparams={**defaults, **overrides},
             eval_episodes=args.eval_episodes,
             init_from=args.source,
-            critic_warmup=args.critic_warmup,
+            critic_warmup=args.critic_warmup or 0,
             anchor_datasets=list(args.anchor or []),
             anchor_weight=args.anchor_weight,
             anchor_decay=args.anchor_decay,
         )
+        if args.critic_warmup is None:  # a tenth of the run's steps: --timesteps, else the yaml's
+            config = dataclasses.replace(config, critic_warmup=default_critic_warmup(config.resolve()[2]))
+        line = _model_defaults_line(info, args.source, defaults, overrides)
+        if line:
+            print(line, file=sys.stderr)
         result = train(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, FINETUNE_FLAGS))
@@ -316,12 +363,8 @@ def finetune_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
         "once, not 9 times; with --n-robots 9 25, 10000 is 5000 steps of each swarm); default: the n_timesteps "
         "of the finetune preset of dpr/rl/hyperparams/<algo>.yml",
     )
-    default_argument(
-        parser,
-        "--critic-warmup",
-        FINETUNE_CRITIC_WARMUP,
-        "swarm steps that train only the value head first (per-robot cloning leaves it untrained); 0 to skip",
-        type=int,
+    _critic_warmup_argument(
+        parser, "swarm steps that train only the value head first (per-robot cloning leaves it untrained)"
     )
     parser.add_argument(
         "--split-reward",

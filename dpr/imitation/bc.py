@@ -52,7 +52,15 @@ from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import MAX_EPISODE_STEPS, TASKS
 from dpr.imitation.loss import batch_stats, check_features
 from dpr.policies.hyperparams import load_hyperparams
-from dpr.policies.sb3 import BC_ALGOS, DEFAULT_ALGO, DQN, ModelInfo, trained_parameters, write_model_info
+from dpr.policies.sb3 import (
+    BC_ALGOS,
+    DEFAULT_ALGO,
+    DQN,
+    ModelInfo,
+    model_architecture,
+    trained_parameters,
+    write_model_info,
+)
 
 __all__ = ["BCResult", "behaviour_clone", "dataset_env"]
 
@@ -490,7 +498,7 @@ def behaviour_clone(
 
     model_path = run_dir / "model.zip"
     model.save(model_path)
-    write_model_info(model_path, ModelInfo(algo, env_id, kwargs, steps))
+    write_model_info(model_path, ModelInfo(algo, env_id, kwargs, steps, architecture=model_architecture(hyper)))
     result = finish_bc_run(run_dir, model_path, config_path, record, fit, train_ids, val_ids)
     best = fit.best
     log(

@@ -7,8 +7,9 @@ policy in, and the model files.
 
 A model file is SB3's own zip plus one small JSON member, :data:`METADATA_MEMBER`, that names the algorithm,
 the env id and the env kwargs the model was trained with, so that a model can be evaluated or rolled out
-without restating them. A per-robot model (one robot's local observation in, that robot's action out, for any
-swarm size; :mod:`dpr.policies.per_robot_spec`) also carries its local-observation layout there.
+without restating them, and the network it was built with, so that fine-tuning builds the same. A per-robot
+model (one robot's local observation in, that robot's action out, for any swarm size;
+:mod:`dpr.policies.per_robot_spec`) also carries its local-observation layout there.
 stable-baselines3 and torch are imported inside functions only: the scripted policies (and everything that
 imports this package) must not pay for them.
 """
@@ -65,12 +66,37 @@ class ModelInfo:
     # A per-robot model's layout and training swarm (dpr.policies.per_robot_spec.RobotModelSpec as data);
     # None for a model of the centralised env, whose observation is the whole swarm's state.
     per_robot: dict[str, Any] | None = None
+    # The network it was built with, as its yaml entry says it (:func:`model_architecture`): what a fine-tuning run
+    # must build to load its weights. None in files written before it was recorded, and in per-robot models.
+    architecture: dict[str, Any] | None = None
 
     def as_json(self) -> str:
         data = asdict(self)
-        if data["per_robot"] is None:  # files of centralised models stay as they were
-            del data["per_robot"]
+        for name in ("per_robot", "architecture"):  # files without them stay as they were
+            if data[name] is None:
+                del data[name]
         return json.dumps({"format": METADATA_FORMAT, **data}, indent=2, sort_keys=True)
+
+
+def model_architecture(hyper) -> dict[str, Any]:
+    """The network that ``hyper`` (a :class:`dpr.policies.hyperparams.Hyperparams`) builds, in yaml form:
+    ``{"policy": "SwarmPolicy", "policy_kwargs": {...}}`` (the entry's policy name and its policy_kwargs, {} when it
+    sets none): :attr:`ModelInfo.architecture`, and the hyperparameter overrides that build it again."""
+    return {"policy": str(hyper.policy), "policy_kwargs": dict(hyper.algo_kwargs.get("policy_kwargs") or {})}
+
+
+def _checked_architecture(value: Any) -> dict[str, Any] | None:
+    """``value`` as :attr:`ModelInfo.architecture` (None when absent); a ValueError saying what is wrong with it."""
+    if value is None:
+        return None
+    if (
+        not isinstance(value, dict)
+        or set(value) != {"policy", "policy_kwargs"}
+        or not isinstance(value["policy"], str)
+        or not isinstance(value["policy_kwargs"], dict)
+    ):
+        raise ValueError(f"architecture must be a mapping of a policy name and its policy_kwargs, got {value!r}")
+    return {"policy": value["policy"], "policy_kwargs": dict(value["policy_kwargs"])}
 
 
 def algo_class(algo: str):
@@ -120,6 +146,7 @@ def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> Mode
             env_kwargs=dict(data["env_kwargs"]),
             max_episode_steps=data.get("max_episode_steps"),
             per_robot=None if data.get("per_robot") is None else dict(data["per_robot"]),
+            architecture=_checked_architecture(data.get("architecture")),
         )
     except (ValueError, KeyError, TypeError) as error:
         raise ParameterError(parameter, f"{path}: {METADATA_MEMBER} is malformed ({error!r})") from None

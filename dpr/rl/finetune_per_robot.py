@@ -53,6 +53,7 @@ from dpr.policies.sb3 import (
     read_model_info,
     save_model,
 )
+from dpr.rl.recipe import default_critic_warmup
 from dpr.rl.train import (
     CHECKPOINTS,
     EVAL_SEED_OFFSET,
@@ -84,7 +85,9 @@ class PerRobotFinetuneConfig:
     n_robots: tuple[int, ...] = ()  # one training swarm per entry; () = the model's trained_n_robots (else 9)
     algo: str | None = None  # None: the model's
     timesteps: int | None = None  # swarm steps, summed over the swarms; None: the finetune preset's n_timesteps
-    critic_warmup: int = 0  # swarm steps training the value head only, before the actor moves
+    # swarm steps training the value head only, before the actor moves; None: dpr.rl.recipe.default_critic_warmup
+    # of the run's timesteps (a tenth, at most 10,000)
+    critic_warmup: int | None = 0
     seed: int = 0
     shared_reward: bool = True  # every robot gets the team reward; False: reward / N
     env_kwargs: dict[str, Any] = field(default_factory=dict)  # task kwargs beside the model's own
@@ -114,6 +117,7 @@ class _Resolved:
     sizes: tuple[int, ...]
     timesteps: int
     steps_per_episode: int
+    critic_warmup: int  # swarm steps
 
     @property
     def eval_sizes(self) -> list[int]:
@@ -126,8 +130,9 @@ class _Resolved:
 
 
 def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
-    for name in ("seed", "critic_warmup"):
-        check_int(name, getattr(config, name), 0)
+    check_int("seed", config.seed, 0)
+    if config.critic_warmup is not None:
+        check_int("critic_warmup", config.critic_warmup, 0)
     check_int("eval_episodes", config.eval_episodes, 1)
     if config.timesteps is not None:
         check_int("timesteps", config.timesteps, 1)
@@ -168,6 +173,7 @@ def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
         raise ParameterError("hyperparams", "a per-robot model reads one robot's vector: features_extractor flatten")
     sizes = config.n_robots or spec.trained_n_robots or (DEFAULT_N_ROBOTS,)
     trained = tuple(sorted({*spec.trained_n_robots, *sizes}))
+    timesteps = config.timesteps or hyper.n_timesteps
     return _Resolved(
         info,
         RobotModelSpec(**{**asdict(spec), "trained_n_robots": trained}),
@@ -175,8 +181,9 @@ def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
         hyper,
         env_kwargs,
         sizes,
-        config.timesteps or hyper.n_timesteps,
+        timesteps,
         info.max_episode_steps or MAX_EPISODE_STEPS,
+        default_critic_warmup(timesteps) if config.critic_warmup is None else config.critic_warmup,
     )
 
 
@@ -363,7 +370,7 @@ def finetune_per_robot(
             "hyperparameter_overrides": dict(config.hyperparams),
             "seed": config.seed,
             "timesteps": resolved.timesteps,
-            "critic_warmup": config.critic_warmup,
+            "critic_warmup": resolved.critic_warmup,
             "step_unit": "swarm steps, summed over the training swarms (SB3's num_timesteps counts robot steps)",
             "sb3_timesteps": unit.to_sb3(resolved.timesteps),
             "eval_episodes": config.eval_episodes,
@@ -379,7 +386,7 @@ def finetune_per_robot(
         sizes = " + ".join(str(n) for n in resolved.sizes)
         log(
             f"dpr finetune-decentralised: per-robot {resolved.algo} on {config.env_id} swarms of {sizes} robots "
-            f"{resolved.env_kwargs}, from {config.init_from} ({config.critic_warmup} critic warm-up steps first), "
+            f"{resolved.env_kwargs}, from {config.init_from} ({resolved.critic_warmup} critic warm-up steps first), "
             f"{resolved.timesteps} swarm steps, seed {config.seed} -> {run_dir}"
         )
         started = time.perf_counter()
@@ -390,12 +397,12 @@ def finetune_per_robot(
             _periodic(validation, run_dir, resolved, unit),
         ]
         try:
-            if config.critic_warmup:
-                warm_up_critic(model, config.critic_warmup, show_progress, unit)
+            if resolved.critic_warmup:
+                warm_up_critic(model, resolved.critic_warmup, show_progress, unit)
             model.learn(
                 total_timesteps=unit.to_sb3(resolved.timesteps),
                 callback=callbacks,
-                reset_num_timesteps=not config.critic_warmup,
+                reset_num_timesteps=not resolved.critic_warmup,
             )
             interrupted = False
         except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far

@@ -19,13 +19,10 @@ from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POLICY
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
 
+# the fine-tuning recipe `dpr finetune` shares (dpr.rl.recipe), importable from here as before
+from dpr.rl.recipe import FINETUNE_AT_REPEAT, PHYSICS_DISCOUNT, physics_discount  # noqa: F401
+
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}  # the Markov wave needs it; every learner gets it too
-# fine-tuning when deciding every 10 physics steps: shorter rollouts and more epochs than the yaml's entry
-FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}
-# The yaml's discount is per decision; fine-tuning discounts this much per *physics* step, gamma = 0.99**K per
-# decision of K steps (unless finetune_hyperparams sets gamma), so that its horizon is the same simulated time
-# whatever K is
-PHYSICS_DISCOUNT = 0.99
 EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
 BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
 TEACHER = "teacher"  # the chosen teacher's row in the report, when there was a choice
@@ -100,7 +97,10 @@ class PipelineConfig:
         check_types(self)
         unknown = [task for task in self.tasks if task not in ENV_IDS]
         if not self.tasks or unknown:
-            raise ParameterError("tasks", f"expected some of {list(ENV_IDS)}, got {self.tasks!r}")
+            raise ParameterError(
+                "tasks",
+                f"expected some of {list(ENV_IDS)} (a task of another package: --env-package), got {self.tasks!r}",
+            )
         if any(TASKS.get(i) != t for t, i in self.env_ids.items()):
             raise ParameterError(
                 "env_ids", f"expected registered ids of the tasks ({', '.join(TASKS)}), got {self.env_ids!r}"
@@ -231,11 +231,6 @@ def learner_env_kwargs(action_repeat: int, hold: int) -> dict[str, Any]:
     pipeline's, and the decision interval (``action_repeat``, or ``hold`` when it is PER_PHASE)."""
     repeat = hold if action_repeat == PER_PHASE else action_repeat
     return {**PIPELINE_ENV_KWARGS, "action_repeat": repeat} if repeat > 1 else dict(PIPELINE_ENV_KWARGS)
-
-
-def physics_discount(decision_steps: int) -> float:
-    """The discount per decision of ``decision_steps`` physics steps that is PHYSICS_DISCOUNT per physics step."""
-    return round(PHYSICS_DISCOUNT**decision_steps, 3)
 
 
 PRESET_FOLDER = Path(__file__).parent / "presets"

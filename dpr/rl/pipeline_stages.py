@@ -17,7 +17,8 @@ import yaml
 
 from dpr.atomic import atomic_write_text
 from dpr.envs import episode_steps
-from dpr.rl.pipeline_config import TEACHER, Teacher, learner_env_kwargs, physics_discount
+from dpr.rl.pipeline_config import TEACHER, Teacher, learner_env_kwargs
+from dpr.rl.recipe import physics_discount
 
 MODEL = "model.zip"
 EVALUATION = "evaluation.json"

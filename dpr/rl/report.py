@@ -66,13 +66,13 @@ def task_name(env_id: str) -> str:
 def policy_label(policy: str, tasks=()) -> str:
     """Display name of a policy: a model file's stem without the prefix of one of ``tasks`` (task names), so
     that the same method has the same name on every task (models/navigation-bc-ppo.zip on Navigation ->
-    bc-ppo), or its run folder and stem for a run's model.zip (runs/ft/nav9/model.zip -> nav9/model), else the
+    bc-ppo), or its whole path for a run's model.zip (runs/ft/nav9/model.zip -> runs/ft/nav9/model), else the
     policy's name."""
     if not is_model_path(policy):
         return policy
     stem = Path(policy).stem
-    if stem in RUN_FOLDER_STEMS:  # runs/ft/nav9/model.zip: named by its run folder, not merged with every model.zip
-        return f"{Path(policy).parent.name}/{stem}"
+    if stem in RUN_FOLDER_STEMS:  # every run's model is model.zip: runs/bc/nav9 and runs/ft/nav9 are two methods
+        return policy.removesuffix(".zip")
     for task in tasks:
         prefix = task.rsplit("-v", 1)[0].lower()  # a Gate-v0 model is still gate-<method>.zip
         if stem.lower().startswith(f"{prefix}-"):

@@ -43,6 +43,7 @@ from dpr.policies.sb3 import (
     load_initial_policy,
     load_model,
     make_vec_env,
+    model_architecture,
     save_model,
     single_thread_torch,
     write_model_info,
@@ -373,7 +374,9 @@ def train(
         probe.close()
     run_dir = Path(out) if resume else prepare_run_dir(out, config)
     snapshot = resume_state.load_snapshot(run_dir) if resume else None
-    info = ModelInfo(config.algo, config.env_id, env_kwargs, config.steps_per_episode)
+    info = ModelInfo(
+        config.algo, config.env_id, env_kwargs, config.steps_per_episode, architecture=model_architecture(hyper)
+    )
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
     if tensorboard_log is None:
         log(f"dpr {config.command}: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
