@@ -9,6 +9,7 @@ import dpr  # noqa: F401
 from dpr.checks import ParameterError
 from dpr.datasets.collect import CollectSpec
 from dpr.envs import MAX_EPISODE_STEPS, episode_steps
+from dpr.envs.particle_env import seconds_per_step, steps_per_second
 from dpr.metrics import MetricTracker
 from dpr.rl.evaluation import evaluate
 from dpr.rl.pipeline_config import (
@@ -81,6 +82,19 @@ def test_episode_steps_divides_the_physics_steps():
     assert episode_steps({}) == MAX_EPISODE_STEPS
     assert episode_steps({"action_repeat": 10}) == MAX_EPISODE_STEPS // 10
     assert episode_steps({"action_repeat": 3}, 10) == 4  # the last decision may run past the end: ceil
+
+
+@pytest.mark.parametrize(
+    "repeat, seconds, rate", [(1, 0.1, 10), (2, 0.2, 5), (6, 0.6, 10 / 6), (7, 0.7, 10 / 7), (10, 1.0, 1)]
+)
+def test_an_env_step_lasts_its_physics_steps(repeat, seconds, rate):
+    """One source of truth for simulated time: an env step is action_repeat physics steps of 0.1 s."""
+    kwargs = {"action_repeat": repeat}
+    assert seconds_per_step(kwargs) == seconds and steps_per_second(kwargs) == rate
+    assert isinstance(steps_per_second(kwargs), int) == (10 % repeat == 0)  # an integer fps where there is one
+    env = gym.make("dpr/Navigation-v0", **kwargs)
+    assert env.metadata["render_fps"] == rate  # a video of its frames plays in simulated time
+    assert gym.make("dpr/Navigation-v0").metadata["render_fps"] == 10  # (the class keeps its own)
 
 
 def test_the_markov_wave_keeps_its_gait_under_a_repeat_of_its_hold():

@@ -48,11 +48,32 @@ def split_swarm_kwargs(env_kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict
     return swarm, {key: value for key, value in env_kwargs.items() if key not in SWARM_KWARGS}
 
 
+def action_repeat(env_kwargs: dict[str, Any] | None = None) -> int:
+    """Physics steps per env step of an env made with ``env_kwargs`` (its ``action_repeat``, default 1)."""
+    return check_int("action_repeat", (env_kwargs or {}).get("action_repeat", 1), 1, MAX_EPISODE_STEPS)
+
+
 def episode_steps(env_kwargs: dict[str, Any] | None = None, physics_steps: int = MAX_EPISODE_STEPS) -> int:
     """Env steps of an episode of ``physics_steps`` physics steps for an env made with ``env_kwargs``: each env
     step is ``action_repeat`` physics steps (the default episode: 2500, or 250 decisions of 10 steps)."""
-    repeat = check_int("action_repeat", (env_kwargs or {}).get("action_repeat", 1), 1, MAX_EPISODE_STEPS)
-    return -(-physics_steps // repeat)
+    return -(-physics_steps // action_repeat(env_kwargs))
+
+
+# Simulated time. One physics step is C.CONTROL_PERIOD (0.1 s: C.FPS = 10 per second); one env step is
+# action_repeat of them. Every record of an episode (dataset fps and timestamps, MCAP log times, rerun's
+# `step` and `sim_time`) takes its time from these two functions.
+def seconds_per_step(env_kwargs: dict[str, Any] | None = None) -> float:
+    """Simulated seconds per env step of an env made with ``env_kwargs``: the physics step (C.CONTROL_PERIOD,
+    0.1 s) times ``action_repeat``, computed as ``action_repeat / C.FPS`` (6 steps: 0.6 s, not 0.6000000000000001)."""
+    return action_repeat(env_kwargs) / C.FPS
+
+
+def steps_per_second(env_kwargs: dict[str, Any] | None = None) -> int | float:
+    """Env steps per simulated second, ``1 / seconds_per_step``: the decision rate, which a dataset records as its
+    ``fps``. An int where ``action_repeat`` divides C.FPS (1, 2, 5, 10 give 10, 5, 2, 1), else a float (6 gives
+    10/6 = 1.6666666666666667)."""
+    repeat = action_repeat(env_kwargs)
+    return C.FPS // repeat if C.FPS % repeat == 0 else C.FPS / repeat
 
 
 def joint_action_bits(n_robots: int) -> np.ndarray:
@@ -134,6 +155,8 @@ class ParticleSwarmEnv(gym.Env):
         self.start_radius = (float(low), float(high))
         self.obs_last_action = bool(obs_last_action)
         self.action_repeat = int(action_repeat)
+        if self.action_repeat > 1:  # a video of render() frames plays at the decision rate (the class keeps C.FPS)
+            self.metadata = {**self.metadata, "render_fps": steps_per_second({"action_repeat": self.action_repeat})}
         self.image_size = int(image_size)
         self.render_size = int(render_size)
         self.render_mode = render_mode

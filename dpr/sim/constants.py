@@ -10,7 +10,8 @@ import math
 DT = 1.0 / 60.0
 SUBSTEPS = 6
 CONTROL_PERIOD = DT * SUBSTEPS
-FPS = round(1 / CONTROL_PERIOD)  # 10 control steps per second: the envs' render_fps and the datasets' fps
+FPS = round(1 / CONTROL_PERIOD)  # 10 control steps per second (an env step is action_repeat of them: see
+# dpr.envs.particle_env.seconds_per_step, which the envs' render_fps and the records' times follow)
 
 # Paddle robot (robot_model="paddle").
 BODY_MASS = 10.0
