@@ -51,6 +51,19 @@ def test_dataset_loads_in_lerobot(tool: ModuleType, tmp_path: Path, pixels: bool
     }
 
 
+@pytest.mark.parametrize(("repeat", "pixels"), [(6, False), (10, True)])
+def test_a_dataset_of_decisions_every_k_steps_loads_in_lerobot_by_simulated_seconds(
+    tool: ModuleType, tmp_path: Path, repeat: int, pixels: bool
+) -> None:
+    """fps 10/6 (a float) and 1: delta_timestamps of -1.2, -0.6, 0 s (or -2, -1, 0 s) pick the frames one and two
+    decisions back."""
+    root = tool.record(tmp_path / "ds", pixels=pixels, episodes=2, steps=8, action_repeat=repeat)
+    expected = tool.Expected.read(root)
+    assert expected.seconds_per_frame == repeat / 10
+    report = tool.check_dataset(root, expected)
+    assert report.ok, report.format()
+
+
 def _tasks_without_pandas_metadata(root: Path) -> None:
     """Task strings as a plain column: LeRobot then returns the row number as the task."""
     import pyarrow as pa

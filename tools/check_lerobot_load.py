@@ -20,10 +20,12 @@ From the repository root:
 
     PYTHONPATH=$PWD /tmp/lerobot-venv/bin/python tools/check_lerobot_load.py [--compact] [PATH ...]
 
-Without PATH it records a state-only and a pixel dataset with ``dpr collect``'s pipeline (``--compact``: then
-packs them into several LeRobot files each) and checks both; with PATH it checks those folders. LeRobot's
-``LeRobotDataset`` must give what ``LeRobotReader`` reads: length, every frame (images included), tasks, episode
-boundaries and the data file each episode row points at, stats, ``delta_timestamps`` padding at episode edges,
+Without PATH it records a state-only and a pixel dataset with ``dpr collect``'s pipeline, and two of decisions
+every 6 and every 10 physics steps (fps 10/6 and 1; ``--compact``: then packs them into several LeRobot files
+each) and checks them; with PATH it checks those folders. LeRobot's ``LeRobotDataset`` must give what
+``LeRobotReader`` reads: length, every frame (images included), tasks, episode boundaries and the data file each
+episode row points at, stats, ``delta_timestamps`` in simulated seconds (the frames one and two decisions away) and
+their padding at episode edges,
 a DataLoader epoch and an ``episodes=[1]`` subset. Exit status 1 when a check fails.
 ``tests/test_lerobot_compat.py`` runs the same checks in-process when ``lerobot`` is importable.
 """
@@ -43,7 +45,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-DELTA_TIMESTAMPS = {"observation.state": [-0.2, -0.1, 0.0], "action": [0.0, 0.1]}
+# delta_timestamps asked for in seconds: these frame offsets times the simulated seconds of a frame (0.1 s, or
+# k x 0.1 s for a dataset of decisions every k physics steps: its env kwargs say, independently of its fps)
+DELTA_FRAMES = {"observation.state": [-2, -1, 0], "action": [0, 1]}
 DEFAULT_KEYS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 _TORCHVISION_FALLBACK_LIB: Any = None  # kept alive: dropping a torch.library.Library removes its schemas
 
@@ -79,12 +83,23 @@ def make_torchvision_importable() -> None:
     _TORCHVISION_FALLBACK_LIB = lib
 
 
-def record(root: Path, *, pixels: bool, episodes: int = 3, steps: int = 40, compact: bool = False) -> Path:
-    """Wave-policy episodes of dpr/Navigation-v0 (4 disk robots) recorded by ``dpr.datasets.collect``."""
+def record(
+    root: Path, *, pixels: bool, episodes: int = 3, steps: int = 40, compact: bool = False, action_repeat: int = 1
+) -> Path:
+    """Wave-policy episodes of dpr/Navigation-v0 (4 disk robots) recorded by ``dpr.datasets.collect``, deciding
+    every ``action_repeat`` physics steps (fps 10 / action_repeat)."""
     from dpr.datasets.collect import CollectSpec, collect
     from dpr.datasets.lerobot import compact as compact_dataset
 
-    spec = CollectSpec("dpr/Navigation-v0", n_robots=4, robot_model="disk", steps=steps, pixels=pixels, image_size=24)
+    spec = CollectSpec(
+        "dpr/Navigation-v0",
+        n_robots=4,
+        robot_model="disk",
+        steps=steps,
+        pixels=pixels,
+        image_size=24,
+        env_kwargs={"action_repeat": action_repeat} if action_repeat > 1 else {},
+    )
     collect(root, spec, episodes=episodes)
     if compact:  # a target of 3/4 of the column data: episodes packed (three: two to a file)
         import pyarrow.parquet as pq
@@ -104,13 +119,15 @@ class Expected:
     tasks: list[str]
     starts: list[int]
     lengths: list[int]
-    fps: int
+    seconds_per_frame: float  # simulated seconds: the env's action_repeat x 0.1 s (1 / fps for other datasets)
 
     @classmethod
     def read(cls, root: Path) -> Expected:
         from dpr.datasets.lerobot import LeRobotReader
+        from dpr.envs.particle_env import seconds_per_step
 
         reader = LeRobotReader(root)
+        recorded = reader.info.get("dpr", {}).get("env_kwargs")
         episodes = [reader.episode(i) for i in range(reader.num_episodes)]
         return cls(
             features={k: v for k, v in reader.features.items() if k not in DEFAULT_KEYS},
@@ -118,8 +135,11 @@ class Expected:
             tasks=[reader.tasks[int(e["task_index"][0, 0])] for e in episodes],
             starts=[int(e["dataset_from_index"]) for e in reader.episodes],
             lengths=[int(e["length"]) for e in reader.episodes],
-            fps=reader.fps,
+            seconds_per_frame=seconds_per_step(recorded) if recorded is not None else 1 / reader.fps,
         )
+
+    def delta_timestamps(self) -> dict[str, list[float]]:
+        return {key: [f * self.seconds_per_frame for f in frames] for key, frames in DELTA_FRAMES.items()}
 
 
 class Check(NamedTuple):
@@ -179,7 +199,7 @@ def check_dataset(root: Path, expected: Expected | None = None) -> Report:
     report.run("meta.stats as our reader reads them", lambda: _check_stats(ds, root))
     dsd = report.run(
         "LeRobotDataset(delta_timestamps=...) opens",
-        lambda: LeRobotDataset(repo_id, root=root, delta_timestamps=DELTA_TIMESTAMPS),
+        lambda: LeRobotDataset(repo_id, root=root, delta_timestamps=expected.delta_timestamps()),
     )
     if dsd is not None:
         report.run("delta_timestamps values and *_is_pad at episode boundaries", lambda: _check_delta(dsd, expected))
@@ -243,12 +263,13 @@ def _check_stats(ds: Any, root: Path) -> None:
 
 
 def _check_delta(dsd: Any, expected: Expected) -> None:
-    """At each episode's first, second, middle and last two frames: values clamped to the episode, pad masks."""
+    """At each episode's first, second, middle and last two frames: values clamped to the episode, pad masks (the
+    frames DELTA_FRAMES names, asked for in seconds)."""
     for e, (start, length) in enumerate(zip(expected.starts, expected.lengths, strict=True)):
         for t in sorted({0, 1, length // 2, length - 2, length - 1} & set(range(length))):
             item = dsd[start + t]
-            for key, deltas in DELTA_TIMESTAMPS.items():
-                steps = [t + round(d * expected.fps) for d in deltas]
+            for key, offsets in DELTA_FRAMES.items():
+                steps = [t + offset for offset in offsets]
                 _equal((e, t, key, item[f"{key}_is_pad"].tolist()), (e, t, key, [not 0 <= s < length for s in steps]))
                 rows = [min(max(s, 0), length - 1) for s in steps]
                 assert np.array_equal(item[key].numpy(), expected.episodes[e][key][rows]), f"{key} at {e}/{t}"
@@ -284,8 +305,13 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         make_torchvision_importable()
         roots = args.datasets or [
-            record((args.keep or Path(tmp)) / name, pixels=pixels, compact=args.compact)
-            for name, pixels in (("navigation_state", False), ("navigation_pixels", True))
+            record((args.keep or Path(tmp)) / name, pixels=pixels, compact=args.compact, action_repeat=repeat)
+            for name, pixels, repeat in (
+                ("navigation_state", False, 1),
+                ("navigation_pixels", True, 1),
+                ("navigation_repeat6", False, 6),  # fps 10/6: a float
+                ("navigation_repeat10", True, 10),  # fps 1
+            )
         ]
         reports = [check_dataset(root) for root in roots]
         for report in reports:

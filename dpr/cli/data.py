@@ -72,7 +72,8 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "--verify",
         action="store_true",
         help="then read the whole dataset back: every column of every episode against its checksum and meta "
-        "row, and stats.json against the episodes' own stats (exit 1 at the first corrupt file)",
+        "row, stats.json against the episodes' own stats, and fps against the decision rate (one frame per "
+        "action_repeat physics steps); exit 2 at the first problem, named",
     )
     workers_argument(parser, "rollout processes")
     env_kwarg_argument(parser, "object_type=box")
@@ -214,16 +215,22 @@ def cmd_collect(args, parser) -> int:
 
 
 def verify_dataset(root) -> int:
-    """`dpr collect --verify`: 0 when every episode and stats.json hold, 2 (bad data, the file named) otherwise."""
+    """`dpr collect --verify`: 0 when every episode and stats.json hold and the dataset records its simulated
+    time (fps = the decision rate: dpr.datasets.timing), 2 (bad data, the file or the dataset named) otherwise."""
     from dpr.datasets.lerobot import DatasetError, LeRobotReader
+    from dpr.datasets.timing import check_dataset_time
 
     try:
         reader = LeRobotReader(root)
+        check_dataset_time(root, reader.info)
         frames = reader.verify()
     except DatasetError as error:
         print(f"dpr collect: verify: {error}", file=sys.stderr)
         return 2
-    print(f"verified {root}: {reader.num_episodes} episodes, {frames} frames; checksums and stats.json hold")
+    print(
+        f"verified {root}: {reader.num_episodes} episodes, {frames} frames at {reader.fps:g} fps; checksums and "
+        "stats.json hold"
+    )
     return 0
 
 

@@ -9,6 +9,9 @@ done and success flags that action produced (``next.*``); an episode of ``T`` st
 Resuming: the dataset is valid after every saved episode (see :mod:`dpr.datasets.lerobot`). Running the same
 command again opens the dataset, checks that it records the same env, env kwargs, policy and features, and
 rolls out only the seeds it does not hold yet. A killed run loses at most the episodes in flight.
+
+Time: ``fps`` is the decision rate, one frame per env step of ``action_repeat`` physics steps
+(:mod:`dpr.datasets.timing`); a dataset recorded before that with ``action_repeat > 1`` is refused, named.
 """
 
 from __future__ import annotations
@@ -32,13 +35,14 @@ from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
+from dpr.datasets.lerobot.format import INFO_PATH, load_info
+from dpr.datasets.timing import check_dataset_time, dataset_fps, time_info
 from dpr.envs import TASKS, episode_steps
 from dpr.envs.particle_env import IMAGE_SIZE_RANGE
 from dpr.metrics import EpisodeMetrics
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.rollout import roll_out
 from dpr.sim import swarm_class
-from dpr.sim.constants import FPS
 
 MCAP_FOLDER = "mcap"
 # gym.make kwargs that CollectSpec sets from its own fields
@@ -390,8 +394,17 @@ def collect(
     revision = swarm_class(spec.robot_model).revision
     if revision > 1:  # a dataset of earlier physics is not resumed with these (first revisions record none)
         info_extra["dpr"][F.ROBOT_MODEL_REVISION] = revision
+    info_extra["dpr"].update(time_info(spec.env_kwargs))  # fps is the decision rate (dpr.datasets.timing)
+    if (root / INFO_PATH).is_file():  # a dataset of the wrong fps is named, not resumed with the right one
+        check_dataset_time(root, load_info(root))
     bytes_before = _folder_bytes(root)
-    writer = LeRobotWriter.open(root, fps=FPS, features=features, robot_type=spec.robot_model, info_extra=info_extra)
+    writer = LeRobotWriter.open(
+        root,
+        fps=dataset_fps(spec.env_kwargs),
+        features=features,
+        robot_type=spec.robot_model,
+        info_extra=info_extra,
+    )
     started = time.perf_counter()
     added: list[SavedEpisode] = []
     interrupted = False

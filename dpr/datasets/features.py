@@ -19,6 +19,7 @@ ENV_KWARGS = "env_kwargs"
 POLICY = "policy"
 LABEL_POLICY = "label_policy"
 ROBOT_MODEL_REVISION = "robot_model_revision"
+DATASET_REVISION = "dataset_revision"  # info.json's dpr object: how the dataset records time (dpr.datasets.timing)
 N_ROBOTS = "n_robots"
 ROBOT_MODEL = "robot_model"
 PHYSICS_ERROR = "physics_error"

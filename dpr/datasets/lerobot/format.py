@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -278,15 +279,14 @@ def check_info(info: Any, path: Path) -> dict:
     missing = [k for k in REQUIRED_INFO_KEYS if k not in info]
     if missing:
         raise DatasetError(f"{path}: missing required keys {missing}")
-    for key in ("fps", "total_episodes", "total_frames"):
+    for key in ("total_episodes", "total_frames"):
         if not isinstance(info[key], int) or isinstance(info[key], bool) or info[key] < 0:
             raise DatasetError(f"{path}: {key} must be a non-negative int, got {info[key]!r}")
         if info[key] > MAX_COUNTS[key]:  # checked before anything is allocated for them
             raise DatasetError(
                 f"{path}: {key} is {info[key]}, beyond any dataset this reader takes ({MAX_COUNTS[key]})"
             )
-    if info["fps"] < 1:
-        raise DatasetError(f"{path}: fps must be >= 1, got {info['fps']}")
+    check_fps(info["fps"], str(path))
     features = info["features"]
     if not isinstance(features, dict):
         raise DatasetError(f"{path}: features must be an object, got {type(features).__name__}")
@@ -308,13 +308,25 @@ def check_info(info: Any, path: Path) -> dict:
     return info
 
 
+def check_fps(fps: Any, where: str) -> int | float:
+    """``fps`` if it is a frame rate this format takes: a positive int, or a positive finite float (a dataset of
+    decisions every k physics steps records 10 / k frames per second, 10/6 for k = 6; LeRobot's loader computes
+    frame offsets as ``round(seconds * fps)``, so it takes one: docs/datasets.md). A DatasetError naming ``where``
+    otherwise."""
+    if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not math.isfinite(fps) or fps <= 0:
+        raise DatasetError(f"{where}: fps must be a positive number of frames per second, got {fps!r}")
+    if fps > MAX_COUNTS["fps"]:
+        raise DatasetError(f"{where}: fps is {fps}, beyond any dataset this reader takes ({MAX_COUNTS['fps']})")
+    return fps
+
+
 def load_info(root: Path) -> dict:
     path = root / INFO_PATH
     return check_info(read_json(path), path)
 
 
 def first_difference(
-    info: Mapping[str, Any], *, fps: int, features: dict[str, dict], robot_type: str, info_extra: dict[str, Any]
+    info: Mapping[str, Any], *, fps: float, features: dict[str, dict], robot_type: str, info_extra: dict[str, Any]
 ) -> str | None:
     """The first way an existing info.json differs from what a writer was asked for, or None."""
     if info["fps"] != fps:

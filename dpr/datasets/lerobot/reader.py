@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from bisect import bisect_left, bisect_right
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,8 @@ from dpr.datasets.lerobot.stats import Aggregate, merge_aggregates, stats_json
 
 # ------------------------------------------------------------------------------------------------------ reader
 
+DELTA_TOLERANCE_S = 1e-4  # LeRobotDataset's tolerance_s: how far a delta time may be from a whole frame
+
 
 class LeRobotReader:
     """Reads a LeRobot v3.0 dataset lazily, frame data only on request: as recorded (a file per episode), compacted
@@ -47,7 +49,7 @@ class LeRobotReader:
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: dataset folder not found")
         self.info: dict[str, Any] = load_info(self.root)
-        self.fps: int = self.info["fps"]
+        self.fps: int | float = self.info["fps"]  # frames per second (a float for 10/6 Hz: check_fps)
         self.features: dict[str, dict] = self.info["features"]
         self.num_episodes: int = self.info["total_episodes"]
         self.num_frames: int = self.info["total_frames"]
@@ -160,6 +162,26 @@ class LeRobotReader:
             if index not in self._episode_stats:
                 raise DatasetError(f"{path}: no meta row for episode {index}")
         return self._episode_stats[index]
+
+    def delta_indices(
+        self, delta_timestamps: Mapping[str, Sequence[float]], tolerance_s: float = DELTA_TOLERANCE_S
+    ) -> dict[str, list[int]]:
+        """Frame offsets of ``delta_timestamps`` (feature -> seconds before or after a frame) as LeRobot's
+        ``LeRobotDataset(delta_timestamps=...)`` computes them from ``fps``: ``round(seconds * fps)``. A time that
+        is not a whole number of frames (to within ``tolerance_s``, LeRobot's default) or an unknown feature is a
+        DatasetError naming it."""
+        indices: dict[str, list[int]] = {}
+        for name, seconds in delta_timestamps.items():
+            if name not in self.features:
+                raise DatasetError(f"{self.root / INFO_PATH}: delta_timestamps names {name!r}, not a feature")
+            off = [float(t) for t in seconds if abs(t * self.fps - round(t * self.fps)) / self.fps > tolerance_s]
+            if off:
+                raise DatasetError(
+                    f"{self.root}: delta_timestamps {off} of {name!r} are not multiples of the frame period "
+                    f"1/{self.fps:g} s"
+                )
+            indices[name] = [round(t * self.fps) for t in seconds]
+        return indices
 
     def _check_episode(self, index: int) -> None:
         if not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_episodes:

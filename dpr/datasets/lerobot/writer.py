@@ -34,6 +34,7 @@ from dpr.datasets.lerobot.format import (
     TASKS_PATH,
     VIDEO_FILES_SIZE_IN_MB,
     DatasetError,
+    check_fps,
     check_info,
     chunk_file,
     encode_png,
@@ -95,7 +96,7 @@ class LeRobotWriter:
         self,
         root: Path,
         *,
-        fps: int,
+        fps: float,
         features: dict[str, dict],
         robot_type: str,
         info_extra: dict[str, Any],
@@ -126,8 +127,7 @@ class LeRobotWriter:
     @staticmethod
     def _check_args(root: Any, fps: Any, robot_type: Any, info_extra: Any) -> tuple[Path, dict[str, Any]]:
         root = Path(root)
-        if not isinstance(fps, int) or isinstance(fps, bool) or fps < 1:
-            raise DatasetError(f"{root}: fps must be a positive int, got {fps!r}")
+        check_fps(fps, str(root))
         if robot_type is not None and not isinstance(robot_type, str):
             raise DatasetError(f"{root}: robot_type must be a str (or None), got {robot_type!r}")
         extra = dict(info_extra or {})
@@ -145,7 +145,7 @@ class LeRobotWriter:
         cls,
         root: str | os.PathLike,
         *,
-        fps: int,
+        fps: float,
         features: dict[str, dict],
         robot_type: str,
         info_extra: dict | None = None,
@@ -169,7 +169,7 @@ class LeRobotWriter:
         cls,
         root: str | os.PathLike,
         *,
-        fps: int,
+        fps: float,
         features: dict[str, dict],
         robot_type: str,
         info_extra: dict | None = None,
