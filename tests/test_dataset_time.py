@@ -21,6 +21,18 @@ SMALL = {"env_id": NAV, "n_robots": 4, "robot_model": "disk"}
 CLI_SMALL = ["--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--workers", "1"]
 
 
+# one robot's state, for MCAP files written by hand
+STATE = {
+    "positions": [[1.0, 2.0]],
+    "angles": [0.0],
+    "velocities": [[0.0, 0.0]],
+    "angular_velocities": [0.0],
+    "expansions": [0.0],
+    "alive": [True],
+}
+METRICS = {"projected_displacement": 0.0, "net_displacement": 0.0, "total_distance": 0.0, "is_success": False}
+
+
 def record(root: Path, repeat: int, steps: int = 6, episodes: int = 1, **kwargs) -> Path:
     spec = CollectSpec(**SMALL, steps=steps, env_kwargs={"action_repeat": repeat}, **kwargs)
     collect(root, spec, episodes=episodes, workers=1)
@@ -96,3 +108,57 @@ def test_a_dataset_of_one_decision_per_step_stays_valid_as_recorded_before(tmp_p
     assert info["fps"] == 10 and "dataset_revision" not in info["dpr"]
     summary = collect(root, CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 1}), episodes=2, workers=1)
     assert summary.episodes_total == 2
+
+
+# ----------------------------------------------------------------------------------------------------- MCAP
+def test_mcap_logs_are_stamped_with_simulated_time(tmp_path):
+    from mcap.reader import make_reader
+
+    from dpr.datasets.mcap import TOPIC_STATE, read_mcap
+
+    spec = CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 6})
+    collect(tmp_path / "ds", spec, episodes=1, workers=1, mcap=True)
+    path = tmp_path / "ds" / "mcap" / "seed-000000.mcap"
+    episode = read_mcap(path)
+    assert episode.action_repeat == 6 and episode.metadata["env_kwargs"]["action_repeat"] == 6
+    np.testing.assert_array_equal(episode.physics_steps, [0, 6, 12, 18])
+    np.testing.assert_allclose(episode.times, [0.0, 0.6, 1.2, 1.8])
+    with path.open("rb") as stream:
+        messages = [(c.topic, m) for _, c, m in make_reader(stream).iter_messages()]
+    states = [(m.log_time, json.loads(m.data)["time"]) for topic, m in messages if topic == TOPIC_STATE]
+    assert [log_time for log_time, _ in states] == [0, 600_000_000, 1_200_000_000, 1_800_000_000]
+    assert [time for _, time in states] == [0.0, 0.6, 1.2, 1.8]
+
+
+def test_an_mcap_writer_of_another_repeat_than_the_env_is_refused(tmp_path):
+    import gymnasium as gym
+
+    from dpr.datasets.mcap import McapEpisodeWriter, McapError, log_env_step
+
+    env = gym.make(NAV, n_robots=4, robot_model="disk", action_repeat=6)
+    _, info = env.reset(seed=0)
+    with pytest.raises(McapError, match="make the writer with action_repeat=6"):
+        with McapEpisodeWriter(tmp_path / "x.mcap", metadata={}) as writer:
+            log_env_step(writer, env, 0, None, None, None, None, info)
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_an_mcap_log_written_before_it_recorded_its_repeat_reads_with_the_env_kwargs_one(tmp_path, monkeypatch):
+    """Such a file logged 0.1 s per env step; its episode's env_kwargs say how long each was."""
+    import dpr.datasets.mcap.writer as writer_module
+    from dpr.datasets.mcap import McapEpisodeWriter, read_mcap
+
+    encode = writer_module._encode_metadata
+
+    def encode_as_before(path, metadata, repeat=1):
+        return {k: v for k, v in encode(path, metadata, repeat).items() if k != "action_repeat"}
+
+    monkeypatch.setattr(writer_module, "_encode_metadata", encode_as_before)
+    path = tmp_path / "old.mcap"
+    with McapEpisodeWriter(path, metadata={"env_kwargs": {"action_repeat": 5}}) as writer:
+        writer.write_scene(goal=[0.0, 0.0])
+        writer.write_step(0, **STATE)
+        writer.write_step(1, **STATE, action=[1.0], reward=0.0, terminated=False, truncated=False, metrics=METRICS)
+    episode = read_mcap(path)
+    assert episode.action_repeat == 5 and "action_repeat" not in episode.metadata
+    np.testing.assert_allclose(episode.times, [0.0, 0.5])

@@ -150,7 +150,8 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
         if mcap_path is not None:
             from dpr.datasets.mcap import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
 
-            writer = McapEpisodeWriter(mcap_path, metadata=episode_metadata(env, seed=seed, policy=spec.policy))
+            metadata = episode_metadata(env, seed=seed, policy=spec.policy)
+            writer = McapEpisodeWriter(mcap_path, metadata=metadata, action_repeat=base.action_repeat)
             log_env_scene(writer, env)
             log_env_step(writer, env, 0, None, None, None, None, info)
 

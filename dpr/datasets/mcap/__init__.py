@@ -5,8 +5,9 @@ and read back with the ``mcap`` library, or with :func:`read_mcap` into numpy ar
 
 Layout of a file written by :class:`McapEpisodeWriter` (format ``dpr-mcap/1``)
 ----------------------------------------------------------------------------------
-Log time of step ``t`` is ``t * 0.1 s`` in nanoseconds (10 Hz control, the env's ``render_fps``); step 0
-is the state right after ``reset()``, step ``t >= 1`` the state after the ``t``-th ``env.step``.
+Log time of step ``t`` is its simulated time, ``t * action_repeat * 0.1 s`` in nanoseconds (an env step is
+``action_repeat`` physics steps of 0.1 s; :func:`dpr.envs.particle_env.seconds_per_step`); step 0 is the state
+right after ``reset()``, step ``t >= 1`` the state after the ``t``-th ``env.step``.
 
 ========================  ============  ===========================================================
 topic                     steps         fields
@@ -31,7 +32,9 @@ topic                     steps         fields
                                         ``net_displacement``, ``total_distance``, ``is_success``
 ========================  ============  ===========================================================
 
-Episode metadata is an MCAP Metadata record named ``dpr.episode``: ``format`` (``dpr-mcap/1``) and the
+Episode metadata is an MCAP Metadata record named ``dpr.episode``: ``format`` (``dpr-mcap/1``),
+``action_repeat`` (physics steps per env step; a file written before it was recorded logged 0.1 s per env step
+whatever the env's was: :func:`read_mcap` then takes the episode's ``env_kwargs``' value for its times) and the
 caller's keys (typically ``env_id``, ``seed``, ``n_robots``, ``robot_model``, ``policy``, ``env_kwargs``; see
 :func:`episode_metadata`). MCAP metadata values are strings: string values are stored as they are, any
 other value as JSON text, and the key ``json_keys`` lists (comma-separated) which keys hold JSON, so

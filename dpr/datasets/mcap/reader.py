@@ -12,6 +12,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding
 
+from dpr.datasets import features as F
 from dpr.datasets.mcap.schema import (
     METRIC_KEYS,
     REQUIRED_TOPICS,
@@ -35,6 +36,8 @@ class McapEpisode:
     ``T`` env steps give ``T + 1`` states (row 0 is the reset state) and ``T`` actions: ``actions[i]`` was
     taken in state ``i`` and produced state ``i + 1``, ``rewards[i]``, ``terminated[i]``, ``truncated[i]`` and
     ``metrics[key][i]``. ``alive`` is the step-0 mask (robots do not die or revive within an episode).
+    ``action_repeat``: physics steps of 0.1 s per env step, as the metadata record says (a file written before
+    it did: its ``env_kwargs``' value, whose log times count 0.1 s per env step, else 1).
     """
 
     metadata: dict[str, Any]
@@ -57,6 +60,7 @@ class McapEpisode:
     object_velocities: np.ndarray | None  # [T+1, 2]
     magnets: list[np.ndarray] | None  # per state, [M_t, 2, 2], rounded to MAGNET_DECIMALS
     scene: dict[str, Any]  # the raw /scene message (object shape, robot radii)
+    action_repeat: int = 1
 
     @property
     def n_steps(self) -> int:
@@ -68,22 +72,27 @@ class McapEpisode:
         return self.positions.shape[1]
 
     @property
+    def physics_steps(self) -> np.ndarray:
+        """Physics step of each state since the reset: ``steps * action_repeat``."""
+        return self.steps * self.action_repeat
+
+    @property
     def times(self) -> np.ndarray:
-        """Seconds of each state since the reset."""
-        return self.steps / FPS
+        """Simulated seconds of each state since the reset."""
+        return self.physics_steps / FPS
 
 
-def _raw_messages(path: Path) -> tuple[dict[str, Any], dict[str, list[dict]]]:
-    """Metadata and decoded messages per topic (all topics but foreign ones, sorted by step). Any failure of
-    the mcap library (bad magic, truncation, CRC mismatch, bad compression) becomes a McapError naming
-    ``path``."""
+def _raw_messages(path: Path) -> tuple[tuple[dict[str, Any], int | None], dict[str, list[dict]]]:
+    """(Metadata, recorded action_repeat) and decoded messages per topic (all topics but foreign ones, sorted by
+    step). Any failure of the mcap library (bad magic, truncation, CRC mismatch, bad compression) becomes a
+    McapError naming ``path``."""
     try:
         with path.open("rb") as stream:
             reader = make_reader(stream, validate_crcs=True)
             summary = reader.get_summary()
             if summary is None:
                 raise McapError(path, "no summary section: the file was not closed by its writer")
-            metadata = _decode_metadata(path, list(reader.iter_metadata()))
+            metadata, repeat = _decode_metadata(path, list(reader.iter_metadata()))
             topics = {channel.topic for channel in summary.channels.values()}
             encodings = {channel.topic: channel.message_encoding for channel in summary.channels.values()}
             raw: dict[str, list[bytes]] = {topic: [] for topic in topics}
@@ -112,7 +121,7 @@ def _raw_messages(path: Path) -> tuple[dict[str, Any], dict[str, list[dict]]]:
             except (KeyError, TypeError) as exc:
                 raise McapError(path, f"a message on {topic} has no integer 'step'") from exc
         messages[topic] = decoded
-    return metadata, messages
+    return (metadata, repeat), messages
 
 
 def _check_steps(path: Path, topic: str, messages: list[dict], first: int, count: int) -> None:
@@ -133,7 +142,7 @@ def read_mcap(path: str | os.PathLike) -> McapEpisode:
     path = Path(path)
     if not path.is_file():
         raise McapError(path, "no such file")
-    metadata, messages = _raw_messages(path)
+    (metadata, repeat), messages = _raw_messages(path)
     states = messages[TOPIC_STATE]
     if not states:
         raise McapError(path, f"no messages on {TOPIC_STATE}")
@@ -147,12 +156,24 @@ def read_mcap(path: str | os.PathLike) -> McapEpisode:
         if messages.get(topic):
             _check_steps(path, topic, messages[topic], 0, n_states)
     try:
-        return _assemble(metadata, messages)
+        return _assemble(metadata, messages, _action_repeat(path, metadata, repeat))
     except (KeyError, TypeError, ValueError) as exc:
         raise McapError(path, f"malformed message ({type(exc).__name__}: {exc})") from exc
 
 
-def _assemble(metadata: dict[str, Any], messages: dict[str, list[dict]]) -> McapEpisode:
+def _action_repeat(path: Path, metadata: dict[str, Any], recorded: int | None) -> int:
+    """The file's physics steps per env step: as recorded, or in a file written before they were, the episode's
+    ``env_kwargs`` value (its log times and ``time`` fields count 0.1 s per env step: too short where it is > 1)."""
+    if recorded is not None:
+        return recorded
+    kwargs = metadata.get(F.ENV_KWARGS)
+    repeat = kwargs.get("action_repeat", 1) if isinstance(kwargs, dict) else 1
+    if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
+        raise McapError(path, f"metadata env_kwargs hold action_repeat={repeat!r}, not a positive integer")
+    return repeat
+
+
+def _assemble(metadata: dict[str, Any], messages: dict[str, list[dict]], action_repeat: int = 1) -> McapEpisode:
     states = messages[TOPIC_STATE]
     actions = messages[TOPIC_ACTION]
     rewards = messages[TOPIC_REWARD]
@@ -194,6 +215,7 @@ def _assemble(metadata: dict[str, Any], messages: dict[str, list[dict]]) -> Mcap
         object_velocities=object_velocities,
         magnets=magnets,
         scene=scene,
+        action_repeat=action_repeat,
     )
     _check_shapes(episode)
     return episode

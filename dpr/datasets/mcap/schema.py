@@ -17,7 +17,7 @@ from dpr.sim.constants import FPS
 
 MCAP_FORMAT = "dpr-mcap/1"
 METADATA_NAME = "dpr.episode"
-STEP_NS = 1_000_000_000 // FPS  # log time of one control step, in nanoseconds
+STEP_NS = 1_000_000_000 // FPS  # one physics step, in nanoseconds (an env step is action_repeat of them)
 
 TOPIC_SCENE = "/scene"
 TOPIC_STATE = "/swarm/state"
@@ -29,7 +29,8 @@ REQUIRED_TOPICS = (TOPIC_SCENE, TOPIC_STATE, TOPIC_ACTION, TOPIC_REWARD)
 
 MAGNET_DECIMALS = 2  # magnet end points are drawing aids: stored to 0.01 units
 METRIC_KEYS = ("projected_displacement", "net_displacement", "total_distance", "is_success")
-_RESERVED_METADATA = ("format", "json_keys")
+ACTION_REPEAT_KEY = "action_repeat"  # the metadata record's physics steps per env step (absent before: see reader)
+_RESERVED_METADATA = ("format", "json_keys", ACTION_REPEAT_KEY)
 
 
 class McapError(ValueError):
@@ -68,7 +69,11 @@ def _object_schema(title: str, description: str, properties: dict) -> dict:
     }
 
 
-_STEP = {"type": "integer", "minimum": 0, "description": "control step (0 = the reset state)"}
+_STEP = {
+    "type": "integer",
+    "minimum": 0,
+    "description": "env step (0 = the reset state); each is action_repeat physics steps of 0.1 s",
+}
 
 SCHEMAS: dict[str, dict] = {
     TOPIC_SCENE: _object_schema(
@@ -101,7 +106,7 @@ SCHEMAS: dict[str, dict] = {
         "Every robot's state after a control step (pymunk units, radians, seconds).",
         {
             "step": _STEP,
-            "time": _number("step * 0.1 s"),
+            "time": _number("simulated seconds since the reset: step * action_repeat * 0.1 s"),
             "x": _numbers("robot centre x"),
             "y": _numbers("robot centre y"),
             "angle": _numbers("robot body angle (rad)"),
@@ -183,10 +188,10 @@ def _encode(message: dict) -> bytes:
 
 
 # -- metadata -----------------------------------------------------------------------------------------------
-def _encode_metadata(path: Path, metadata: Mapping[str, Any]) -> dict[str, str]:
+def _encode_metadata(path: Path, metadata: Mapping[str, Any], action_repeat: int = 1) -> dict[str, str]:
     if not isinstance(metadata, Mapping):
         raise McapError(path, f"metadata must be a mapping of str to values, got {type(metadata).__name__}")
-    encoded = {"format": MCAP_FORMAT}
+    encoded = {"format": MCAP_FORMAT, ACTION_REPEAT_KEY: str(action_repeat)}
     json_keys = []
     for key, value in metadata.items():
         if not isinstance(key, str) or not key:
@@ -205,7 +210,9 @@ def _encode_metadata(path: Path, metadata: Mapping[str, Any]) -> dict[str, str]:
     return encoded
 
 
-def _decode_metadata(path: Path, records: list) -> dict[str, Any]:
+def _decode_metadata(path: Path, records: list) -> tuple[dict[str, Any], int | None]:
+    """The caller's metadata, and the file's physics steps per env step (None in a file written before the
+    writer recorded it)."""
     found = [record.metadata for record in records if record.name == METADATA_NAME]
     if not found:
         raise McapError(path, f"no {METADATA_NAME!r} metadata record: not a {MCAP_FORMAT} episode log")
@@ -214,6 +221,9 @@ def _decode_metadata(path: Path, records: list) -> dict[str, Any]:
     if version != MCAP_FORMAT:
         raise McapError(path, f"format is {version!r}, this reader reads {MCAP_FORMAT!r}")
     json_keys = [key for key in raw.pop("json_keys", "").split(",") if key]
+    repeat = raw.pop(ACTION_REPEAT_KEY, None)
+    if repeat is not None and not (repeat.isdigit() and int(repeat) >= 1):
+        raise McapError(path, f"metadata {ACTION_REPEAT_KEY!r} must be a positive integer, got {repeat!r}")
     metadata: dict[str, Any] = dict(raw)
     for key in json_keys:
         if key not in raw:
@@ -222,4 +232,4 @@ def _decode_metadata(path: Path, records: list) -> dict[str, Any]:
             metadata[key] = json.loads(raw[key])
         except json.JSONDecodeError as exc:
             raise McapError(path, f"metadata[{key!r}] is not valid JSON: {exc}") from exc
-    return metadata
+    return metadata, None if repeat is None else int(repeat)

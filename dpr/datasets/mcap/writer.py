@@ -43,6 +43,7 @@ from dpr.datasets.mcap.schema import (
     _encode,
     _encode_metadata,
 )
+from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.sim.constants import FPS
 
 _COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -88,8 +89,11 @@ class McapEpisodeWriter:
     :class:`dpr.atomic.AtomicFile`), fsynced and renamed onto ``path`` (replacing any file there). Leaving the
     ``with`` block by an exception, or :meth:`abort`, drops the spool.
 
+    ``action_repeat``: physics steps (0.1 s each) per env step, as the env was made with: step ``t`` is logged at
+    ``t * action_repeat * 0.1 s``, and the number is kept in the metadata record (see :mod:`dpr.datasets.mcap`).
+
     ``compression``: "zstd" (default), "lz4" or "none", applied per MCAP chunk of ``chunk_size`` bytes. A bad
-    ``compression`` or ``chunk_size`` raises :class:`dpr.checks.ParameterError` naming it.
+    ``action_repeat``, ``compression`` or ``chunk_size`` raises :class:`dpr.checks.ParameterError` naming it.
     """
 
     def __init__(
@@ -97,15 +101,17 @@ class McapEpisodeWriter:
         path: str | os.PathLike,
         *,
         metadata: Mapping[str, Any],
+        action_repeat: int = 1,
         compression: str = "zstd",
         chunk_size: int = 1 << 20,
     ):
         self.path = Path(path)
         check_choice("compression", compression, _COMPRESSIONS)
         check_int("chunk_size", chunk_size, minimum=1)
+        self.action_repeat = check_int("action_repeat", action_repeat, 1, MAX_EPISODE_STEPS)
         if not self.path.parent.is_dir():
             raise McapError(self.path, f"directory {str(self.path.parent)!r} does not exist")
-        encoded_metadata = _encode_metadata(self.path, metadata)
+        encoded_metadata = _encode_metadata(self.path, metadata, self.action_repeat)
         self._file = tempfile.SpooledTemporaryFile(max_size=SPOOL_MEMORY)
         self._channels: dict[str, int] = {}
         self._closed = False
@@ -146,7 +152,7 @@ class McapEpisodeWriter:
         return channel
 
     def _message(self, topic: str, step: int, message: dict) -> None:
-        log_time = step * STEP_NS
+        log_time = step * self.action_repeat * STEP_NS  # simulated time, in integer nanoseconds
         self._writer.add_message(self._channel(topic), log_time, _encode(message), log_time, sequence=step)
 
     def _check_open(self) -> None:
@@ -238,7 +244,7 @@ class McapEpisodeWriter:
         vxy = velocities.T.tolist()
         state = {
             "step": step,
-            "time": step / FPS,
+            "time": step * self.action_repeat / FPS,
             "x": xy[0],
             "y": xy[1],
             "angle": _array(path, "angles", angles, (n,)).tolist(),
@@ -394,6 +400,13 @@ def log_env_step(
     world = base.world
     if world is None:
         raise McapError(writer.path, "the env has no world yet: call env.reset() before logging it")
+    repeat = getattr(base, "action_repeat", 1)
+    if repeat != writer.action_repeat:
+        raise McapError(
+            writer.path,
+            f"the env takes {repeat} physics steps per step and the writer logs {writer.action_repeat}: make the "
+            f"writer with action_repeat={repeat}, so that its log times are the simulated time",
+        )
     swarm = world.swarm
     if step == 0 and not writer.scene_written:
         log_env_scene(writer, env)
