@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from collections import defaultdict
 
 import numpy as np
@@ -52,9 +53,11 @@ def read_rrd(path) -> tuple[dict[str, dict[str, list]], list[str]]:
     return entities, origins
 
 
-def assert_timelines(columns: dict[str, list], first: int, last: int) -> None:
-    assert columns["step"] == list(range(first, last + 1))
-    assert [t.value for t in columns["sim_time"]] == [step * 100_000_000 for step in range(first, last + 1)]
+def assert_timelines(columns: dict[str, list], first: int, last: int, every: int = 1) -> None:
+    """States ``first .. last`` logged at their physics steps (``every`` physics steps a state) and 0.1 s each."""
+    steps = [state * every for state in range(first, last + 1)]
+    assert columns["step"] == steps
+    assert [t.value for t in columns["sim_time"]] == [step * 100_000_000 for step in steps]
 
 
 # -- datasets -----------------------------------------------------------------------------------------------------
@@ -150,6 +153,88 @@ def test_view_policies_side_by_side_on_gate(tmp_path):
     np.testing.assert_array_equal(wave[0], random[0])  # the same start
     expected = rollout_episode("dpr/Gate-v0", "wave", 3, n_robots=4, robot_model="disk", steps=steps)
     np.testing.assert_allclose(wave[20], expected.positions[20], rtol=1e-6)  # float32 in the .rrd
+
+
+@pytest.fixture(scope="module")
+def every_six(tmp_path_factory):
+    """A dataset of the wave deciding every 6 physics steps (two episodes of 10 decisions) and a one-epoch
+    `dpr bc` clone of it, which decides every 6 steps too."""
+    root = tmp_path_factory.mktemp("every_six")
+    spec = CollectSpec("dpr/Navigation-v0", robot_model="disk", n_robots=4, steps=10, env_kwargs={"action_repeat": 6})
+    collect(root / "ds", spec, episodes=2, workers=1)
+    argv = ["bc", "--dataset", str(root / "ds"), "--env", "dpr/Navigation-v0", "--epochs", "1"]
+    assert run([*argv, "--out", str(root / "run")]) == 0
+    return root / "ds", root / "run" / "model.zip"
+
+
+class _Bar:
+    """tqdm's interface as `dpr view` uses it, keeping every bar's count and total."""
+
+    bars: list[_Bar] = []
+
+    def __init__(self, total=None, **kwargs):
+        self.total, self.n = total, 0
+        _Bar.bars.append(self)
+
+    def update(self, n=1):
+        self.n += n
+
+    def refresh(self):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
+
+def test_a_model_deciding_every_six_steps_shares_the_waves_clock(every_six, tmp_path, monkeypatch):
+    """Side by side, both rollouts log `step` as the physics step and `sim_time` in simulated seconds: the model
+    at every decision (steps 0, 6, .., 60), both ending at step 60 and 6.0 s; each progress bar counts to 60."""
+    import tqdm
+
+    _, model = every_six
+    monkeypatch.setattr(tqdm, "tqdm", _Bar)
+    _Bar.bars = []
+    out = tmp_path / "x.rrd"
+    steps = 60
+    argv = ["view", "--env", "dpr/Navigation-v0", "--policies", f"wave,{model}", "--steps", str(steps), *SMALL]
+    assert run([*argv, "--save", str(out)]) == 0
+    entities, origins = read_rrd(out)
+    name = dpr.viz.episodes.entity_name(str(model))
+    assert {"/wave", f"/{name}"} <= set(origins)
+    wave, clone = entities["/wave/scene/robots"], entities[f"/{name}/scene/robots"]
+    assert_timelines(wave, 0, steps)
+    assert_timelines(clone, 0, steps // 6, every=6)  # its state at each decision, at the physics step it belongs to
+    assert wave["step"][-1] == clone["step"][-1] == steps  # the last states: the same step and simulated second
+    assert wave["sim_time"][-1].value == clone["sim_time"][-1].value == 6_000_000_000
+    for metric in ("reward", "distance_to_goal"):  # the shared plots compare the same times
+        assert entities[f"/{name}/metrics/{metric}"]["step"][-1] == entities[f"/wave/metrics/{metric}"]["step"][-1]
+    assert [(bar.n, bar.total) for bar in _Bar.bars] == [(steps, steps), (steps, steps)]
+
+
+def test_a_dataset_of_decisions_every_six_steps_is_viewed_in_its_own_time(every_six, tmp_path):
+    dataset, _ = every_six
+    out = tmp_path / "ds6.rrd"
+    assert run(["view", str(dataset), "--episode", "1", "--save", str(out)]) == 0
+    entities, _ = read_rrd(out)
+    assert_timelines(entities["/episode_1/scene/robots"], 0, 9, every=6)  # frame t at t / fps = 0.6 t s
+    assert_timelines(entities["/episode_1/metrics/reward"], 1, 9, every=6)
+
+
+def test_a_dataset_of_the_old_fps_is_refused_by_the_viewer_with_what_to_do(every_six, tmp_path, capsys):
+    dataset, _ = every_six
+    old = tmp_path / "old"
+    shutil.copytree(dataset, old)
+    info = json.loads((old / "meta" / "info.json").read_text())
+    info["fps"] = 10  # as recorded before dpr kept simulated time
+    del info["dpr"]["dataset_revision"]
+    (old / "meta" / "info.json").write_text(json.dumps(info))
+    assert run(["view", str(old), "--save", str(tmp_path / "old.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert str(old) in err and "action_repeat=6" in err and "into a new folder" in err
+    assert not (tmp_path / "old.rrd").exists()
 
 
 def test_view_manipulation_logs_the_object(tmp_path):
@@ -354,7 +439,7 @@ def test_train_saves_its_checkpoints_and_final_model_rollouts_to_rerun(tmp_path,
     entities, origins = read_rrd(out)
     steps = sorted(int(path.stem.split("_")[1]) for path in checkpoints)
     assert {f"/step_{n}" for n in steps} | {"/final"} == {o for o in origins if o.startswith(("/step_", "/final"))}
-    assert_timelines(entities["/final/scene/robots"], 0, STEPS)
+    assert_timelines(entities["/final/scene/robots"], 0, STEPS, every=action_repeat)
 
 
 def test_train_refuses_a_rerun_path_that_is_not_rrd_before_training(tmp_path, capsys):

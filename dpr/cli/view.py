@@ -115,6 +115,7 @@ def _roll_out_policies(args, parser) -> list:
     check_env_kwargs([args.env], {"n_robots": args.n_robots, "robot_model": args.robot_model, **env_kwargs}, parser)
     episodes = []
     for name in policies:
+        # counts physics steps, whatever the policy's action_repeat: a model deciding every k steps moves it k a time
         with tqdm(total=args.steps, desc=f"roll out {name}", unit="step", leave=False) as bar:
             episodes.append(
                 rollout_episode(
@@ -125,9 +126,12 @@ def _roll_out_policies(args, parser) -> list:
                     robot_model=args.robot_model,
                     steps=args.steps,
                     env_kwargs=env_kwargs,
-                    on_step=lambda step: bar.update(1),
+                    on_step=lambda done: bar.update(min(done, bar.total) - bar.n),
                 )
             )
+            if bar.n < bar.total:  # the episode ended early (goal reached, physics blow-up): that is its whole length
+                bar.total = bar.n
+                bar.refresh()
     return episodes
 
 
@@ -173,9 +177,11 @@ COMMANDS = (
         help="inspect episodes in rerun: a dataset, an MCAP log, or policies rolled out side by side",
         description="Log episodes to rerun: robots (radius following their expansion), magnets, walls, object, "
         "goal, the centre-of-mass trail, and reward, distance to goal and the paper's metrics over time, on a "
-        "`step` and a `sim_time` timeline. SOURCE is a dataset folder written by `dpr collect` (pick episodes with "
-        "--episode) or one of its MCAP logs; or give --env and --policies to roll policies out from the same "
-        "start and see them side by side. Without --save or --serve a rerun viewer is spawned.",
+        "`step` (physics steps) and a `sim_time` (simulated seconds) timeline: a model deciding every k physics "
+        "steps shows its state at each decision, on the same clock as the policies beside it. SOURCE is a "
+        "dataset folder written by `dpr collect` (pick episodes with --episode) or one of its MCAP logs; or give "
+        "--env and --policies to roll policies out from the same start and see them side by side. Without --save "
+        "or --serve a rerun viewer is spawned.",
         arguments=view_arguments,
         run=cmd_view,
         flags=VIEW_FLAGS,

@@ -2,17 +2,19 @@
 
 Every source becomes one :class:`EpisodeLog`: ``S`` states (row 0 is the reset state, row ``t`` the state after
 the ``t``-th ``env.step``) of every robot, the agent (swarm centre, or the object in Manipulation), the scene,
-and the ``S - 1`` rewards. Nothing here imports rerun; :mod:`dpr.viz.rerun_log` turns an EpisodeLog into rerun
-entities.
+and the ``S - 1`` rewards. Row ``t`` is at physics step ``t * action_repeat`` (simulated time: 0.1 s a physics
+step), so episodes of policies that decide every step and every k steps share one clock. Nothing here imports
+rerun; :mod:`dpr.viz.rerun_log` turns an EpisodeLog into rerun entities.
 
 What each source holds:
 
 * an MCAP log (``dpr-mcap/1``) has everything, magnets included, for states ``0 .. T``;
 * a dataset frame ``t`` holds the observation *before* action ``t``, so a ``T``-frame episode gives states
-  ``0 .. T - 1`` (the state after the last action is not recorded) and no magnets; walls, the goal, the dead
-  robots and the object's shape are rebuilt by making the env from the episode's ``env_id``/``env_kwargs`` and
-  resetting it with its ``seed``. Positions come back from the float32, 1/1000-scaled observation, so they are
-  exact to about 1e-4 units;
+  ``0 .. T - 1`` (the state after the last action is not recorded) and no magnets; its frames keep the dataset's
+  time, ``1 / fps`` s apart (one per ``action_repeat`` physics steps of its ``env_kwargs``); walls, the goal, the
+  dead robots and the object's shape are rebuilt by making the env from the episode's ``env_id``/``env_kwargs``
+  and resetting it with its ``seed``. Positions come back from the float32, 1/1000-scaled observation, so they
+  are exact to about 1e-4 units;
 * a live rollout records states ``0 .. T`` straight from ``env.unwrapped.world``.
 """
 
@@ -35,13 +37,15 @@ from dpr.envs.particle_env import (
     MAX_EPISODE_STEPS,
     OBJECT_FEATURES,
     ROBOT_FEATURES,
+    action_repeat,
     episode_steps,
+    steps_per_second,
 )
 from dpr.rollout import roll_out
 from dpr.sim import swarm_class
 from dpr.sim.constants import FPS
 
-STEP_NS = 1_000_000_000 // FPS
+STEP_NS = 1_000_000_000 // FPS  # one physics step of simulated time, in integer nanoseconds
 SB3_SUFFIX = ".zip"
 _NAME_RE = re.compile(r"[^A-Za-z0-9_]+")
 _RENDER_KWARGS = ("render_mode", "render_size")  # frames are not needed to rebuild the scene
@@ -76,7 +80,7 @@ class EpisodeLog:
     object_size: float | None = None  # ball radius or half the box's side
     object_poses: np.ndarray | None = None  # [S, 3] x, y, angle
     magnets: list[np.ndarray] | None = None  # per state, [M_t, 2, 2]
-    fps: int = FPS
+    action_repeat: int = 1  # physics steps between two states (the env's action_repeat)
 
     def __post_init__(self) -> None:
         states, n = self.positions.shape[:2]
@@ -109,8 +113,8 @@ class EpisodeLog:
 
     @property
     def steps(self) -> np.ndarray:
-        """Step index of every state, 0 .. S - 1."""
-        return np.arange(self.n_states, dtype=np.int64)
+        """Physics step of every state: ``0, k, 2k, .. (S - 1) k`` for ``k = action_repeat``."""
+        return np.arange(self.n_states, dtype=np.int64) * self.action_repeat
 
     def radii(self) -> np.ndarray:
         """[S, N] outer robot radius, linear in the expansion between the contracted and expanded radius
@@ -198,7 +202,7 @@ def episode_from_mcap(path: str | os.PathLike, name: str | None = None) -> Episo
         object_size=spec.get("size") if has_object else None,
         object_poses=episode.object_poses,
         magnets=episode.magnets,
-        fps=FPS,
+        action_repeat=episode.action_repeat,
     )
 
 
@@ -241,6 +245,7 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
         raise ViewError(f"{reader.root}: episode {index} lacks {missing}; it was not recorded by dpr collect")
     where = f"{reader.root} episode {index}"
     kwargs = {key: value for key, value in dict(meta[F.ENV_KWARGS]).items() if key not in _RENDER_KWARGS}
+    repeat = _dataset_repeat(reader, kwargs, where)
     env = _make_env(meta[F.ENV_ID], kwargs, where)
     try:
         env.reset(seed=int(meta[F.SEED]))
@@ -292,8 +297,26 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
         object_size=spec.size if spec is not None else None,
         object_poses=object_poses,
         magnets=None,
-        fps=int(reader.fps),
+        action_repeat=repeat,
     )
+
+
+def _dataset_repeat(reader, kwargs: Mapping[str, Any], where: str) -> int:
+    """Physics steps between two frames of a dataset: its fps says, which must be the decision rate of the env
+    kwargs it was recorded with (a dataset recorded before that is refused, named: dpr.datasets.timing)."""
+    try:
+        repeat = action_repeat(dict(kwargs))
+    except ValueError as error:
+        raise ViewError(f"{where}: {error}") from error
+    if reader.fps != steps_per_second(dict(kwargs)):
+        from dpr.datasets.timing import check_dataset_time
+
+        check_dataset_time(reader.root, reader.info)  # names a dataset of the old fps, and what to do
+        raise ViewError(
+            f"{where}: recorded with action_repeat={repeat}, whose decision rate is {steps_per_second(dict(kwargs)):g} "
+            f"frames per second, but the dataset's fps is {reader.fps:g}"
+        )
+    return repeat
 
 
 # -- live rollouts ----------------------------------------------------------------------------------------------
@@ -326,10 +349,12 @@ def rollout_episode(
     on_step: Callable[[int], None] | None = None,
 ) -> EpisodeLog:
     """Roll ``policy`` out for at most ``steps`` physics steps from ``reset(seed=seed)``
-    (:func:`dpr.rollout.roll_out`) and record the state after every env step (``action_repeat`` physics steps).
-    Stops early when the episode ends; a physics blow-up ends the record at the last sane state. ``on_step(t)``
-    is called after each step (for a progress bar). Bad arguments are a :class:`ViewParameterError` naming the
-    parameter."""
+    (:func:`dpr.rollout.roll_out`) and record the state after every env step, at the physics step it belongs to
+    (a model deciding every ``action_repeat`` = k steps: states at physics steps 0, k, 2k, ..., the last one at
+    ``steps`` rounded up to a decision). Stops early when the episode ends; a physics blow-up ends the record at
+    the last sane state. ``on_step(p)`` is called after each env step with the physics steps done so far, ``p``
+    (for a progress bar over ``steps``; the last may pass it by less than a decision). Bad arguments are a
+    :class:`ViewParameterError` naming the parameter."""
     from dpr.policies.registry import make_policy
 
     check_view_policy(policy)
@@ -348,12 +373,13 @@ def rollout_episode(
             raise ViewParameterError("policy", str(error)) from error
     env = _make_env(env_id, {**kwargs, "max_episode_steps": episode_steps(kwargs, steps)})
     base = env.unwrapped
+    repeat = base.action_repeat
     recorder: list[_Recorder] = []
 
     def record_step(step) -> None:
         recorder[0].add(base.world)
         if on_step is not None:
-            on_step(step.index)
+            on_step(step.index * repeat)
 
     try:
         result = roll_out(
@@ -386,7 +412,7 @@ def rollout_episode(
         object_size=spec.size if spec is not None else None,
         object_poses=arrays["object_poses"] if spec is not None else None,
         magnets=arrays["magnets"],
-        fps=FPS,
+        action_repeat=repeat,
     )
 
 

@@ -11,12 +11,14 @@ Entities of an episode named ``NAME`` (one subtree per episode or policy)::
     /NAME/scene/goal                static Points2D, radius = the success radius
     /NAME/scene/walls               static LineStrips2D, closed polygons (Gate)
     /NAME/scene/object              Points2D (ball) or LineStrips2D (box outline) per step (Manipulation)
-    /NAME/metrics/reward            Scalars, steps 1 .. S-1 (the reward of env.step number ``step``)
+    /NAME/metrics/reward            Scalars, states 1 .. S-1 (the reward of the env step that led to the state)
     /NAME/metrics/distance_to_goal, projected_displacement, net_displacement, total_distance
-                                    Scalars, steps 0 .. S-1 (the agent's metrics so far, see dpr.metrics)
+                                    Scalars, states 0 .. S-1 (the agent's metrics so far, see dpr.metrics)
 
-Timelines: ``step`` (sequence) and ``sim_time`` (duration, 0.1 s per step). Per-step data goes out with one
-``send_columns`` call per entity for the whole episode, never one ``log`` call per step.
+Timelines: ``step`` (sequence: the physics step) and ``sim_time`` (duration: simulated time, 0.1 s a physics
+step). A policy that decides every k physics steps logs its state at every decision, on steps 0, k, 2k, ...: episodes
+side by side share one clock. Per-state data goes out with one ``send_columns`` call per entity for the whole
+episode, never one ``log`` call per step.
 """
 
 from __future__ import annotations
@@ -37,7 +39,8 @@ from dpr.atomic import AtomicFile
 from dpr.checks import ParameterError
 from dpr.envs.rendering import BODY, DEAD_BODY, GOAL, MAGNET, OBJECT, WALL
 from dpr.metrics import SUCCESS_RADIUS
-from dpr.viz.episodes import EpisodeLog, ViewError
+from dpr.sim.constants import FPS
+from dpr.viz.episodes import STEP_NS, EpisodeLog, ViewError
 
 APPLICATION_ID = "dpr"
 STEP = "step"
@@ -55,9 +58,10 @@ COM_RADIUS = 4.0
 BOUNDS_MARGIN = 60.0  # world units around everything the scene holds
 
 
-def _time_columns(steps: np.ndarray, fps: int) -> list[rr.TimeColumn]:
+def _time_columns(steps: np.ndarray) -> list[rr.TimeColumn]:
+    """``step`` and ``sim_time`` of states at physics steps ``steps``."""
     # integer nanoseconds: step * 0.1 s computed in floats can land a nanosecond short
-    nanos = steps.astype(np.int64) * (1_000_000_000 // fps)
+    nanos = steps.astype(np.int64) * STEP_NS
     return [
         rr.TimeColumn(STEP, sequence=steps),
         rr.TimeColumn(SIM_TIME, duration=nanos.astype("timedelta64[ns]")),
@@ -78,7 +82,7 @@ def log_episode(recording: rr.RecordingStream, episode: EpisodeLog, color: Seque
     base = f"/{episode.name}"
     scene = f"{base}/scene"
     steps = episode.steps
-    times = _time_columns(steps, episode.fps)
+    times = _time_columns(steps)
     s, n = episode.n_states, episode.n_robots
 
     recording.log(scene, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -113,7 +117,7 @@ def log_episode(recording: rr.RecordingStream, episode: EpisodeLog, color: Seque
     if episode.object_poses is not None:
         _send_object(recording, f"{scene}/object", times, episode)
 
-    rewards_times = _time_columns(steps[1:], episode.fps)
+    rewards_times = _time_columns(steps[1:])
     name = rr.SeriesLines(names=[episode.title or episode.name], colors=[color])
     recording.log(f"{base}/metrics/reward", name, static=True)
     recording.send_columns(
@@ -195,7 +199,7 @@ def make_blueprint(episodes: Sequence[EpisodeLog]) -> rrb.Blueprint:
     columns = min(len(scenes), 3)
     return rrb.Blueprint(
         rrb.Vertical(rrb.Grid(*scenes, grid_columns=columns), rrb.Horizontal(*plots), row_shares=[3, 2]),
-        rrb.TimePanel(timeline=STEP, fps=float(episodes[0].fps)),
+        rrb.TimePanel(timeline=STEP, fps=float(FPS)),  # physics steps per second: plays in simulated time
         collapse_panels=False,
     )
 
