@@ -125,3 +125,16 @@ def test_the_pipeline_budgets_physics_steps_and_refuses_a_repeat_that_breaks_the
     for bad in (3, 4, -1):
         with pytest.raises(ParameterError, match="action_repeat"):
             preset_config("small", action_repeat=bad)
+
+
+def test_an_evaluation_records_its_episodes_in_physics_steps():
+    """`dpr evaluate --json` rows: steps the physics steps an episode lasted, and the path a point every 10 physics
+    steps, whether the policy decides every step or every 5."""
+    small = {"n_robots": 4, "robot_model": "disk"}
+    every_step, every_five = (
+        evaluate(["dpr/Navigation-v0"], "wave", seeds=[0], steps=40, env_kwargs={**small, **repeat})[0].as_dict(True)
+        for repeat in ({}, {"action_repeat": 5})
+    )
+    assert every_step["steps"] == every_five["steps"] == 40
+    assert "action_repeat" not in every_step and every_five["action_repeat"] == 5
+    assert len(every_step["trajectory"]) == len(every_five["trajectory"]) == 5  # physics steps 0, 10, .., 40

@@ -14,14 +14,16 @@ import numpy as np
 from dpr.atomic import atomic_write_text
 from dpr.checks import check_choice, check_seeds
 from dpr.envs import MAX_EPISODE_STEPS, TASKS, episode_steps
+from dpr.envs.particle_env import action_repeat
 from dpr.metrics import EpisodeMetrics, summarize
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import is_model_path, load_model, model_env_kwargs
 from dpr.rollout import roll_out
 
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")
-# The trajectory stored in `dpr evaluate --json`: every 10th position to 0.1 units is plenty for a figure
-# (MAX_EPISODE_STEPS = 2500 steps -> 251 points) and keeps the file small.
+# The trajectory stored in `dpr evaluate --json`: the position every 10 physics steps (or at every decision of a
+# policy deciding less often) to 0.1 units is plenty for a figure (MAX_EPISODE_STEPS = 2500 steps -> 251 points)
+# and keeps the file small.
 TRAJECTORY_EVERY = 10
 TRAJECTORY_DECIMALS = 1
 
@@ -40,9 +42,12 @@ class EpisodeResult:
     trajectory: np.ndarray = field(repr=False)
     goal: np.ndarray = field(repr=False)
     measures: dict = field(default_factory=dict)  # the task's own at the episode's end (Gate's passage measure)
+    action_repeat: int = 1  # physics steps per env step: the trajectory holds a position per env step
 
     def as_dict(self, trajectory: bool = False) -> dict:
-        """The metrics and the task's measures; with ``trajectory`` also the goal and the subsampled path (see
+        """The metrics and the task's measures, with ``steps`` the physics steps the episode lasted (and, for a
+        policy deciding every ``action_repeat`` > 1 steps, that number); with ``trajectory`` also the goal and the
+        path, a position every 10 physics steps or every decision where decisions are longer (see
         subsample_trajectory)."""
         row = {
             "env_id": self.env_id,
@@ -51,9 +56,12 @@ class EpisodeResult:
             **self.metrics.as_dict(),
             **self.measures,
         }
+        row["steps"] = self.metrics.steps * self.action_repeat
+        if self.action_repeat > 1:
+            row["action_repeat"] = self.action_repeat
         if trajectory:
             row["goal"] = [float(v) for v in self.goal]
-            row["trajectory"] = subsample_trajectory(self.trajectory)
+            row["trajectory"] = subsample_trajectory(self.trajectory, max(1, TRAJECTORY_EVERY // self.action_repeat))
         return row
 
 
@@ -128,7 +136,14 @@ def run_episode(
     finally:
         env.close()
     return EpisodeResult(
-        env_id, policy_name, seed, result.metrics, result.trajectory, result.goal, measures=result.measures
+        env_id,
+        policy_name,
+        seed,
+        result.metrics,
+        result.trajectory,
+        result.goal,
+        measures=result.measures,
+        action_repeat=action_repeat(kwargs),
     )
 
 
