@@ -133,7 +133,7 @@ def test_the_library_refuses_bad_arguments_before_reading_any_run():
 def test_help_states_the_rule_and_reads_only_validation_seeds(capsys):
     assert run_cli(["compare", "--help"]) == 0
     out = " ".join(capsys.readouterr().out.split())
-    assert "usage: dpr compare [-h] [--tasks" in out and "CURRENT CANDIDATE [CANDIDATE ...]" in out
+    assert "usage: dpr compare [-h]" in out and "[--tasks" in out and "CURRENT CANDIDATE [CANDIDATE ...]" in out
     assert "mean over --tasks of the --method ratios is above 1" in out
     assert "Only validation evaluations are read, never test ones" in out
     assert "(default bc-ppo)" in out

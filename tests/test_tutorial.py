@@ -1,4 +1,4 @@
-"""docs/tutorial.md's commands run as written, at budgets of seconds: the tutorial cannot rot.
+"""docs/tutorial.md's commands, and the chain README.md shows, run as written at budgets of seconds: neither can rot.
 
 Its `dpr ...` lines (from its bash blocks, in order) run through ``dpr.cli.main`` in a scratch folder, so that their
 relative output paths land there; only their budgets are rewritten (:data:`BUDGETS`, :data:`HYPERPARAMETERS`: episodes,
@@ -14,12 +14,19 @@ import re
 import shlex
 from pathlib import Path
 
+import pytest
 from helpers import load_tool, run_cli
 
-TUTORIAL = Path(__file__).resolve().parents[1] / "docs" / "tutorial.md"
+ROOT = Path(__file__).resolve().parents[1]
+TUTORIAL = ROOT / "docs" / "tutorial.md"
+README = ROOT / "README.md"
 BASH_BLOCK = re.compile(r"^```bash\n(.*?)^```", re.S | re.M)
-# The chain the tutorial walks, in this order (other commands may come between).
-CHAIN = ("collect", "replay", "bc", "finetune", "evaluate", "view")
+# The chain each document walks, in this order (other commands may come between).
+CHAINS = {
+    TUTORIAL: ("collect", "replay", "bc", "finetune", "evaluate", "view"),
+    README: ("collect", "bc", "finetune", "evaluate", "report"),
+}
+DOCUMENTS = pytest.mark.parametrize("document", list(CHAINS), ids=lambda path: path.name)
 # Per command, the budget flags and their small values: set where the tutorial gives them, added where it does not.
 # Frames and physics steps are few (a few decisions of a model deciding every 10 steps); two demonstrations are the
 # fewest behaviour cloning takes (one is held out).
@@ -104,21 +111,24 @@ def unknown_flags(argv: list[str]) -> list[str]:
     return [word for word in argv[1:] if word.startswith("-") and word.partition("=")[0] not in known]
 
 
-def test_the_tutorial_walks_the_whole_chain():
-    names = [argv[0] for argv in tutorial_commands(TUTORIAL.read_text())]
+@DOCUMENTS
+def test_the_document_walks_the_whole_chain(document):
+    names = [argv[0] for argv in tutorial_commands(document.read_text())]
     remaining = iter(names)
-    assert all(step in remaining for step in CHAIN), names  # CHAIN is a subsequence of the tutorial's commands
+    assert all(step in remaining for step in CHAINS[document]), names  # a subsequence of the document's commands
     assert set(names) <= set(BUDGETS) | set(OUTPUTS), f"a command the test has no budgets for: {names}"
 
 
-def test_every_flag_of_the_tutorial_is_its_commands_own():
-    unknown = {" ".join(argv): unknown_flags(argv) for argv in tutorial_commands(TUTORIAL.read_text())}
+@DOCUMENTS
+def test_every_flag_of_the_document_is_its_commands_own(document):
+    unknown = {" ".join(argv): unknown_flags(argv) for argv in tutorial_commands(document.read_text())}
     assert {command: flags for command, flags in unknown.items() if flags} == {}
 
 
-def test_the_tutorial_runs_at_small_budgets(tmp_path, monkeypatch):
+@DOCUMENTS
+def test_the_document_runs_at_small_budgets(document, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    for argv in tutorial_commands(TUTORIAL.read_text()):
+    for argv in tutorial_commands(document.read_text()):
         small = shrink(argv)
         assert run_cli(small) == 0, f"dpr {shlex.join(small)}"
         if argv[0] in OUTPUTS:
