@@ -4,12 +4,14 @@
 from __future__ import annotations
 
 import functools
-import io
+import json
+import pickle
 import zipfile
 
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 import yaml
 from helpers import stopped_after_snapshots
 
@@ -17,6 +19,7 @@ import dpr  # noqa: F401
 from dpr.checks import ParameterError
 from dpr.envs.replay import ReplayLog, replay
 from dpr.rl import resume as resume_state
+from dpr.rl.plain_state import write_state
 from dpr.rl.train import TrainConfig, resumable, train
 
 ENV_KWARGS = {"obs_last_action": True, "action_repeat": 2}
@@ -146,14 +149,77 @@ def test_resume_refuses_other_settings_and_folders_without_a_snapshot(tmp_path):
 def test_snapshot_of_another_version_is_refused(tmp_path):
     folder = resume_state.snapshot_path(tmp_path)
     folder.mkdir()
-    (folder / resume_state.MODEL_FILE).write_bytes(b"")
-    buffer = io.BytesIO()
-    import pickle
-
-    pickle.dump({"version": resume_state.STATE_VERSION + 1}, buffer)
-    (folder / resume_state.STATE_FILE).write_bytes(buffer.getvalue())
+    (folder / resume_state.WEIGHTS_FILE).write_bytes(b"")
+    state = {"version": resume_state.STATE_VERSION + 1}
+    write_state(state, folder / resume_state.STATE_FILE, folder / resume_state.ARRAYS_FILE)
     with pytest.raises(ValueError, match="snapshot version"):
         resume_state.load_snapshot(tmp_path)
+
+
+class _CreatesAFile:
+    """Unpickling it creates the file ``path``: what a crafted snapshot would do."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+def test_a_snapshot_is_plain_files(tmp_path):
+    """A snapshot holds JSON, an npz without objects and torch weights: nothing of it is a pickle."""
+    config = _config(timesteps=128)
+    with stopped_after_snapshots(2):
+        train(config, tmp_path / "run", show_progress=False, log=lambda _: None)
+    folder = resume_state.snapshot_path(tmp_path / "run")
+    assert sorted(p.name for p in folder.iterdir()) == ["arrays.npz", "state.json", "weights.pt"]
+    state = json.loads((folder / "state.json").read_text())
+    assert state["version"] == resume_state.STATE_VERSION and state["reached"] > 0
+    with np.load(folder / "arrays.npz", allow_pickle=False) as arrays:
+        assert all(not arrays[name].dtype.hasobject for name in arrays.files)
+    torch.load(folder / "weights.pt", weights_only=True)
+
+
+def test_a_pickled_snapshot_is_refused_unread(tmp_path):
+    """The pickled layout of an earlier dpr (state.pkl beside model.zip) is refused with how to go on, and a
+    crafted one creates nothing: it is never unpickled."""
+    config = _config(timesteps=128)
+    marker = tmp_path / "created"
+    run = tmp_path / "run"
+    with stopped_after_snapshots():
+        train(config, run, show_progress=False, log=lambda _: None)
+    folder = resume_state.snapshot_path(run)
+    for child in folder.iterdir():
+        child.unlink()
+    (folder / "model.zip").write_bytes(b"PK")
+    (folder / resume_state.OLD_STATE_FILE).write_bytes(pickle.dumps({"version": 1, "x": _CreatesAFile(marker)}))
+    with pytest.raises(ValueError, match=r"state.pkl is a snapshot of an earlier dpr.*cannot be read safely"):
+        resume_state.load_snapshot(run)
+    assert not resumable(run, config)
+    with pytest.raises(ParameterError, match=r"out.*cannot be read safely.*Start the run again in a new folder"):
+        train(config, run, show_progress=False, resume=True, log=lambda _: None)
+    assert not marker.exists()
+
+
+def test_crafted_snapshot_files_are_refused_unread(tmp_path):
+    """A weights file or an arrays file that holds a pickle is refused by torch (weights_only) and numpy
+    (allow_pickle=False); the object in it is never made."""
+    config = _config(timesteps=128)
+    run = tmp_path / "run"
+    with stopped_after_snapshots():
+        train(config, run, show_progress=False, log=lambda _: None)
+    folder = resume_state.snapshot_path(run)
+    marker = tmp_path / "created"
+    weights = folder / resume_state.WEIGHTS_FILE
+    good = weights.read_bytes()
+    torch.save({"policy": _CreatesAFile(marker)}, weights)
+    with pytest.raises(ParameterError, match=r"out.*weights.pt: not the weights of a snapshot"):
+        train(config, run, show_progress=False, resume=True, log=lambda _: None)
+    weights.write_bytes(good)
+    np.savez(folder / resume_state.ARRAYS_FILE, a0=np.array([_CreatesAFile(marker)], dtype=object))
+    with pytest.raises(ValueError, match="not a snapshot dpr can read"):
+        resume_state.load_snapshot(run)
+    assert not marker.exists()
 
 
 def test_replay_is_picklable_for_subprocesses():
@@ -175,3 +241,29 @@ def test_cli_resume_names_the_stopped_run_folder(tmp_path, capsys):
     assert run_cli([*train, "--resume", "--out", str(tmp_path / "empty")]) == 2
     assert "--out: " in (err := capsys.readouterr().err) and "holds no snapshot" in err
     assert not any((tmp_path / "empty").iterdir())
+
+
+def test_plain_state_gives_back_each_value_as_written(tmp_path):
+    from dpr.rl.plain_state import read_state
+
+    tree = {
+        "python": (3, tuple(range(5)), None),
+        "numpy": ("MT19937", np.arange(4, dtype=np.uint32), 2, 0, 0.0),
+        "torch": torch.arange(3, dtype=torch.uint8),
+        "scalars": [np.int64(7), np.float32(0.1), np.bool_(True), float("-inf"), 2**100],
+        "actions": [np.array(1), np.array(0)],
+        "by_number": {1: "a", "$x": [np.ones((2, 2), dtype=np.float32)]},
+    }
+    write_state(tree, tmp_path / "s.json", tmp_path / "s.npz")
+    back = read_state(tmp_path / "s.json", tmp_path / "s.npz")
+    assert back["python"] == tree["python"] and isinstance(back["python"][1], tuple)
+    assert back["numpy"][0] == "MT19937" and np.array_equal(back["numpy"][1], tree["numpy"][1])
+    assert back["numpy"][1].dtype == np.uint32 and torch.equal(back["torch"], tree["torch"])
+    assert [type(v) for v in back["scalars"]] == [type(v) for v in tree["scalars"]] and back["scalars"] == tree[
+        "scalars"
+    ]
+    assert all(a.shape == () and a.dtype == b.dtype for a, b in zip(back["actions"], tree["actions"], strict=True))
+    assert list(back["by_number"]) == [1, "$x"] and back["by_number"][1] == "a"
+    assert back["by_number"]["$x"][0].dtype == np.float32
+    with pytest.raises(TypeError, match="cannot be stored without pickling"):
+        write_state({"f": lambda: 0}, tmp_path / "t.json", tmp_path / "t.npz")

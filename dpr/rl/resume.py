@@ -2,33 +2,56 @@
 model an uninterrupted run makes.
 
 Every :data:`SNAPSHOT_SECONDS` (at the start of a rollout, when no step is in flight) a run writes its whole
-training state into ``<run>/resume/``: the SB3 model (weights, optimizer, step count, last observation), each env's
-current episode as a :class:`dpr.envs.replay.ReplayLog` record (its random state at reset and the actions since:
-the training envs' and the evaluation env's), the pending seeds of both vector envs, the counters and results of
-the callbacks, and the torch, numpy and Python random states. :func:`dpr.rl.train.train` with ``resume=True``
-rebuilds all of it and goes on; the test ``tests/test_resume.py`` checks that the model it ends with is the one an
-uninterrupted run ends with, weight for weight. A stopped run loses at most the last :data:`SNAPSHOT_SECONDS`.
-Runs of :data:`SNAPSHOT_ALGOS` keep snapshots; DQN's (whose replay buffer a snapshot would have to hold) and runs
-anchored to demonstrations (whose anchor has its own state) do not, and start again when stopped.
+training state into ``<run>/resume/``: the SB3 model's weights and optimizer state, its step counters and last
+observation, each env's current episode as a :class:`dpr.envs.replay.ReplayLog` record (its random state at reset
+and the actions since: the training envs' and the evaluation env's), the pending seeds of both vector envs, the
+counters and results of the callbacks, and the torch, numpy and Python random states. :func:`dpr.rl.train.train`
+with ``resume=True`` builds the run's model again, puts all of it back and goes on; the test
+``tests/test_resume.py`` checks that the model it ends with is the one an uninterrupted run ends with, weight for
+weight. A stopped run loses at most the last :data:`SNAPSHOT_SECONDS`. Runs of :data:`SNAPSHOT_ALGOS` keep
+snapshots; DQN's (whose replay buffer a snapshot would have to hold) and runs anchored to demonstrations (whose
+anchor has its own state) do not, and start again when stopped.
+
+Nothing in a snapshot can run code when it is read: the weights are read by torch with ``weights_only=True``
+(:data:`WEIGHTS_FILE`), everything else is JSON with its arrays in a numpy ``.npz`` read with
+``allow_pickle=False`` (:mod:`dpr.rl.plain_state`). A snapshot of the pickled layout that dpr wrote before
+(``state.pkl``) is never read: :func:`old_snapshot_error` says so, and the run starts again in a new folder.
 """
 
 from __future__ import annotations
 
-import pickle
 import random
 import shutil
 import time
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
+
+from dpr.rl.plain_state import read_state, write_state
 
 SNAPSHOT_ALGOS = ("ppo", "a2c")  # on-policy: nothing but the model and the envs carries over between rollouts
 SNAPSHOT_DIR = "resume"
 NEW_DIR, OLD_DIR = SNAPSHOT_DIR + ".new", SNAPSHOT_DIR + ".old"  # beside it while a snapshot replaces another
 SNAPSHOT_SECONDS = 300.0
-MODEL_FILE = "model.zip"
-STATE_FILE = "state.pkl"
-STATE_VERSION = 1
+WEIGHTS_FILE = "weights.pt"  # the policy's and its optimizer's state dicts (torch.save; read weights_only)
+STATE_FILE, ARRAYS_FILE = "state.json", "arrays.npz"  # everything else (dpr.rl.plain_state)
+STATE_VERSION = 2
+OLD_STATE_FILE = "state.pkl"  # version 1's pickled state, beside an SB3 model.zip: never read
+# The model's attributes that training changes (beside its weights); the others follow from its hyperparameters.
+MODEL_PROGRESS = (
+    "num_timesteps",
+    "_total_timesteps",
+    "_num_timesteps_at_start",
+    "_episode_num",
+    "_n_updates",
+    "_current_progress_remaining",
+    "_last_obs",
+    "_last_original_obs",
+    "_last_episode_starts",
+    "ep_info_buffer",
+    "ep_success_buffer",
+)
 EVAL_ATTRIBUTES = (
     "best_mean_reward",
     "last_mean_reward",
@@ -46,7 +69,20 @@ def snapshot_path(run_dir: str | Path) -> Path:
 
 
 def _whole(folder: Path) -> bool:
-    return (folder / MODEL_FILE).is_file() and (folder / STATE_FILE).is_file()
+    return all((folder / name).is_file() for name in (WEIGHTS_FILE, STATE_FILE, ARRAYS_FILE))
+
+
+def old_snapshot_error(run_dir: str | Path) -> str | None:
+    """Why ``run_dir``'s snapshot cannot be resumed from, when it is one of the pickled layout dpr wrote before
+    (``resume/state.pkl``); None otherwise. The file is not opened."""
+    for name in (SNAPSHOT_DIR, NEW_DIR, OLD_DIR):
+        path = Path(run_dir) / name / OLD_STATE_FILE
+        if path.exists():
+            return (
+                f"{path} is a snapshot of an earlier dpr, stored with pickle: it cannot be read safely (unpickling a "
+                "file can run any code in it), so it is not read. Start the run again in a new folder"
+            )
+    return None
 
 
 def snapshot_folder(run_dir: str | Path) -> Path | None:
@@ -82,7 +118,7 @@ def _callback_state(callback) -> list[dict[str, Any]]:
     for each in _all_callbacks(callback):
         row = {"n_calls": each.n_calls}
         if isinstance(each, EvalCallback):
-            row |= {name: getattr(each, name) for name in EVAL_ATTRIBUTES}  # pickled to disk at once
+            row |= {name: getattr(each, name) for name in EVAL_ATTRIBUTES}  # copied to disk at once
         rows.append(row)
     return rows
 
@@ -95,7 +131,8 @@ def _episodes(vec_env) -> list[dict[str, Any] | None]:
 class Snapshot:
     """A run's training state as read back from its folder (see the module's docstring)."""
 
-    model_path: Path
+    weights: dict[str, Any]  # the policy's and its optimizer's state dicts
+    progress: dict[str, Any]  # the model's MODEL_PROGRESS attributes
     reached: int  # the model's step count when the snapshot was taken
     total_timesteps: int  # the model's _total_timesteps: where the run's learn() call ends
     origin: int  # the model's step count when that learn() call started (after any critic warm-up)
@@ -104,6 +141,19 @@ class Snapshot:
     pending: dict[str, Any]  # the vector envs' seeds and options for their next reset
     callbacks: list[dict[str, Any]]
     random_states: dict[str, Any]
+
+    def restore_model(self, model) -> None:
+        """Put the weights, optimizer state and progress of the snapshot's model into ``model``, built again as the
+        run built it (same hyperparameters, env and seed)."""
+        try:
+            model.policy.load_state_dict(self.weights["policy"])
+            model.policy.optimizer.load_state_dict(self.weights["optimizer"])
+        except (RuntimeError, KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"the snapshot's weights are not those of this run's model ({error})") from None
+        for name, value in self.progress.items():
+            if name in ("ep_info_buffer", "ep_success_buffer") and value is not None:
+                value = deque(value, maxlen=model._stats_window_size)
+            setattr(model, name, value)
 
     def restore_vec_env(self, vec_env, which: str) -> None:
         """Give ``vec_env`` (rebuilt from this snapshot's episodes) the seeds and options it had pending."""
@@ -130,18 +180,40 @@ class Snapshot:
 
 
 def load_snapshot(run_dir: str | Path) -> Snapshot:
-    """The snapshot in ``run_dir`` (a ValueError naming the folder if it is missing or of another version)."""
+    """The snapshot in ``run_dir`` (a ValueError naming the folder if it is missing, of another version, or of the
+    pickled layout dpr wrote before: :func:`old_snapshot_error`)."""
+    old = old_snapshot_error(run_dir)
+    if old is not None:
+        raise ValueError(old)
     folder, found = snapshot_path(run_dir), snapshot_folder(run_dir)
     if found is None:
         raise ValueError(f"{folder} holds no snapshot to resume from")
     if found != folder:  # put back the snapshot that a stop between save_snapshot's renames left aside
         found.rename(folder)
-    with open(folder / STATE_FILE, "rb") as file:
-        state = pickle.load(file)
-    if state.get("version") != STATE_VERSION:
-        raise ValueError(f"{folder / STATE_FILE} is snapshot version {state.get('version')}, expected {STATE_VERSION}")
+    state = read_state(folder / STATE_FILE, folder / ARRAYS_FILE)
+    version = state.get("version") if isinstance(state, dict) else None
+    if version != STATE_VERSION:
+        raise ValueError(f"{folder / STATE_FILE} is snapshot version {version}, expected {STATE_VERSION}")
+    if set(state) != {"version", *(field.name for field in fields(Snapshot) if field.name != "weights")}:
+        raise ValueError(f"{folder / STATE_FILE}: not a snapshot dpr can read (its entries: {sorted(state)})")
     del state["version"]
-    return Snapshot(model_path=folder / MODEL_FILE, **state)
+    return Snapshot(weights=_read_weights(folder / WEIGHTS_FILE), **state)
+
+
+def _read_weights(path: Path) -> dict[str, Any]:
+    """The state dicts in ``path``, read by torch with ``weights_only=True``: tensors and plain values only."""
+    import pickle
+
+    import torch
+
+    try:
+        weights = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as error:
+        first = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"{path}: not the weights of a snapshot ({first})") from None
+    if not isinstance(weights, dict) or not {"policy", "optimizer"} <= set(weights):
+        raise ValueError(f"{path}: not the weights of a snapshot (no policy and optimizer state)")
+    return weights
 
 
 def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: int) -> None:
@@ -154,9 +226,14 @@ def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: i
     if fresh.exists():
         shutil.rmtree(fresh)
     fresh.mkdir()
-    model.save(fresh / MODEL_FILE)
+    weights = {"policy": model.policy.state_dict(), "optimizer": model.policy.optimizer.state_dict()}
+    torch.save(weights, fresh / WEIGHTS_FILE)
+    progress = {name: getattr(model, name) for name in MODEL_PROGRESS}
+    for name in ("ep_info_buffer", "ep_success_buffer"):
+        progress[name] = None if progress[name] is None else list(progress[name])
     state = {
         "version": STATE_VERSION,
+        "progress": progress,
         "reached": int(model.num_timesteps),
         "total_timesteps": int(model._total_timesteps),
         "origin": int(origin),
@@ -166,8 +243,7 @@ def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: i
         "callbacks": _callback_state(callback),
         "random_states": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
     }
-    with open(fresh / STATE_FILE, "wb") as file:
-        pickle.dump(state, file)
+    write_state(state, fresh / STATE_FILE, fresh / ARRAYS_FILE)
     old = folder.with_name(OLD_DIR)
     if folder.exists():
         folder.rename(old)

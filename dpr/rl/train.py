@@ -37,7 +37,6 @@ from dpr.policies.sb3 import (
     INIT_PARAMETER,
     ModelInfo,
     actor_parameters,
-    algo_class,
     build_model,
     check_hyperparameters,
     load_initial_policy,
@@ -45,7 +44,6 @@ from dpr.policies.sb3 import (
     make_vec_env,
     model_architecture,
     save_model,
-    single_thread_torch,
     write_model_info,
 )
 from dpr.rl import resume as resume_state
@@ -162,6 +160,9 @@ def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
 def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
     from."""
+    old = None if out is None else resume_state.old_snapshot_error(out)
+    if old is not None:
+        raise ParameterError("out", f"{old} (another --out)")
     if out is None or not resume_state.has_snapshot(out):
         raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
     config_path = Path(out) / "config.yaml"
@@ -181,13 +182,12 @@ def resumable(out: str | Path, config: TrainConfig) -> bool:
     return True
 
 
-def resume_model(snapshot: resume_state.Snapshot, algo: str, env, tensorboard_log: str | None):
-    """The model of ``snapshot`` on ``env`` (rebuilt from the snapshot's episodes), its last observation kept."""
-    single_thread_torch()
-    model = algo_class(algo).load(
-        snapshot.model_path, env=env, device="cpu", force_reset=False, tensorboard_log=tensorboard_log
-    )
-    snapshot.restore_vec_env(env, "train")  # loading seeded the env anew
+def resume_model(snapshot: resume_state.Snapshot, hyper: Hyperparams, env, seed: int, tensorboard_log: str | None):
+    """The model of ``snapshot`` on ``env`` (rebuilt from the snapshot's episodes): built as the run built it, then
+    given the snapshot's weights, optimizer state and progress, its last observation kept."""
+    model = build_model(hyper, env, seed, tensorboard_log)
+    snapshot.restore_model(model)
+    snapshot.restore_vec_env(env, "train")  # building the model seeded the env anew
     return model
 
 
@@ -373,7 +373,10 @@ def train(
     finally:
         probe.close()
     run_dir = Path(out) if resume else prepare_run_dir(out, config)
-    snapshot = resume_state.load_snapshot(run_dir) if resume else None
+    try:
+        snapshot = resume_state.load_snapshot(run_dir) if resume else None
+    except ValueError as error:  # another version, or files that are not a snapshot: nothing was written yet
+        raise ParameterError("out", str(error)) from None
     info = ModelInfo(
         config.algo, config.env_id, env_kwargs, config.steps_per_episode, architecture=model_architecture(hyper)
     )
@@ -428,7 +431,7 @@ def train(
             if config.init_from is not None:
                 load_initial_policy(model, config.init_from)
         else:
-            model = resume_model(snapshot, hyper.algo, env, tensorboard_log)
+            model = resume_model(snapshot, hyper, env, config.seed, tensorboard_log)
         callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress, snapshot)
         if demonstrations is not None:
             from dpr.rl.anchor import demonstration_anchor
