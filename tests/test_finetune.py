@@ -28,6 +28,7 @@ from dpr.policies.sb3 import (
     build_model,
     load_initial_policy,
     load_model,
+    loaded_architecture,
     make_vec_env,
     read_model_info,
 )
@@ -481,9 +482,9 @@ def test_a_hyperparam_of_the_user_wins_over_the_models(swarm_clone, tmp_path, ca
     assert "has another network than this run's" in capsys.readouterr().err  # the user's choice, and its error
 
 
-def test_a_model_file_without_its_network_fine_tunes_as_before(cloned, tmp_path, capsys):
-    """A model written before files recorded their network: the yaml's network, and no recipe without an
-    action_repeat; its hyperparameters are the user's alone."""
+def test_a_model_file_without_its_network_has_it_read_off_the_model(cloned, swarm_clone, tmp_path, capsys):
+    """A model written before files recorded their network (the shipped ones): the network is read off the loaded
+    model, the swarm actor included, so it fine-tunes with no --hyperparam policy=..."""
     old = tmp_path / "old.zip"
     _strip_architecture(cloned.model_path, old)
     assert read_model_info(old).architecture is None
@@ -491,13 +492,20 @@ def test_a_model_file_without_its_network_fine_tunes_as_before(cloned, tmp_path,
         "policy": "MlpPolicy",
         "policy_kwargs": {"net_arch": PAPER_NET},
     }
+    assert loaded_architecture(old) == read_model_info(cloned.model_path).architecture
     given = [arg for name, value in TINY_PPO.items() for arg in ("--hyperparam", f"{name}={value}")]
     out = tmp_path / "run"
     assert run(_finetune_argv(old, out, "--timesteps", "32", "--critic-warmup", "16", *given)) == 0
-    assert "dpr finetune: from" not in capsys.readouterr().err  # nothing came from the model
+    assert "policy=MlpPolicy policy_kwargs={net_arch: [" in capsys.readouterr().err
     config = yaml.safe_load((out / "config.yaml").read_text())
-    assert config["hyperparameter_overrides"] == TINY_PPO and config["critic_warmup"] == 16
-    assert config["hyperparameters"]["policy"] == "MlpPolicy" and config["hyperparameters"]["gamma"] == 0.99
+    assert config["critic_warmup"] == 16 and config["hyperparameters"]["gamma"] == 0.99  # no action_repeat: no recipe
+
+    old_swarm = tmp_path / "old-swarm.zip"
+    _strip_architecture(swarm_clone, old_swarm)
+    assert loaded_architecture(old_swarm) == read_model_info(swarm_clone).architecture
+    assert read_model_info(swarm_clone).architecture["policy"] == SWARM_POLICY
+    assert run(_finetune_argv(old_swarm, tmp_path / "swarm", "--timesteps", "16")) == 0
+    assert "policy=SwarmPolicy" in capsys.readouterr().err
 
 
 def test_finetune_defaults_and_the_default_critic_warmup():
@@ -546,3 +554,21 @@ def test_a_finetune_run_says_finetune_and_its_bars_stop_at_their_totals(cloned, 
     assert yaml.safe_load(result.config_path.read_text())["timesteps_done"] == 32 + 64
     assert [(bar.desc.split()[0], bar.total, bar.n) for bar in bars] == [("critic", 20, 20), ("finetune", 40, 40)]
     assert lines[-1].startswith(f"dpr finetune: wrote {result.model_path}")
+
+
+def test_finetune_under_one_rollout_runs_no_more_than_asked(cloned, tmp_path, capsys):
+    """`dpr finetune --timesteps 200` on the finetune preset's rollouts of 1024 x 2 envs (which ran a whole rollout
+    for the warm-up and another for the training): rollouts of 10 x 2 make the 20 warm-up and 200 training steps
+    asked, and the log and config.yaml say so."""
+    out = tmp_path / "run"
+    flags = ["--env", ENV, "--timesteps", "200", "--n-envs", "2", "--eval-episodes", "0", "--out", str(out)]
+    assert run(["finetune", "--from", str(cloned.model_path), *flags]) == 0
+    err = capsys.readouterr().err
+    record = yaml.safe_load((out / "config.yaml").read_text())
+    assert (record["timesteps"], record["critic_warmup"], record["timesteps_done"]) == (200, 20, 220)
+    assert load_model(out / "model.zip")[0].num_timesteps == 220
+    assert {k: record["hyperparameters"][k] for k in ("n_steps", "batch_size")} == {"n_steps": 10, "batch_size": 20}
+    steps = record["steps"]
+    assert (steps["rollout"], steps["critic_warmup"], steps["training"]) == (20, 20, 200)
+    assert steps["note"] in err and "fewer than one rollout of n_steps 1024 x 2 envs" in steps["note"]
+    assert "rollouts of n_steps=10 batch_size=20 (20 steps)" in steps["note"]

@@ -283,7 +283,7 @@ def cmd_finetune(args, parser) -> int:
     from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.hyperparams import FINETUNE_PRESET
-    from dpr.policies.sb3 import model_env_kwargs, read_model_info
+    from dpr.policies.sb3 import loaded_architecture, model_env_kwargs, read_model_info
     from dpr.rl.recipe import default_critic_warmup, finetune_defaults
     from dpr.rl.train import TrainConfig, train
 
@@ -303,6 +303,8 @@ def cmd_finetune(args, parser) -> int:
         swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, requested))
         overrides = dict(args.hyperparam or [])
         algo = args.algo or info.algo
+        if info.architecture is None:  # a file saved before models recorded their network: read it off the model
+            info = dataclasses.replace(info, architecture=loaded_architecture(args.source))
         defaults = finetune_defaults(info, algo)  # the model's network and the recipe at its decision interval
         config = TrainConfig(
             algo,

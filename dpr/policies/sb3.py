@@ -85,6 +85,23 @@ def model_architecture(hyper) -> dict[str, Any]:
     return {"policy": str(hyper.policy), "policy_kwargs": dict(hyper.algo_kwargs.get("policy_kwargs") or {})}
 
 
+def loaded_architecture(path: str | Path) -> dict[str, Any] | None:
+    """The network of the model file at ``path``, read off the loaded model, for files that do not record it
+    (:attr:`ModelInfo.architecture`): a SwarmPolicy or SB3's MlpPolicy whose policy_kwargs are plain data (the
+    ``has_object`` flag the builder adds left out); None for any other."""
+    model, _ = load_model(path)
+    if type(model.policy).__module__ == SWARM_POLICY_MODULE:
+        policy = SWARM_POLICY
+    elif type(model.policy).__name__ == "ActorCriticPolicy":
+        policy = "MlpPolicy"
+    else:
+        return None
+    kwargs = {name: value for name, value in (model.policy_kwargs or {}).items() if name != "has_object"}
+    if not all(isinstance(value, (bool, int, float, str, list, dict)) for value in kwargs.values()):
+        return None
+    return {"policy": policy, "policy_kwargs": kwargs}
+
+
 def _checked_architecture(value: Any) -> dict[str, Any] | None:
     """``value`` as :attr:`ModelInfo.architecture` (None when absent); a ValueError saying what is wrong with it."""
     if value is None:
@@ -409,10 +426,14 @@ def build_model(hyper, env, seed: int, tensorboard_log: str | None):
 def check_hyperparameters(hyper, env, seed: int) -> None:
     """Build ``hyper``'s model once on ``env`` (one env, not vectorised) so that SB3's own checks of the values
     (``n_steps * n_envs > 1``, a batch size that fits...) fail as a ParameterError before any work starts."""
+    import warnings
+
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     try:
-        build_model(hyper, DummyVecEnv([lambda: env]), seed, None)
+        with warnings.catch_warnings():  # about mini-batches of this one env's rollouts, not of the run's n_envs
+            warnings.filterwarnings("ignore", message="You have specified a mini-batch size")
+            build_model(hyper, DummyVecEnv([lambda: env]), seed, None)
     except (AssertionError, ValueError, TypeError) as error:
         raise ParameterError("hyperparams", f"{hyper.algo} refuses them: {error}") from None
 
