@@ -59,3 +59,11 @@ def test_every_model_file_the_documents_cite_is_shipped():
         if name not in shipped
     }
     assert cited == set()
+
+
+def test_the_documents_record_demonstrations_as_the_readme_does():
+    """The README's `dpr collect` (its teacher and decision interval) is the one datasets.md and learning.md show."""
+    collect = re.compile(r"dpr collect --env dpr/Navigation-v0 (--policy \S+ --env-kwarg action_repeat=\d+)")
+    (readme,) = collect.findall((ROOT / "README.md").read_text())
+    for name in ("docs/datasets.md", "docs/learning.md"):
+        assert collect.findall((ROOT / name).read_text()) == [readme], name
