@@ -446,8 +446,8 @@ def test_dpr_bc_records_the_swarm_actor_it_built(swarm_clone):
 
 
 def test_dpr_finetune_takes_the_network_and_the_recipe_from_the_model(swarm_clone, tmp_path, capsys):
-    """No --hyperparam: the clone's SwarmPolicy, gamma 0.99^10 and the pipeline's rollouts (512 decisions: one
-    rollout after a one-decision warm-up of a 16-decision run)."""
+    """No --hyperparam: the clone's SwarmPolicy, gamma 0.99^10 and the pipeline's rollouts of 512 decisions, which
+    a 16-decision run after a one-decision warm-up shortens to PPO's least, 2 (dpr.rl.budget)."""
     out = tmp_path / "run"
     assert run(_finetune_argv(swarm_clone, out, "--timesteps", "16")) == 0
     err = capsys.readouterr().err
@@ -458,9 +458,11 @@ def test_dpr_finetune_takes_the_network_and_the_recipe_from_the_model(swarm_clon
     hyper = config["hyperparameters"]
     assert hyper["policy"] == SWARM_POLICY and hyper["policy_kwargs"] == {"net_arch": PAPER_NET}
     assert hyper["gamma"] == physics_discount(REPEAT) == round(0.99**REPEAT, 3)
-    assert {key: hyper[key] for key in FINETUNE_AT_REPEAT} == {"n_steps": 512, "batch_size": 128, "n_epochs": 10}
+    assert {key: hyper[key] for key in FINETUNE_AT_REPEAT} == {"n_steps": 2, "batch_size": 2, "n_epochs": 10}
+    assert "fewer than one rollout of n_steps 512 x 1 envs" in config["steps"]["note"] in err
     assert hyper["learning_rate"] == 3e-5 and hyper["clip_range"] == 0.1  # the rest is the finetune preset's
     assert config["critic_warmup"] == default_critic_warmup(16) == 1
+    assert config["timesteps_done"] == 2 + 16  # a warm-up of one whole rollout, the least PPO collects
     model, info = load_model(out / "model.zip")
     assert isinstance(model.policy, SwarmActorCriticPolicy) and info.architecture["policy"] == SWARM_POLICY
 

@@ -11,7 +11,7 @@ from helpers import run_cli as run
 
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import check_policy_name, make_policy
-from dpr.policies.sb3 import METADATA_MEMBER, load_model_policy, read_model_info
+from dpr.policies.sb3 import METADATA_MEMBER, load_model, load_model_policy, read_model_info
 from dpr.rl.evaluation import evaluate, run_episode
 from dpr.rl.train import TrainConfig, train
 
@@ -338,3 +338,45 @@ def test_a_run_without_periodic_evaluations_keeps_no_best_model(tmp_path):
     assert not (tmp_path / "run" / "eval").exists()
     with pytest.raises(ValueError, match="eval_episodes: must be >= 0"):
         tiny_config("ppo", eval_episodes=-1)
+
+
+# -- step budgets -----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "algo, hyperparams, n_envs, timesteps, made, fitted",
+    [
+        ("ppo", {}, 1, 100, 100, {"n_steps": 100, "batch_size": 50}),  # the yaml's rollouts of 1024: shortened
+        ("ppo", {"n_steps": 256, "batch_size": 128}, 2, 201, 200, {"n_steps": 100, "batch_size": 100}),
+        ("a2c", {"n_steps": 32}, 2, 41, 40, {"n_steps": 20}),
+        ("ppo", {"n_steps": 16, "batch_size": 16}, 2, 40, 64, {"n_steps": 16}),  # whole rollouts: SB3's rounding
+        ("dqn", {"learning_starts": 0}, 1, 10, 12, {"train_freq": 4}),  # DQN collects train_freq steps at a time
+    ],
+    ids=["ppo-under-one-rollout", "ppo-two-envs", "a2c", "ppo-rounded-up", "dqn-rounded-up"],
+)
+def test_a_run_makes_the_steps_its_log_and_config_say(tmp_path, algo, hyperparams, n_envs, timesteps, made, fitted):
+    """A budget under one rollout runs no more steps than asked (shorter rollouts, named in the log); a larger one
+    is rounded up to whole rollouts as SB3 does, and the log and config.yaml say how many steps that makes."""
+    config = TrainConfig(
+        algo,
+        ENV,
+        timesteps=timesteps,
+        n_envs=n_envs,
+        env_processes=False,
+        steps_per_episode=32,
+        eval_episodes=0,
+        hyperparams=hyperparams,
+        **SMALL_ENV,
+    )
+    lines = []
+    result = train(config, tmp_path / "run", show_progress=False, log=lines.append)
+    record = yaml.safe_load(result.config_path.read_text())
+    assert record["timesteps"] == timesteps and record["timesteps_done"] == made
+    assert record["steps"]["training"] == made and record["steps"]["critic_warmup"] == 0
+    assert {name: record["hyperparameters"].get(name) for name in fitted} == fitted
+    assert load_model(result.model_path)[0].num_timesteps == made
+    note = record["steps"]["note"]
+    assert note in lines
+    if made <= timesteps:  # shorter rollouts
+        assert "fewer than one rollout" in note and f"makes {made} training steps ({timesteps} asked)" in note
+        assert f"rollouts of {' '.join(f'{k}={v}' for k, v in fitted.items())} (" in note
+    else:
+        assert f"so this run makes {made} training steps for the {timesteps} asked" in note

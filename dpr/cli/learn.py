@@ -155,7 +155,11 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", required=True, help=f"env id: {ENV_ID_LIST}")
     swarm_arguments(parser, config)
     parser.add_argument(
-        "--timesteps", type=positive_int, help="env steps to train for (default: the preset's n_timesteps)"
+        "--timesteps",
+        type=positive_int,
+        help="env steps to train for (default: the preset's n_timesteps), in whole rollouts of n_steps x n-envs "
+        "(DQN: train_freq x n-envs) as SB3 makes them: a larger budget is rounded up, a smaller one runs shorter "
+        "rollouts, no more steps than asked; the log and config.yaml say how many",
     )
     default_argument(parser, "--n-envs", config["n_envs"], "parallel envs, subprocesses when > 1")
     parser.add_argument(
@@ -223,7 +227,9 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
         "--timesteps",
         type=positive_int,
         help="env steps after the warm-up (default: the n_timesteps of the finetune preset of "
-        "dpr/rl/hyperparams/<algo>.yml)",
+        "dpr/rl/hyperparams/<algo>.yml), in whole rollouts of n_steps x n-envs as SB3 makes them: a larger "
+        "budget (and warm-up) is rounded up, a smaller one runs shorter rollouts, no more steps than asked; the "
+        "log and config.yaml say how many",
     )
     _critic_warmup_argument(parser, "env steps that train only the value head first")
     parser.add_argument(

@@ -47,6 +47,7 @@ from dpr.policies.sb3 import (
     write_model_info,
 )
 from dpr.rl import resume as resume_state
+from dpr.rl.budget import fit_budget
 
 if TYPE_CHECKING:  # the anchor imports torch and the BC loss: only runs that anchor load it
     from dpr.rl.anchor import Demonstrations
@@ -355,6 +356,7 @@ def train(
     stopped run in ``out``, made with the same ``config`` (a ParameterError otherwise), to the model the run would
     have made had it never stopped."""
     hyper, env_kwargs, timesteps = config.resolve()
+    hyper, budget = fit_budget(hyper, config.n_envs, timesteps, config.critic_warmup, config.command)
     if resume:
         check_resumable(out, config)
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
@@ -393,6 +395,7 @@ def train(
         "seed": config.seed,
         "n_envs": config.n_envs,
         "timesteps": timesteps,
+        "steps": budget.record(),  # what the run makes: SB3 collects whole rollouts (dpr.rl.budget)
         "eval_episodes": config.eval_episodes,
         "init_from": None if config.init_from is None else str(Path(config.init_from).resolve()),
         "critic_warmup": config.critic_warmup,
@@ -414,6 +417,8 @@ def train(
         f"dpr {config.command}: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, "
         f"seed {config.seed}{again} -> {run_dir}"
     )
+    if budget.note:
+        log(budget.note)
 
     env = make_vec_env(
         config.env_id,
@@ -432,7 +437,8 @@ def train(
                 load_initial_policy(model, config.init_from)
         else:
             model = resume_model(snapshot, hyper, env, config.seed, tensorboard_log)
-        callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, timesteps, show_progress, snapshot)
+        training = budget.training_learn
+        callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, training, show_progress, snapshot)
         if demonstrations is not None:
             from dpr.rl.anchor import demonstration_anchor
 
@@ -446,9 +452,9 @@ def train(
             try:
                 if snapshot is None:
                     if config.critic_warmup:
-                        warm_up_critic(model, config.critic_warmup, show_progress)
+                        warm_up_critic(model, budget.warmup_learn, show_progress)
                     origin = model.num_timesteps  # where the progress bar and the snapshots count from
-                    total, reset = timesteps, not config.critic_warmup
+                    total, reset = training, not config.critic_warmup
                 else:
                     origin, total, reset = snapshot.origin, snapshot.total_timesteps - model.num_timesteps, False
                 # no snapshots of an anchor's own state, or of DQN's replay buffer: such runs keep none
