@@ -1,4 +1,4 @@
-"""tools/record_tables.py: RESULTS.md, models/README.md, models/card.yaml and docs/learning.md quote the headline
+"""tools/record_tables.py: RESULTS.md, models/README.md, models/card.yaml and docs/pipeline.md quote the headline
 record."""
 
 import re
@@ -30,7 +30,7 @@ def test_the_docs_quote_the_headline_record(tool, record):
     assert len(tool.shipped_rows(record)) == 4 * 4  # the wave and three shipped models per task
 
 
-DOCS = ("RESULTS.md", "models/README.md", "models/card.yaml", "docs/learning.md")
+DOCS = ("RESULTS.md", "models/README.md", "models/card.yaml", "docs/pipeline.md")
 
 
 def _docs_copy(dest: Path) -> Path:
@@ -63,12 +63,12 @@ def test_a_misquoted_figure_is_named(tool, record, tmp_path):
     card[at] = card[at].replace(f"(seed {seed})", f"(seed {seed + 1})")
     (docs / "models/card.yaml").write_text("\n".join(card) + "\n")
     shipped = next(row for row in tool.shipped_rows(record) if row.startswith("| Gate-v0 | shipped bc-ppo |"))
-    _replace_once(docs / "docs/learning.md", shipped, _misquoted(shipped))
+    _replace_once(docs / "docs/pipeline.md", shipped, _misquoted(shipped))
     problems = tool.check(record, docs)
     assert len(problems) == 4, problems
     assert problems[0] == f"RESULTS.md lacks the row {headline}"
     assert "unresponsive-bc-ppo.zip" in problems[1] and tail in problems[1]
-    assert problems[2] == f"docs/learning.md (make run's table) lacks the row {shipped}"
+    assert problems[2] == f"docs/pipeline.md (make run's table) lacks the row {shipped}"
     assert problems[3].startswith(f"models/card.yaml: made_by of navigation-bc-ppo.zip should end (seed {seed})")
 
 

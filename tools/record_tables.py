@@ -4,7 +4,7 @@
 A record (``docs/results/<name>``: ``pipeline.yaml``, ``choices.yaml``, ``eval/``, ``report/``) is the source of
 every headline figure. RESULTS.md quotes its interval table and the canonical models' test medians; models/README.md
 quotes each canonical model's chosen run, test median and interval; models/card.yaml names each chosen run's seed;
-docs/learning.md shows what `make run` prints for the shipped models, which are the record's test episodes on the
+docs/pipeline.md shows what `make run` prints for the shipped models, which are the record's test episodes on the
 small preset's five test seeds.
 This tool prints those rows from the record; ``--write`` puts them in the docs in place of the rows they hold
 (the prose around them, and the recipe cells such as a model's budget, are left to the person adopting the record);
@@ -150,7 +150,7 @@ def model_card_cells(record: Record) -> dict[str, str]:
 def shipped_rows(record: Record, seeds: list[int] | None = None) -> list[str]:
     """What `make run` prints for the wave and the shipped canonical models (``shipped <method>``): `dpr report`'s
     rows of their episodes in the record on ``seeds`` (default: the small preset's test seeds), without the
-    success, n and seeds columns, which docs/learning.md leaves out."""
+    success, n and seeds columns, which docs/pipeline.md leaves out."""
     seeds = set(PipelineConfig().test_seeds if seeds is None else seeds)
     evaluations = []
     for task in record.tasks:
@@ -181,10 +181,10 @@ def check(record: Record, root: Path = ROOT) -> list[str]:
         rows = [line for line in readme if line.startswith(f"| `{file}` |")]
         if len(rows) != 1 or not rows[0].endswith(tail):
             problems.append(f"models/README.md: the row of {file} should end {tail}, found {rows or 'no row'}")
-    learning = (root / "docs" / "learning.md").read_text().splitlines()
+    pipeline = (root / "docs" / "pipeline.md").read_text().splitlines()
     for row in shipped_rows(record):
-        if row not in learning:
-            problems.append(f"docs/learning.md (make run's table) lacks the row {row}")
+        if row not in pipeline:
+            problems.append(f"docs/pipeline.md (make run's table) lacks the row {row}")
     card = yaml.safe_load((root / "models" / "card.yaml").read_text())
     made_by = {entry["file"]: entry.get("made_by", "") for entry in card["models"]}
     for file, seed in card_seeds(record).items():
@@ -222,7 +222,7 @@ def write(record: Record, root: Path = ROOT) -> list[Path]:
         lines[rows[0]] = "| " + " | ".join(recipe) + " " + tail
     path.write_text("\n".join(lines) + "\n")
 
-    path = root / "docs" / "learning.md"
+    path = root / "docs" / "pipeline.md"
     lines = path.read_text().splitlines()
     _replace_keyed_rows(lines, MAKE_RUN_HEADER, shipped_rows(record), path)
     path.write_text("\n".join(lines) + "\n")
@@ -235,7 +235,7 @@ def write(record: Record, root: Path = ROOT) -> list[Path]:
         elif line.lstrip().startswith("made_by:") and file in seeds:
             lines[i] = re.sub(r"\(seed \d+\)\"$", f'(seed {seeds[file]})"', line)
     path.write_text("\n".join(lines) + "\n")
-    return [root / name for name in ("RESULTS.md", "models/README.md", "docs/learning.md", "models/card.yaml")]
+    return [root / name for name in ("RESULTS.md", "models/README.md", "docs/pipeline.md", "models/card.yaml")]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -259,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(canonical_rows(record)))
     print("\nmodels/README.md, last three cells of each row:")
     print("\n".join(f"`{file}` {tail}" for file, tail in model_card_cells(record).items()))
-    print("\ndocs/learning.md, make run's wave and shipped rows:")
+    print("\ndocs/pipeline.md, make run's wave and shipped rows:")
     print("\n".join(shipped_rows(record)))
     print("\nmodels/card.yaml, made_by ends:")
     print("\n".join(f"{file}: (seed {seed})" for file, seed in card_seeds(record).items()))
