@@ -124,3 +124,70 @@ def test_the_how_to_shows_the_example_as_it_is():
     how_to = (ROOT / "docs" / "add-a-task.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", how_to, flags=re.S)
     assert (EXAMPLES / "pillar_task.py").read_text() in blocks
+
+
+# -- a robot model of the user's own: examples/long_magnet_disk.py (docs/add-a-robot-model.md) -------------------
+ROBOT_MODEL = "disk-long-magnets"
+
+
+@pytest.fixture
+def long_magnets(monkeypatch):
+    """The example robot model imported here, and the registry as it was afterwards."""
+    from dpr.sim import models
+
+    saved_classes, saved_names = dict(models._SWARM_CLASSES), list(models.ROBOT_MODELS)
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    sys.modules.pop("long_magnet_disk", None)
+    yield importlib.import_module("long_magnet_disk")
+    sys.modules.pop("long_magnet_disk", None)
+    models._SWARM_CLASSES.clear()
+    models._SWARM_CLASSES.update(saved_classes)
+    models.ROBOT_MODELS[:] = saved_names
+
+
+def test_the_example_robot_model_runs_every_task_and_the_wave(long_magnets):
+    from dpr.policies.wave import MODEL_DEFAULTS, WavePolicy
+    from dpr.sim import register_robot_model
+
+    assert MODEL_DEFAULTS[ROBOT_MODEL] == MODEL_DEFAULTS["disk"]  # the disk's wave, inherited
+    register_robot_model(long_magnets.LongMagnetDiskSwarm)  # imported twice: nothing happens
+    with pytest.raises(ValueError, match="'disk' is taken"):
+        register_robot_model(type("Other", (long_magnets.LongMagnetDiskSwarm,), {"model": "disk"}))
+    for env_id in ("dpr/Navigation-v0", "dpr/Gate-v1", "dpr/Unresponsive-v0", "dpr/Manipulation-v0"):
+        env = gym.make(env_id, robot_model=ROBOT_MODEL, n_robots=9)
+        check_env(env.unwrapped, skip_render_check=True)
+        env.reset(seed=0)
+        assert robot_overlaps(env.unwrapped.world) == 0
+    magnets = {}
+    for model in ("disk", ROBOT_MODEL):  # diagonal neighbours are tied too, once the swarm moves
+        env = gym.make("dpr/Navigation-v0", robot_model=model)
+        policy, (obs, _) = WavePolicy.from_env(env), env.reset(seed=0)
+        policy.reset()
+        for _ in range(100):
+            obs, *_ = env.step(policy(obs))
+        magnets[model] = len(env.unwrapped.world.swarm.magnet_segments())
+    assert magnets[ROBOT_MODEL] > magnets["disk"]
+
+
+def test_commands_take_the_robot_model_through_env_package(tmp_path):
+    flags = ["--env", "dpr/Navigation-v0", "--robot-model", ROBOT_MODEL]
+
+    def run_model(args):
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(EXAMPLES), str(ROOT)])}
+        env.pop(ENV_PACKAGES_VARIABLE, None)
+        argv = [*DPR, "--env-package", "long_magnet_disk", *args]
+        return subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+
+    collect = run_model(["collect", *flags, "--policy", "wave", "--episodes", "2", "--steps", "40", "--out", "ds"])
+    assert collect.returncode == 0, collect.stderr
+    assert json.loads((tmp_path / "ds" / "meta" / "info.json").read_text())["robot_type"] == ROBOT_MODEL
+    replay = run_model(["replay", "ds"])
+    assert replay.returncode == 0, replay.stderr
+    evaluate = run_model(["evaluate", "--policy", "wave", *flags, "--seeds", "3", "--steps", "40"])
+    assert evaluate.returncode == 0 and "| dpr/Navigation-v0 | wave | projected_displacement |" in evaluate.stdout
+
+
+def test_the_robot_model_how_to_shows_the_example_as_it_is():
+    how_to = (ROOT / "docs" / "add-a-robot-model.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", how_to, flags=re.S)
+    assert (EXAMPLES / "long_magnet_disk.py").read_text() in blocks

@@ -72,9 +72,10 @@ def env_package_argument(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="PKG",
-        help="import PKG first, a package whose import registers more tasks (dpr.envs.register_task), so that "
-        "every --env, --tasks and dataset or model of them is accepted; repeat for several "
-        "(also: DPR_ENV_PACKAGES=PKG1,PKG2; docs/add-a-task.md)",
+        help="import PKG first, a package whose import registers more tasks (dpr.envs.register_task) or robot "
+        "models (dpr.sim.register_robot_model), so that every --env, --tasks, --robot-model and dataset or model of "
+        "them is accepted; repeat for several (also: DPR_ENV_PACKAGES=PKG1,PKG2; docs/add-a-task.md, "
+        "docs/add-a-robot-model.md)",
     )
 
 

@@ -2,20 +2,40 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from dpr.checks import check_int, check_number
 from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES, ParticleSwarmEnv, joint_action_bits
+from dpr.sim.models import ROBOT_MODELS, swarm_class
 
 BIN_WIDTH = 60.0  # the 2021 code's "robot diameter"
 START_SIDES = ("near", "far")
 
-# Per robot model: the hold and wave direction that move the swarm toward the goal (tools/wave_sweep.py, N=9;
-# tools/model_agreement.py checks them at N = 9 to 225: the near side leads on both models at every size).
-MODEL_DEFAULTS = {
-    "paddle": {"hold_steps": 10, "start_side": "near"},
-    "disk": {"hold_steps": 4, "start_side": "near"},
-}
+
+class _ModelDefaults(Mapping):
+    """Per robot model: the hold and wave direction that move the swarm toward the goal, as its Swarm class says
+    (``wave_hold_steps``, ``wave_start_side``; tools/wave_sweep.py chose them at N=9, and tools/model_agreement.py
+    checks them at N = 9 to 225: the near side leads on both built-in models at every size)."""
+
+    def __getitem__(self, robot_model: str) -> dict:
+        if robot_model not in ROBOT_MODELS:
+            raise KeyError(robot_model)
+        cls = swarm_class(robot_model)
+        return {"hold_steps": cls.wave_hold_steps, "start_side": cls.wave_start_side}
+
+    def __contains__(self, robot_model) -> bool:
+        return robot_model in ROBOT_MODELS
+
+    def __iter__(self):
+        return iter(list(ROBOT_MODELS))
+
+    def __len__(self) -> int:
+        return len(ROBOT_MODELS)
+
+
+MODEL_DEFAULTS = _ModelDefaults()  # {"paddle": {"hold_steps": 10, "start_side": "near"}, "disk": {4, "near"}, ...}
 
 
 class WavePolicy:

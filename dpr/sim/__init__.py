@@ -4,8 +4,8 @@
 single-body model), optional static walls and an optional object, and steps them at the 10 Hz control rate.
 """
 
-from dpr.sim.models import ROBOT_MODELS, swarm_class
+from dpr.sim.models import ROBOT_MODELS, register_robot_model, swarm_class
 from dpr.sim.swarm import Swarm
 from dpr.sim.world import ObjectSpec, World, grid_centres
 
-__all__ = ["ROBOT_MODELS", "ObjectSpec", "Swarm", "World", "grid_centres", "swarm_class"]
+__all__ = ["ROBOT_MODELS", "ObjectSpec", "Swarm", "World", "grid_centres", "register_robot_model", "swarm_class"]

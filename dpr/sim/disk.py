@@ -41,6 +41,7 @@ class DiskSwarm(Swarm):
     expanded_radius = C.DISK_EXPANDED_RADIUS
     magnet_range = C.DISK_MAGNET_RANGE
     substeps = 2
+    wave_hold_steps = 4  # tools/wave_sweep.py: the disk's stroke is quicker than the paddles'
 
     def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
         super().__init__(space, centres, dead)

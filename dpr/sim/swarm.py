@@ -30,6 +30,10 @@ class Swarm:
     magnet_range: float = C.MAGNET_RANGE
     substeps: int = C.SUBSTEPS  # pymunk steps per control step, of CONTROL_PERIOD / substeps each
     revision: int = 1  # raised whenever the model's physics change: datasets record it
+    # The wave that moves this model toward the goal (dpr.policies.wave): steps each phase is held, and whether the
+    # band nearest the goal expands first ("near") or last ("far")
+    wave_hold_steps: int = 10
+    wave_start_side: str = "near"
 
     def __init__(self, space: pymunk.Space, centres: np.ndarray, dead: np.ndarray):
         self.space = space
