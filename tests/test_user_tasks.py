@@ -44,10 +44,10 @@ def pillar(monkeypatch):
         getattr(tasks, name).update(value)
 
 
-def run(args: list[str], cwd: Path, env_packages: bool = True) -> subprocess.CompletedProcess:
+def run(args: list[str], cwd: Path, env_package: str | None = "pillar_task") -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(EXAMPLES), str(ROOT)])}
     env.pop(ENV_PACKAGES_VARIABLE, None)
-    argv = [*DPR, *(["--env-package", "pillar_task"] if env_packages else []), *args]
+    argv = [*DPR, *(["--env-package", env_package] if env_package else []), *args]
     return subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
 
@@ -104,7 +104,7 @@ def test_every_command_takes_the_task_through_env_package(tmp_path):
     assert evaluate.returncode == 0, evaluate.stderr
     assert "| pillar_task/Pillar-v0 | bc/model.zip | pillar_touched |" in evaluate.stdout
 
-    unknown = run(["evaluate", "--policy", "wave", "--env", ENV_ID], tmp_path, env_packages=False)
+    unknown = run(["evaluate", "--policy", "wave", "--env", ENV_ID], tmp_path, env_package=None)
     assert unknown.returncode == 2 and "--env-package PKG" in unknown.stderr
     missing = run(["--env-package", "no_such_tasks", "evaluate", "--policy", "wave", "--env", ENV_ID], tmp_path)
     assert missing.returncode == 2 and "env package 'no_such_tasks' does not import" in missing.stderr
@@ -173,10 +173,7 @@ def test_commands_take_the_robot_model_through_env_package(tmp_path):
     flags = ["--env", "dpr/Navigation-v0", "--robot-model", ROBOT_MODEL]
 
     def run_model(args):
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(EXAMPLES), str(ROOT)])}
-        env.pop(ENV_PACKAGES_VARIABLE, None)
-        argv = [*DPR, "--env-package", "long_magnet_disk", *args]
-        return subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+        return run(args, tmp_path, env_package="long_magnet_disk")
 
     collect = run_model(["collect", *flags, "--policy", "wave", "--episodes", "2", "--steps", "40", "--out", "ds"])
     assert collect.returncode == 0, collect.stderr
