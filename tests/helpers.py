@@ -3,6 +3,7 @@
 import contextlib
 import hashlib
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -105,6 +106,30 @@ def tree_hash(root: Path) -> str:
         if path.is_file():
             digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()
+
+
+def write_info(root: Path, info: dict, **dump) -> None:
+    """Write a hand-edited ``info.json`` into the dataset at ``root``, sealed anew as the writer seals it when it
+    carries meta checksums, so that a reader meets the edit itself rather than a checksum that no longer holds."""
+    from dpr.datasets.lerobot.format import META_CHECKSUMS_KEY, sealed_info
+
+    entry = info.get(META_CHECKSUMS_KEY)
+    if entry is not None:
+        plain = {key: value for key, value in info.items() if key != META_CHECKSUMS_KEY}
+        info = sealed_info(plain, tasks=entry["tasks"], stats=entry["stats"], rows_from=entry["rows_from"])
+    (root / "meta" / "info.json").write_text(json.dumps(info, **dump))
+
+
+def write_stats(root: Path, stats: dict) -> None:
+    """Write a hand-made ``stats.json`` into the dataset at ``root``, with its checksum in info.json where it
+    keeps one: a stats.json a writer could have written, whose values the reader checks for themselves."""
+    from dpr.datasets.lerobot.format import META_CHECKSUMS_KEY, content_digest
+
+    (root / "meta" / "stats.json").write_text(json.dumps(stats))  # json writes inf as Infinity
+    info = json.loads((root / "meta" / "info.json").read_text())
+    if META_CHECKSUMS_KEY in info:
+        info[META_CHECKSUMS_KEY]["stats"] = content_digest(json.loads((root / "meta" / "stats.json").read_text()))
+        write_info(root, info, indent=4)
 
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"

@@ -11,7 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from helpers import parquet_files, run_cli, tree_hash
+from helpers import parquet_files, run_cli, tree_hash, write_stats
 
 import dpr.datasets.collect as collect_module
 from dpr.datasets.collect import CollectSpec, collect
@@ -569,7 +569,7 @@ def test_a_malformed_stats_entry_is_one_clear_error(small_dataset, tmp_path, ent
     shutil.copytree(small_dataset, tampered)
     stats = json.loads((tampered / "meta/stats.json").read_text())
     stats["action"] = entry
-    (tampered / "meta/stats.json").write_text(json.dumps(stats))  # json writes inf as Infinity
+    write_stats(tampered, stats)
     with pytest.raises(DatasetError, match=message):
         LeRobotReader(tampered)
 
@@ -580,7 +580,7 @@ def test_verify_catches_wrong_stats(small_dataset, tmp_path):
     shutil.copytree(small_dataset, tampered)
     stats = json.loads((tampered / "meta/stats.json").read_text())
     stats["next.reward"]["mean"] = [123.0]
-    (tampered / "meta/stats.json").write_text(json.dumps(stats))
+    write_stats(tampered, stats)
     with pytest.raises(DatasetError, match="next.reward/mean is not the aggregate of the episodes' stats"):
         LeRobotReader(tampered).verify()
     assert LeRobotReader(small_dataset).verify() == 80

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli, tree_hash
+from helpers import run_cli, tree_hash, write_info
 
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
@@ -72,7 +72,7 @@ def old_layout(root: Path) -> Path:
     info = json.loads(info_path.read_text())
     info["fps"] = 10
     del info["dpr"]["dataset_revision"]
-    info_path.write_text(json.dumps(info, indent=4))
+    write_info(root, info, indent=4)
     return root
 
 

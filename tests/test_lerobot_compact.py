@@ -91,6 +91,7 @@ def view(root: Path) -> dict:
     order = list(range(reader.num_episodes))
     order = order[::2] + order[1::2][::-1]  # out of order: the packed-file row-group cache must not matter
     info = {k: v for k, v in reader.info.items() if k != "dpr_live_files"}
+    info["dpr_meta_checksums"] = {k: v for k, v in info["dpr_meta_checksums"].items() if k != "info"}  # of info
     return {
         "info": info,
         "episodes": {i: reader.episode(i) for i in order},

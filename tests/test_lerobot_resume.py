@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from helpers import tree_hash
+from helpers import tree_hash, write_info
 from test_lerobot_format import (
     FEATURES,
     INFO_EXTRA,
@@ -218,7 +218,7 @@ def finished_dataset(root: Path, seed: int) -> Path:
 def test_an_absurd_count_in_info_json_is_refused_before_any_allocation(tmp_path, key, value):
     root = finished_dataset(tmp_path / "ds", seed=3)
     info = json.loads((root / "meta" / "info.json").read_text())
-    (root / "meta" / "info.json").write_text(json.dumps({**info, key: value}))
+    write_info(root, {**info, key: value})
     with pytest.raises(DatasetError, match=f"{key} is {value}, beyond any dataset this reader takes"):
         LeRobotReader(root)
     with pytest.raises(DatasetError, match=f"{key} is {value}"):
@@ -243,7 +243,7 @@ def test_a_data_path_leading_out_of_the_dataset_is_refused(tmp_path, how):
         template = (
             str(tmp_path / "outside" / info["data_path"]) if how == "absolute" else f"../outside/{info['data_path']}"
         )
-        info_path.write_text(json.dumps({**info, "data_path": template}))
+        write_info(root, {**info, "data_path": template})
     with pytest.raises(DatasetError, match="leads out of the dataset"):
         LeRobotReader(root).verify()
 
@@ -306,7 +306,7 @@ def test_a_released_lock_can_be_taken_again_while_its_file_comes_and_goes(tmp_pa
 def break_total_frames(root: Path) -> str:
     info = json.loads((root / "meta/info.json").read_text())
     info["total_frames"] += 1
-    (root / "meta/info.json").write_text(json.dumps(info, indent=4))
+    write_info(root, info, indent=4)
     return "total_frames"
 
 
@@ -330,7 +330,7 @@ def drop_a_stats_column(root: Path) -> str:
     path = root / "meta/episodes/chunk-000/file-001.parquet"
     table = pq.read_table(path)
     pq.write_table(table.drop_columns(["stats/action/q50"]), path)
-    return "stats/action"
+    return "file-001.parquet: row 0 (episode 1) does not match its checksums (stats"
 
 
 @pytest.mark.parametrize(

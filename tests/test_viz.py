@@ -9,6 +9,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 from helpers import run_cli as run
+from helpers import write_info
 from rerun.chunk import RrdReader
 
 import dpr.viz
@@ -230,7 +231,7 @@ def test_a_dataset_of_the_old_fps_is_refused_by_the_viewer_with_what_to_do(every
     info = json.loads((old / "meta" / "info.json").read_text())
     info["fps"] = 10  # as recorded before dpr kept simulated time
     del info["dpr"]["dataset_revision"]
-    (old / "meta" / "info.json").write_text(json.dumps(info))
+    write_info(old, info)
     assert run(["view", str(old), "--save", str(tmp_path / "old.rrd")]) == 2
     err = capsys.readouterr().err
     assert str(old) in err and "action_repeat=6" in err and "into a new folder" in err

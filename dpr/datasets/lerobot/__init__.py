@@ -29,9 +29,10 @@ it swaps info.json. LeRobot itself globs every ``data/*/*.parquet``: it would se
 (or both layouts of an interrupted compaction) until the dataset is opened or repaired.
 
 Modules: :mod:`.format` (paths, info.json, feature specs, :class:`DatasetError`), :mod:`.stats` (statistics),
-:mod:`.meta` (episode rows and tasks), :mod:`.tables` (an episode as arrow tables), :mod:`.files` (writer lock,
-leftovers), :mod:`.writer` (:class:`LeRobotWriter`, :func:`repair`, :func:`compact`), :mod:`.compaction` (file
-packing), :mod:`.reader` (:class:`LeRobotReader`).
+:mod:`.meta` (episode rows and tasks), :mod:`.checksums` (of the data and the meta tables, checked on every read),
+:mod:`.tables` (an episode as arrow tables), :mod:`.files` (writer lock, leftovers), :mod:`.writer`
+(:class:`LeRobotWriter`, :func:`repair`, :func:`compact`), :mod:`.compaction` (file packing), :mod:`.reader`
+(:class:`LeRobotReader`).
 """
 
 from dpr.datasets.lerobot.format import (

@@ -4,8 +4,9 @@ Recording writes one data file and one episodes-meta file per episode, so that e
 10,000 episodes make 20,000 small files. Compaction rewrites them in LeRobot's own layout: episodes back to back
 in data files of at most ``target_bytes`` (an episode larger than that gets a file of its own), the meta rows in
 as few files, and each row's ``data/chunk_index``, ``data/file_index``, ``meta/episodes/chunk_index`` and
-``meta/episodes/file_index`` pointing at the new files. Every column of every episode, the per-episode stats,
-``stats.json`` and ``tasks.parquet`` stay as they were. A data file already at least half of ``target_bytes``
+``meta/episodes/file_index`` pointing at the new files, and its checksums (:mod:`.checksums`) made anew with them
+(``info.json``'s too). Every column of every episode, the per-episode stats, ``stats.json`` and ``tasks.parquet``
+stay as they were. A data file already at least half of ``target_bytes``
 (from an earlier compaction) is kept, hard-linked under its new name rather than rewritten, so compacting again
 after a resume rewrites only the files recorded since.
 
@@ -36,6 +37,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from dpr.atomic import atomic_link, atomic_write, atomic_write_json, fsync_dir
+from dpr.datasets.lerobot.checksums import with_row_checksums
 from dpr.datasets.lerobot.files import delete_leftovers
 from dpr.datasets.lerobot.format import (
     DATA_FILES_SIZE_IN_MB,
@@ -43,15 +45,20 @@ from dpr.datasets.lerobot.format import (
     EPISODES_PATH,
     INFO_PATH,
     LIVE_FILES_KEY,
+    META_CHECKSUMS_KEY,
+    STATS_PATH,
     DatasetError,
     chunk_file,
+    content_digest,
     in_threads,
     live_files,
     numbered_path,
+    read_json,
     read_parquet,
+    sealed_info,
     write_parquet,
 )
-from dpr.datasets.lerobot.meta import data_file_path, read_live_meta
+from dpr.datasets.lerobot.meta import data_file_path, load_tasks, read_live_meta
 
 DEFAULT_TARGET_BYTES = DATA_FILES_SIZE_IN_MB * 2**20
 # Row groups of about this many bytes in memory, cut at episode boundaries: reading one episode of a packed file
@@ -260,16 +267,31 @@ def _write_layout(
         column = pa.array(values, type=pa.int64())
         index = meta.schema.get_field_index(name)
         meta = meta.append_column(name, column) if index < 0 else meta.set_column(index, name, column)
+    meta = with_row_checksums(meta)  # the rows' checksums, of their new pointers (and for rows that had none)
     for j, rows in enumerate(meta_plan):
         path = numbered_path(root, EPISODES_PATH, base + j)
         write_parquet(path, meta.slice(rows.start, len(rows)), sync_folder=False)
         folders.add(path.parent)
     for folder in sorted(folders | {f.parent for f in folders}):
         fsync_dir(folder)
-    new_info = {**info, LIVE_FILES_KEY: [base, base + count]}
+    new_info = _sealed(root, {**info, LIVE_FILES_KEY: [base, base + count]})
     _commit(root, new_info)
     delete_leftovers(root, (base, base + count))
     return new_info
+
+
+def _sealed(root: Path, info: dict) -> dict:
+    """``info`` sealed anew (its content changed; every meta row now carries its checksums): the tasks' and
+    stats.json's checksums as it records them, or, in a dataset written before them, of the files as they are."""
+    entry = info.get(META_CHECKSUMS_KEY)
+    if entry is not None:
+        tasks, stats = entry["tasks"], entry["stats"]
+    else:
+        stats_path = root / STATS_PATH
+        tasks = content_digest(load_tasks(root, info))
+        stats = content_digest(read_json(stats_path)) if stats_path.exists() else None
+    unsealed = {k: v for k, v in info.items() if k != META_CHECKSUMS_KEY}
+    return sealed_info(unsealed, tasks=tasks, stats=stats, rows_from=0)
 
 
 def _commit(root: Path, info: dict) -> None:

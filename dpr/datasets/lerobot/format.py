@@ -6,6 +6,7 @@ checks that the writer, the reader and compaction share.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -36,6 +37,11 @@ CHUNK_FILE_RE = re.compile(r"^chunk-(\d{3,})/file-(\d{3,})\.parquet$")
 # info.json key of this writer: files numbered n = chunk_index * CHUNKS_SIZE + file_index in [first, end) hold the
 # dataset (data and meta/episodes alike); any other numbered file is a leftover of a crash or of a compaction.
 LIVE_FILES_KEY = "dpr_live_files"
+# info.json key of this writer: checksums of the meta tables (dpr.datasets.lerobot.checksums), checked on every read:
+# {"info": info.json's own (of its content without this entry), "tasks": the committed task strings',
+#  "stats": stats.json's content's, "rows_from": the first episode whose meta row carries its own checksums}.
+META_CHECKSUMS_KEY = "dpr_meta_checksums"
+DIGEST_BYTES = 8  # blake2b-64 content digests
 
 FILE_THREADS = 8  # threads for bulk file operations (see in_threads)
 T = TypeVar("T")
@@ -59,6 +65,7 @@ IMAGE_NAMES = ["height", "width", "channels"]
 STANDARD_EPISODE_COLUMNS = (
     "episode_index",
     "dpr_checksums",  # dpr.datasets.lerobot.checksums: content checksums of the episode's columns
+    "dpr_row_checksums",  # ... and of the meta row's own
     "tasks",
     "length",
     "data/chunk_index",
@@ -85,6 +92,7 @@ STANDARD_INFO_KEYS = frozenset(
         "video_path",
         "features",
         LIVE_FILES_KEY,
+        META_CHECKSUMS_KEY,
     }
 )
 # Sane bounds of info.json's counts: far beyond a real dataset (a million 2500-frame episodes; the fps of a 0.1 ms
@@ -157,6 +165,8 @@ def read_json(path: Path) -> Any:
         raise DatasetError(f"{path}: file not found") from None
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: not valid JSON (not UTF-8 text: {exc})") from exc
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
@@ -183,13 +193,16 @@ def read_parquet(
         raise DatasetError(f"{path}: file not found")
     try:
         if filters is not None:
-            return pq.read_table(path, columns=columns, filters=filters)
-        with pq.ParquetFile(path) as parquet:  # cheaper than read_table's dataset layer for small files
-            if skip_stats:
-                columns = [n for n in parquet.schema_arrow.names if not n.startswith("stats/")]
-            # arrow's own threads cost more than they save on a small file (an episode's), about 40% of its read
-            return parquet.read(columns=columns, use_threads=parquet.metadata.num_rows > 10_000)
-    except (pa.ArrowException, OSError, ValueError) as exc:
+            table = pq.read_table(path, columns=columns, filters=filters)
+        else:
+            with pq.ParquetFile(path) as parquet:  # cheaper than read_table's dataset layer for small files
+                if skip_stats:
+                    columns = [n for n in parquet.schema_arrow.names if not n.startswith("stats/")]
+                # arrow's own threads cost more than they save on a small file (an episode's), about 40% of its read
+                table = parquet.read(columns=columns, use_threads=parquet.metadata.num_rows > 10_000)
+        table.validate(full=True)  # what parquet decoded but arrow would not read back: strings not UTF-8, say
+        return table if columns is None else table.select(list(dict.fromkeys(columns)))  # (a missing one: KeyError)
+    except (pa.ArrowException, OSError, ValueError, KeyError) as exc:
         raise DatasetError(f"{path}: corrupt or truncated parquet file: {exc}") from exc
 
 
@@ -276,6 +289,7 @@ def check_info(info: Any, path: Path) -> dict:
             f"{path}: codebase_version is {version!r}; this reader handles {CODEBASE_VERSION!r} only "
             "(convert older datasets with LeRobot's converter)"
         )
+    check_info_checksum(info, path)  # before the values: a damaged one is named as damage, not as a bad value
     missing = [k for k in REQUIRED_INFO_KEYS if k not in info]
     if missing:
         raise DatasetError(f"{path}: missing required keys {missing}")
@@ -306,6 +320,37 @@ def check_info(info: Any, path: Path) -> dict:
     ):
         raise DatasetError(f"{path}: {LIVE_FILES_KEY} must be [first, end] with 0 <= first <= end, got {live!r}")
     return info
+
+
+def content_digest(value: Any) -> str:
+    """The checksum of a JSON value's content (its canonical text): the same whatever its file's layout."""
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return hashlib.blake2b(text.encode(), digest_size=DIGEST_BYTES).hexdigest()
+
+
+def sealed_info(info: Mapping[str, Any], *, tasks: str | None, stats: str | None, rows_from: int) -> dict[str, Any]:
+    """``info`` with its :data:`META_CHECKSUMS_KEY`: the digests of the committed tasks and of stats.json
+    (:func:`content_digest`), the first episode whose meta row carries checksums, and info.json's own."""
+    entry = {"tasks": tasks, "stats": stats, "rows_from": rows_from}
+    unsealed = {**info, META_CHECKSUMS_KEY: entry}
+    return {**info, META_CHECKSUMS_KEY: {**entry, "info": content_digest(unsealed)}}
+
+
+def check_info_checksum(info: dict, path: Path) -> None:
+    """A DatasetError naming ``path`` when info.json's content is not the one its checksum was made of (nothing
+    is checked in a dataset written without meta checksums)."""
+    if META_CHECKSUMS_KEY not in info:
+        return
+    entry = info[META_CHECKSUMS_KEY]
+    keys = {"info", "tasks", "stats", "rows_from"}
+    if not isinstance(entry, dict) or set(entry) != keys:
+        raise DatasetError(f"{path}: {META_CHECKSUMS_KEY} must be an object of {sorted(keys)}, got {entry!r}")
+    unsealed = {**info, META_CHECKSUMS_KEY: {k: v for k, v in entry.items() if k != "info"}}
+    if content_digest(unsealed) != entry["info"]:
+        raise DatasetError(f"{path}: does not match its checksum (the file is corrupt)")
+    rows_from = entry["rows_from"]
+    if not isinstance(rows_from, int) or isinstance(rows_from, bool) or rows_from < 0:
+        raise DatasetError(f"{path}: {META_CHECKSUMS_KEY}.rows_from must be a non-negative int, got {rows_from!r}")
 
 
 def check_fps(fps: Any, where: str) -> int | float:

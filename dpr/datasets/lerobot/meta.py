@@ -11,14 +11,17 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from dpr.datasets.lerobot.checksums import ROW_CHECKSUMS_COLUMN, check_row_checksums
 from dpr.datasets.lerobot.format import (
     JSON_FIELD_METADATA,
+    META_CHECKSUMS_KEY,
     RESERVED_PREFIXES,
     STANDARD_EPISODE_COLUMNS,
     STAT_KEYS,
     TASKS_PATH,
     DatasetError,
     chunk_file,
+    content_digest,
     file_number,
     in_threads,
     inside,
@@ -131,6 +134,8 @@ def split_row(row: dict[str, Any], schema: pa.Schema, path: Path) -> EpisodeRow:
     extra_fields: list[pa.Field] = []
     for field in schema:
         name, value = field.name, row[field.name]
+        if name == ROW_CHECKSUMS_COLUMN:
+            continue  # checked where the row was read
         if name.startswith("stats/"):
             if value is not None:  # (None: a file without this column, merged with others)
                 feature, _, stat = name[len("stats/") :].rpartition("/")
@@ -154,6 +159,7 @@ def read_live_meta(root: Path, info: Mapping, *, with_stats: bool) -> tuple[pa.T
     kept: list[pa.Table] = []
     row_paths: list[Path] = []
     for path, table in zip(paths, tables, strict=True):
+        check_rows(table, path, info, with_stats=with_stats)
         if "episode_index" not in table.column_names:
             raise DatasetError(f"{path}: missing column 'episode_index'")
         committed = [i is not None and i < total for i in table.column("episode_index").to_pylist()]
@@ -173,6 +179,14 @@ def read_live_meta(root: Path, info: Mapping, *, with_stats: bool) -> tuple[pa.T
             return pa.concat_tables(kept, promote_options="permissive"), row_paths
         except pa.ArrowInvalid as exc:
             raise DatasetError(f"{root / 'meta' / 'episodes'}: the meta files' columns do not match: {exc}") from exc
+
+
+def check_rows(table: pa.Table, path: Path, info: Mapping, *, with_stats: bool) -> None:
+    """The rows of the episodes-meta file ``path`` (``table``, with or without its stats columns) against their
+    checksums, when ``info`` records meta checksums (:mod:`dpr.datasets.lerobot.checksums`)."""
+    entry = info.get(META_CHECKSUMS_KEY)
+    required_from = entry["rows_from"] if isinstance(entry, Mapping) else None
+    check_row_checksums(table, path, with_stats=with_stats, required_from=required_from)
 
 
 def load_committed_episodes(root: Path, info: Mapping, *, with_stats: bool) -> list[EpisodeRow]:
@@ -232,9 +246,18 @@ def check_data_files(root: Path, info: Mapping, episodes: list[Mapping]) -> dict
     return per_file
 
 
-def load_tasks(root: Path, needed: int | None) -> list[str]:
-    """The first ``needed`` task strings (all when None) by task_index, from the pandas-layout tasks.parquet
-    (read without pandas). Tasks beyond ``needed`` belong to an uncommitted episode."""
+def load_tasks(root: Path, info: Mapping) -> list[str]:
+    """The committed task strings (``info``'s total_tasks; all when it has none) by task_index, from the
+    pandas-layout tasks.parquet (read without pandas), checked against their checksum when ``info`` records one.
+    Tasks beyond them belong to an uncommitted episode."""
+    tasks = _read_tasks(root, info.get("total_tasks"))
+    entry = info.get(META_CHECKSUMS_KEY)
+    if isinstance(entry, Mapping) and content_digest(tasks) != entry["tasks"]:
+        raise DatasetError(f"{root / TASKS_PATH}: its tasks do not match their checksum (the file is corrupt)")
+    return tasks
+
+
+def _read_tasks(root: Path, needed: int | None) -> list[str]:
     path = root / TASKS_PATH
     if needed == 0:
         return []
@@ -242,7 +265,10 @@ def load_tasks(root: Path, needed: int | None) -> list[str]:
     pandas_meta = (table.schema.metadata or {}).get(b"pandas")
     index_column = None
     if pandas_meta is not None:
-        index_columns = json.loads(pandas_meta).get("index_columns", [])
+        try:
+            index_columns = json.loads(pandas_meta).get("index_columns", [])
+        except (ValueError, AttributeError) as exc:  # (UnicodeDecodeError is a ValueError)
+            raise DatasetError(f"{path}: its pandas metadata is not a JSON object: {exc}") from None
         if len(index_columns) == 1 and isinstance(index_columns[0], str):
             index_column = index_columns[0]
     if index_column is None or index_column not in table.column_names or "task_index" not in table.column_names:

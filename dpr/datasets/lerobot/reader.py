@@ -16,15 +16,24 @@ import pyarrow.parquet as pq
 from dpr.datasets.lerobot.checksums import CHECKSUMS_COLUMN, check_checksums
 from dpr.datasets.lerobot.format import (
     INFO_PATH,
+    META_CHECKSUMS_KEY,
     STATS_PATH,
     DatasetError,
+    content_digest,
     decode_png,
     load_info,
     read_json,
     read_parquet,
     spec_shape,
 )
-from dpr.datasets.lerobot.meta import check_data_files, data_file_path, load_committed_episodes, load_tasks, split_row
+from dpr.datasets.lerobot.meta import (
+    check_data_files,
+    check_rows,
+    data_file_path,
+    load_committed_episodes,
+    load_tasks,
+    split_row,
+)
 from dpr.datasets.lerobot.stats import Aggregate, merge_aggregates, stats_json
 
 # ------------------------------------------------------------------------------------------------------ reader
@@ -37,7 +46,8 @@ class LeRobotReader:
     or written by LeRobot (many episodes per file, read by row group), or a mix after a resume.
 
     The constructor validates ``meta/info.json`` (codebase_version, required keys), the committed episodes' meta
-    rows, ``meta/tasks.parquet``, ``meta/stats.json`` and every committed data file's parquet footer. Episodes at or
+    rows, ``meta/tasks.parquet``, ``meta/stats.json`` (the meta tables against their checksums, where the dataset
+    keeps them: :mod:`dpr.datasets.lerobot.checksums`) and every committed data file's parquet footer. Episodes at or
     above ``info.total_episodes`` and files outside ``info.dpr_live_files`` (leftovers of a crash or of an
     interrupted compaction) are ignored. A reader is a snapshot: open a new one after a compaction. Arrays come
     back as ``[T, *shape]`` in the feature's dtype (shape-[1] features as ``[T, 1]``); images as uint8
@@ -63,7 +73,7 @@ class LeRobotReader:
                 f"{self.root / INFO_PATH}: total_frames is {self.num_frames}, the episodes cover {frames} frames"
             )
         self._starts = [int(e["dataset_from_index"]) for e in self.episodes]
-        self.tasks: list[str] = load_tasks(self.root, self.info.get("total_tasks"))
+        self.tasks: list[str] = load_tasks(self.root, self.info)
         self._episodes_per_file = check_data_files(self.root, self.info, self.episodes)
         self._file_starts: dict[Path, int] = {}  # global index of each data file's first row
         for ep in reversed(self.episodes):
@@ -74,7 +84,8 @@ class LeRobotReader:
 
     def _load_stats(self) -> dict[str, dict[str, np.ndarray]]:
         """stats.json, or the aggregate of the per-episode stats when stats.json is absent or stale (a crash
-        between writing it and info.json leaves it counting an uncommitted episode)."""
+        between writing it and info.json leaves it counting an uncommitted episode). A stats.json that is not stale
+        and differs from its checksum in info.json is a DatasetError."""
         path = self.root / STATS_PATH
         stats = read_json(path) if path.exists() else None
         if stats is not None and not isinstance(stats, dict):
@@ -83,9 +94,13 @@ class LeRobotReader:
         if stats is not None:
             try:
                 index_count = int(np.asarray(stats["index"]["count"]).reshape(-1)[0])
-            except (KeyError, TypeError, ValueError, IndexError):
+            except (KeyError, TypeError, ValueError, IndexError, OverflowError):
                 index_count = None
-        if stats is None or (self.num_frames and index_count is not None and index_count != self.num_frames):
+        stale = self.num_frames and index_count is not None and index_count != self.num_frames
+        expected = (self.info.get(META_CHECKSUMS_KEY) or {}).get("stats")
+        if stats is not None and not stale and expected is not None and content_digest(stats) != expected:
+            raise DatasetError(f"{path}: does not match its checksum in {INFO_PATH} (the file is corrupt)")
+        if stats is None or stale:
             if not self.episodes:
                 return {}
             stats = self._aggregate_of_episodes()
@@ -155,6 +170,7 @@ class LeRobotReader:
         if index not in self._episode_stats:
             path = self._meta_paths[index]
             table = read_parquet(path)
+            check_rows(table, path, self.info, with_stats=True)
             for row in table.to_pylist():  # keep every row's stats: LeRobot's files hold many episodes
                 other = row.get("episode_index")
                 if other is not None and other < self.num_episodes:
@@ -234,12 +250,14 @@ class LeRobotReader:
             key = (path, first, stop, tuple(wanted))
             if self._row_groups is None or self._row_groups[0] != key:
                 with pq.ParquetFile(path, metadata=footer) as parquet:
-                    self._row_groups = (key, parquet.read_row_groups(range(first, stop), columns=wanted))
+                    groups = parquet.read_row_groups(range(first, stop), columns=wanted)
+                    groups.validate(full=True)  # (strings that are not UTF-8, offsets out of bounds)
+                    self._row_groups = (key, groups.select(wanted))  # (a column parquet lacks is left out)
             table = self._row_groups[1].slice(offset - starts[first], length)
-        except (pa.ArrowException, OSError, ValueError) as exc:
+        except (pa.ArrowException, OSError, ValueError, KeyError) as exc:
             raise DatasetError(f"{path}: corrupt or truncated parquet file: {exc}") from exc
         if table.num_rows == length and pc.all(pc.equal(table.column("episode_index"), index)).as_py():
-            return table.select(wanted)
+            return table
         # the rows are not where the meta rows say: find them by value
         return read_parquet(path, columns=wanted, filters=[("episode_index", "=", index)])
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from dpr.datasets.lerobot.checksums import CHECKSUMS_COLUMN
+from dpr.datasets.lerobot.checksums import CHECKSUMS_COLUMN, with_row_checksums
 from dpr.datasets.lerobot.format import STAT_KEYS, decode_png, spec_shape
 from dpr.datasets.lerobot.stats import image_sample_indices, image_stats, vector_stats
 
@@ -60,7 +60,7 @@ def meta_table(
 ) -> pa.Table:
     """The episode's one-row episodes-meta table; ``frames`` its global frame range [from, to), ``data_file`` and
     ``meta_file`` the (chunk_index, file_index) of the files that hold it, ``checksums`` its data's
-    (:func:`dpr.datasets.lerobot.checksums.checksums_text`)."""
+    (:func:`dpr.datasets.lerobot.checksums.checksums_text`); last, the row's own checksums."""
     fields: list[pa.Field] = []
     arrays: list[pa.Array] = []
 
@@ -85,4 +85,4 @@ def meta_table(
         add(CHECKSUMS_COLUMN, checksums, pa.string())
     fields.extend(extra_fields)
     arrays.extend(extra_arrays)
-    return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
+    return with_row_checksums(pa.Table.from_arrays(arrays, schema=pa.schema(fields)))

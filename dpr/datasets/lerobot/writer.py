@@ -29,6 +29,7 @@ from dpr.datasets.lerobot.format import (
     EPISODES_PATH,
     INFO_PATH,
     LIVE_FILES_KEY,
+    META_CHECKSUMS_KEY,
     STANDARD_INFO_KEYS,
     STATS_PATH,
     TASKS_PATH,
@@ -37,6 +38,7 @@ from dpr.datasets.lerobot.format import (
     check_fps,
     check_info,
     chunk_file,
+    content_digest,
     encode_png,
     first_difference,
     live_files,
@@ -45,6 +47,7 @@ from dpr.datasets.lerobot.format import (
     numbered_path,
     parquet_num_rows,
     read_json,
+    sealed_info,
     spec_shape,
     write_parquet,
 )
@@ -117,6 +120,7 @@ class LeRobotWriter:
         self._num_episodes = 0
         self._num_frames = 0
         self._live = (0, 0)  # the numbers of the files that hold the committed episodes (see live_files)
+        self._rows_from = 0  # the first episode whose meta row carries its checksums (0 unless resumed from older)
         self._meta_at_open: pa.Table | None = None
         self._lock = WriterLock(root)
         self._closed = False
@@ -161,7 +165,7 @@ class LeRobotWriter:
         (root / "meta").mkdir(parents=True, exist_ok=True)
         writer = cls(root, fps=fps, features=normalized, robot_type=robot_type, info_extra=extra)
         writer._lock.acquire()
-        atomic_write_json(root / INFO_PATH, writer._info(0, 0, 0, (0, 0)))
+        atomic_write_json(root / INFO_PATH, writer._info(0, 0, [], (0, 0), {}))
         return writer
 
     @classmethod
@@ -225,7 +229,7 @@ class LeRobotWriter:
                 f"{frames} frames"
             )
         check_data_files(self.root, info, [r.meta for r in rows])
-        tasks = load_tasks(self.root, info.get("total_tasks"))
+        tasks = load_tasks(self.root, info)
         return _Committed(
             info=info,
             rows=rows,
@@ -243,6 +247,8 @@ class LeRobotWriter:
         referenced |= {r.meta_path.resolve() for r in rows}
         delete_leftovers(self.root, live_files(info), referenced)
         self._live = live_files(info)
+        entry = info.get(META_CHECKSUMS_KEY)  # none: written before meta checksums, whose rows carry none
+        self._rows_from = entry["rows_from"] if entry is not None else info["total_episodes"]
 
         self._tasks = committed.tasks
         self._meta_at_open = committed.meta  # until an episode is added: spares compaction reading it again
@@ -264,7 +270,13 @@ class LeRobotWriter:
         except DatasetError as error:  # written atomically, so no crash leaves it unreadable: it was damaged
             warnings.warn(f"{error}; rewritten from the committed episodes' stats", RuntimeWarning, stacklevel=3)
             current = None  # it is derived data, so rewrite it
+        expected = (info.get(META_CHECKSUMS_KEY) or {}).get("stats")
         if current != json.loads(json.dumps(stats)):
+            if expected is not None and current is not None and content_digest(current) != expected:
+                count = (current.get("index") or {}).get("count") if isinstance(current, dict) else None
+                if count == [self._num_frames]:  # not the file of an episode a crash left uncommitted: damaged
+                    message = f"{stats_path}: does not match its checksum; rewritten from the committed episodes"
+                    warnings.warn(message, RuntimeWarning, stacklevel=3)
             atomic_write_json(stats_path, stats)
 
     # ------------------------------------------------------------------------------------------- recording
@@ -428,8 +440,9 @@ class LeRobotWriter:
         if new_tasks:
             write_parquet(self.root / TASKS_PATH, tasks_table(tasks), sync_folder=False)
         # compact: indenting sends json through its pure-Python encoder, several ms per episode for ~600 numbers
-        atomic_write_json(self.root / STATS_PATH, stats_json(aggregates), sync_folder=False, indent=None)
-        atomic_write_json(self.root / INFO_PATH, self._info(episode + 1, self._num_frames + n, len(tasks), live))
+        stats_text = stats_json(aggregates)
+        atomic_write_json(self.root / STATS_PATH, stats_text, sync_folder=False, indent=None)
+        atomic_write_json(self.root / INFO_PATH, self._info(episode + 1, self._num_frames + n, tasks, live, stats_text))
 
         self._tasks, self._task_index, self._aggregates, self._live = tasks, task_index, aggregates, live
         self._meta_at_open = None
@@ -475,8 +488,12 @@ class LeRobotWriter:
             )
         return self._extra_fields, [extra_array(f, given[f.name], where) for f in self._extra_fields]
 
-    def _info(self, total_episodes: int, total_frames: int, total_tasks: int, live: tuple[int, int]) -> dict[str, Any]:
-        """info.json as LeRobot writes it, plus the caller's info_extra keys."""
+    def _info(
+        self, total_episodes: int, total_frames: int, tasks: list[str], live: tuple[int, int], stats: dict[str, Any]
+    ) -> dict[str, Any]:
+        """info.json as LeRobot writes it, plus the caller's info_extra keys, sealed with the checksums of its
+        content, of ``tasks`` and of ``stats`` (stats.json's content): :mod:`dpr.datasets.lerobot.checksums`."""
+        total_tasks = len(tasks)
         info: dict[str, Any] = {
             "codebase_version": CODEBASE_VERSION,
             "robot_type": self.robot_type,
@@ -494,7 +511,7 @@ class LeRobotWriter:
             LIVE_FILES_KEY: list(live),
         }
         info.update(self.info_extra)
-        return info
+        return sealed_info(info, tasks=content_digest(tasks), stats=content_digest(stats), rows_from=self._rows_from)
 
     # ------------------------------------------------------------------------------------------------ closing
 
