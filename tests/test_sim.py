@@ -113,7 +113,7 @@ def test_world_rejects_bad_arguments():
 
 
 def test_robot_model_registry():
-    assert SIM_ROBOT_MODELS == ROBOT_MODELS == ("paddle", "disk")
+    assert SIM_ROBOT_MODELS == list(ROBOT_MODELS) == ["paddle", "disk"]  # the built-in ones; a package adds more
     assert swarm_class("paddle") is PaddleSwarm and swarm_class("disk") is DiskSwarm
     for model in SIM_ROBOT_MODELS:
         assert swarm_class(model).model == model
