@@ -603,3 +603,14 @@ def test_a_compaction_that_freed_space_says_so():
     text = format_summary(summary)
     assert "freed       1.5 MiB" in text or "freed       1.6 MB" in text, text
     assert "-" not in text.split("freed")[1].split("\n")[0]
+
+
+def test_evaluate_runs_the_markov_wave_with_the_observation_it_needs(tmp_path, capsys):
+    """As `dpr collect` does: obs_last_action is turned on, said, and recorded in the evaluation file."""
+    out = tmp_path / "markov.json"
+    argv = ["evaluate", "--policy", "wave-markov", "--env", "dpr/Navigation-v0", "--seeds", "1", "--steps", "20"]
+    assert run_cli([*argv, "--json", str(out)]) == 0
+    assert "dpr evaluate: --policy wave-markov reads" in capsys.readouterr().err
+    assert json.loads(out.read_text())["env_kwargs"]["obs_last_action"] is True
+    assert run_cli([*argv, "--env-kwarg", "obs_last_action=false"]) == 2
+    assert "it needs --env-kwarg obs_last_action=true" in capsys.readouterr().err

@@ -14,6 +14,7 @@ import dataclasses
 import inspect
 import json
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -323,3 +324,39 @@ def write_json(path: str, payload: Any) -> None:
 
     atomic_write_json(path, payload, indent=2, exclusive=True)
     print(f"wrote {path}")
+
+
+def markov_env_kwargs(args, env_kwargs: dict, parser: argparse.ArgumentParser, command: str) -> dict:
+    """``env_kwargs`` for a Markov wave among --policy and --label-policy (`dpr collect`, `dpr evaluate`): it reads
+    the previous action from the observation, so obs_last_action=True is set (and said) where no flag or model set
+    it; a parser error naming the flag where obs_last_action is off."""
+    from dpr.policies.registry import WAVE_MARKOV
+    from dpr.policies.sb3 import is_model_path
+
+    markov = [
+        flag
+        for flag, name in (("--policy", args.policy), ("--label-policy", getattr(args, "label_policy", None)))
+        if name is not None and name.partition(":")[0] == WAVE_MARKOV
+    ]
+    if not markov:
+        return env_kwargs
+    value = env_kwargs.get("obs_last_action")
+    if value is None and not is_model_path(args.policy):
+        print(
+            f"dpr {command}: {markov[0]} {WAVE_MARKOV} reads the previous action from the observation: "
+            f"{'recording' if command == 'collect' else 'running'} with obs_last_action=True "
+            "(--env-kwarg obs_last_action=true)",
+            file=sys.stderr,
+        )
+        return {**env_kwargs, "obs_last_action": True}
+    if not value:
+        given = (
+            f"the model {args.policy} was trained without it"
+            if is_model_path(args.policy)
+            else f"got obs_last_action={value!r}"
+        )
+        parser.error(
+            f"{markov[0]} {WAVE_MARKOV} reads the previous action and its held steps from the observation: it needs "
+            f"--env-kwarg obs_last_action=true ({given})"
+        )
+    return env_kwargs

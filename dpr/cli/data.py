@@ -18,6 +18,7 @@ from dpr.cli.common import (
     env_kwarg_argument,
     flag_message,
     json_argument,
+    markov_env_kwargs,
     parse_seeds,
     policy_env_kwargs,
     positive_int,
@@ -100,41 +101,6 @@ def _check_backend(args, parser) -> None:
             parser.error("--backend ray needs Ray: pip install -e '.[distributed]'")
 
 
-def markov_env_kwargs(args, env_kwargs: dict, parser: argparse.ArgumentParser) -> dict:
-    """``env_kwargs`` for a Markov wave among --policy and --label-policy: it reads the previous action from the
-    observation, so obs_last_action=True is set (and said) where no flag or model set it; a parser error naming the
-    flag where obs_last_action is off."""
-    from dpr.policies.registry import WAVE_MARKOV
-    from dpr.policies.sb3 import is_model_path
-
-    markov = [
-        flag
-        for flag, name in (("--policy", args.policy), ("--label-policy", args.label_policy))
-        if name is not None and name.partition(":")[0] == WAVE_MARKOV
-    ]
-    if not markov:
-        return env_kwargs
-    value = env_kwargs.get("obs_last_action")
-    if value is None and not is_model_path(args.policy):
-        print(
-            f"dpr collect: {markov[0]} {WAVE_MARKOV} reads the previous action from the observation: "
-            "recording with obs_last_action=True (--env-kwarg obs_last_action=true)",
-            file=sys.stderr,
-        )
-        return {**env_kwargs, "obs_last_action": True}
-    if not value:
-        given = (
-            f"the model {args.policy} was trained without it"
-            if is_model_path(args.policy)
-            else f"got obs_last_action={value!r}"
-        )
-        parser.error(
-            f"{markov[0]} {WAVE_MARKOV} reads the previous action and its held steps from the observation: it needs "
-            f"--env-kwarg obs_last_action=true ({given})"
-        )
-    return env_kwargs
-
-
 def cmd_collect(args, parser) -> int:
     from tqdm import tqdm
 
@@ -151,7 +117,7 @@ def cmd_collect(args, parser) -> int:
     if is_model_path(args.policy):
         env_kwargs = policy_env_kwargs(args, [args.env], parser)  # the model's, --env-kwarg included
         swarm.update((name, env_kwargs.pop(name)) for name in SWARM_DEFAULTS if name in env_kwargs)
-    env_kwargs = markov_env_kwargs(args, env_kwargs, parser)
+    env_kwargs = markov_env_kwargs(args, env_kwargs, parser, "collect")
     try:
         spec = CollectSpec(
             args.env,

@@ -17,6 +17,7 @@ from dpr.cli.common import (
     env_kwarg_argument,
     flag_message,
     json_argument,
+    markov_env_kwargs,
     parse_seeds,
     policy_env_kwargs,
     positive_int,
@@ -73,7 +74,7 @@ def cmd_evaluate(args, parser) -> int:
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     check_output(args.json, parser, "--json")
     check_rerun_output(args, parser)
-    env_kwargs = policy_env_kwargs(args, env_ids, parser)
+    env_kwargs = markov_env_kwargs(args, policy_env_kwargs(args, env_ids, parser), parser, "evaluate")
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
             results = evaluate(
