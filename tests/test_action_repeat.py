@@ -17,9 +17,9 @@ from dpr.rl.pipeline_config import (
     PIPELINE_ENV_KWARGS,
     PipelineConfig,
     learner_env_kwargs,
-    physics_discount,
     preset_config,
 )
+from dpr.rl.recipe import physics_discount
 from dpr.rl.train import TrainConfig
 
 

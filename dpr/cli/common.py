@@ -21,13 +21,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from dpr.envs import ENV_IDS
+from dpr.envs import BUILT_IN_TASKS, ENV_IDS
 from dpr.envs.particle_env import SWARM_KWARGS, ParticleSwarmEnv
 from dpr.sim.models import ROBOT_MODELS
 
 ALL_ENVS = "all"  # --env all / --tasks all: every task
-TASK_NAMES = tuple(ENV_IDS)  # the built-in tasks: navigation, gate, unresponsive, manipulation
-ENV_ID_LIST = ", ".join(ENV_IDS.values()) + " or a task of an --env-package"  # for help texts
+TASK_NAMES = BUILT_IN_TASKS  # navigation, gate, unresponsive, manipulation
+ENV_ID_LIST = ", ".join(ENV_IDS[task] for task in TASK_NAMES) + " or a task of an --env-package"  # for help texts
 EXAMPLE_ENV_ID = ENV_IDS["navigation"]
 # Worker processes by default: two, the cores the laptop-sized budgets were measured on (fewer on a smaller machine).
 DEFAULT_WORKERS = min(2, os.cpu_count() or 1)

@@ -18,9 +18,7 @@ from dpr.policies.hyperparams import FINETUNE_PRESET, load_hyperparams
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
 from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POLICY
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
-
-# the fine-tuning recipe `dpr finetune` shares (dpr.rl.recipe), importable from here as before
-from dpr.rl.recipe import FINETUNE_AT_REPEAT, PHYSICS_DISCOUNT, physics_discount  # noqa: F401
+from dpr.rl.recipe import FINETUNE_AT_REPEAT
 
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}  # the Markov wave needs it; every learner gets it too
 EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)

@@ -29,7 +29,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from dpr.datasets.lerobot.format import DIGEST_BYTES, INFO_PATH, DatasetError
+from dpr.datasets.lerobot.format import DIGEST_BYTES, INFO_PATH, DatasetError, text_digest
 
 CHECKSUMS_COLUMN = "dpr_checksums"  # JSON text: {column: blake2b-64 hex digest of the episode's values}
 ROW_CHECKSUMS_COLUMN = "dpr_row_checksums"  # JSON text: {"columns": digest, "stats": digest} of the row's others
@@ -112,8 +112,7 @@ def _group_digest(fields: list[pa.Field], row: Mapping[str, Any]) -> str:
         ]
         for field in fields
     ]
-    text = json.dumps(items, separators=(",", ":"), default=_as_text)
-    return hashlib.blake2b(text.encode(), digest_size=DIGEST_BYTES).hexdigest()
+    return text_digest(json.dumps(items, separators=(",", ":"), default=_as_text))
 
 
 def _groups(schema: pa.Schema) -> dict[str, list[pa.Field]]:

@@ -322,10 +322,14 @@ def check_info(info: Any, path: Path) -> dict:
     return info
 
 
+def text_digest(text: str) -> str:
+    """The blake2b-64 digest of ``text`` (hex), the checksum every meta table carries."""
+    return hashlib.blake2b(text.encode(), digest_size=DIGEST_BYTES).hexdigest()
+
+
 def content_digest(value: Any) -> str:
     """The checksum of a JSON value's content (its canonical text): the same whatever its file's layout."""
-    text = json.dumps(value, sort_keys=True, separators=(",", ":"))
-    return hashlib.blake2b(text.encode(), digest_size=DIGEST_BYTES).hexdigest()
+    return text_digest(json.dumps(value, sort_keys=True, separators=(",", ":")))
 
 
 def sealed_info(info: Mapping[str, Any], *, tasks: str | None, stats: str | None, rows_from: int) -> dict[str, Any]:
