@@ -36,7 +36,7 @@ import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -226,7 +226,7 @@ def run_pipeline(
             raise ParameterError("reuse", f"{folder} holds no {STORE}/ folder; expected a `dpr pipeline` run folder")
     with backend_session(backend, workers, address):  # a bad backend setting is refused before any work
         out.mkdir(parents=True, exist_ok=True)
-        folder_config = _join_folder(config, out)
+        _join_folder(config, out)
         started = time.perf_counter()
         graph = {task: task_stages(config, task) for task in config.tasks}
         extra = shipped_stages(config, shipped)
@@ -247,6 +247,7 @@ def run_pipeline(
             log=log,
         )
     with FolderLock(out / SETTINGS_LOCK, wait=True):  # one run at a time names its outputs and writes the report
+        folder_config = _folder_config(config, out)  # with the tasks of runs that joined the folder meanwhile
         for task, stages in graph.items():
             _record_task(config, task, stages, store, out, log)
         shipped_evaluations = []
@@ -256,9 +257,9 @@ def run_pipeline(
         return _write_report(folder_config, out, shipped_evaluations, started, log)
 
 
-def _join_folder(config: PipelineConfig, out: Path) -> PipelineConfig:
+def _join_folder(config: PipelineConfig, out: Path) -> None:
     """Record ``config`` in ``out/pipeline.yaml``, adding its tasks to those of a run already there, whose other
-    settings must be the same (a ParameterError naming them otherwise). Returns the folder's settings."""
+    settings must be the same (a ParameterError naming them otherwise)."""
     path = out / "pipeline.yaml"
     with FolderLock(out / SETTINGS_LOCK, wait=True):
         settings = asdict(config)
@@ -279,13 +280,17 @@ def _join_folder(config: PipelineConfig, out: Path) -> PipelineConfig:
             tasks = [*earlier["tasks"], *(task for task in config.tasks if task not in earlier["tasks"])]
             settings["tasks"] = tasks
             if tasks == earlier["tasks"]:
-                return PipelineConfig(**settings)
+                return
             record["config"] = settings
         else:
             record = {"config": settings, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         record["rl_steps"] = config.rl_steps
         atomic_write_text(path, yaml.safe_dump(record, sort_keys=False))
-    return PipelineConfig(**settings)
+
+
+def _folder_config(config: PipelineConfig, out: Path) -> PipelineConfig:
+    """``config`` with the tasks recorded in ``out/pipeline.yaml``: those of every run into the folder so far."""
+    return replace(config, tasks=list(yaml.safe_load((out / "pipeline.yaml").read_text())["config"]["tasks"]))
 
 
 def _record_task(
