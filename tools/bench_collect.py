@@ -7,12 +7,19 @@
 * writer (``--writer``): the recording contract alone on random frames with the env's dataset features (no
   rollout): the time per ``add_frame`` and per ``save_episode`` (wall and CPU time) of a ``--steps``-frame
   episode, best of ``--repeats``.
+* environment state (``--environment-state``): what recording ``observation.environment_state`` costs. The same
+  episodes recorded with ``collect`` in 1 process as shipped and with the feature taken out (monkeypatched in this
+  process: the env's ``environment_state()`` replaced by a stub returning nothing and the feature dropped from the
+  dataset, as recorded before it), interleaved, medians of ``--repeats``; reports frames per second of both and
+  their ratio. Also the env's ``environment_state()`` alone (best of 5 x 10,000 calls) against a frame's cost in a
+  bare rollout.
 * scale (``--scale``): a large state-only dataset (default 200 episodes x 2500 steps, N=9, disk model),
   reporting wall time, peak RSS of the recording process and of a worker, and the size on disk; then opens
   it lazily and reads one episode, reporting the reader's RSS.
 
     python tools/bench_collect.py --robot-model paddle --episodes 4 --steps 2500
     python tools/bench_collect.py --scale --robot-model disk --episodes 200 --steps 2500 --out /tmp/scale
+    python tools/bench_collect.py --environment-state --robot-model disk --episodes 8 --steps 2500 --repeats 5
 """
 
 from __future__ import annotations
@@ -26,16 +33,21 @@ import statistics
 import sys
 import tempfile
 import time
+import timeit
+from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
 import dpr  # noqa: F401  (registers the ids)
+import dpr.datasets.collect as collect_module
+from dpr.datasets import features as F
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import LeRobotWriter
-from dpr.envs import MAX_EPISODE_STEPS
+from dpr.envs import MAX_EPISODE_STEPS, ParticleSwarmEnv
 from dpr.policies.registry import make_policy
 from dpr.rollout import roll_out
 
@@ -87,6 +99,77 @@ def bench_workers(spec: CollectSpec, episodes: int, repeats: int) -> dict:
         two.append(timed_collect(spec, episodes, workers=2))
     a, b = statistics.median(one), statistics.median(two)
     return {"workers1_s": a, "workers2_s": b, "speedup": a / b}
+
+
+@contextmanager
+def without_environment_state():
+    """``collect`` in this process as it recorded before ``observation.environment_state``: the env's
+    ``environment_state()`` is a stub returning nothing (its rollout hook still appends that), and the feature is
+    neither in the dataset's features nor in the saved frames."""
+    nothing = np.zeros(0, dtype=np.float32)
+    saved = (
+        collect_module.dataset_features,
+        collect_module.save_record,
+        ParticleSwarmEnv.environment_state,
+        ParticleSwarmEnv.environment_state_names,
+    )
+    features, save = saved[0], saved[1]
+    collect_module.dataset_features = lambda *args, **kwargs: {
+        k: v for k, v in features(*args, **kwargs).items() if k != F.ENVIRONMENT_STATE
+    }
+    collect_module.save_record = lambda writer, spec, record, *rest: save(
+        writer, spec, replace(record, environment_states=None), *rest
+    )
+    ParticleSwarmEnv.environment_state = lambda self: nothing
+    ParticleSwarmEnv.environment_state_names = property(lambda self: [])
+    try:
+        yield
+    finally:
+        (
+            collect_module.dataset_features,
+            collect_module.save_record,
+            ParticleSwarmEnv.environment_state,
+            ParticleSwarmEnv.environment_state_names,
+        ) = saved
+
+
+def bench_environment_state(spec: CollectSpec, episodes: int, repeats: int) -> dict:
+    """Recording frames per second with and without ``observation.environment_state`` (1 process, interleaved,
+    medians), and the env's ``environment_state()`` per call against a bare rollout's time per frame."""
+    timed_collect(replace(spec, steps=10), 1, workers=1)  # warm-up: imports, first env, first dataset
+    shipped, without = [], []
+    for repeat in range(repeats):  # interleaved, each first in every other repeat
+        for variant in (0, 1) if repeat % 2 == 0 else (1, 0):
+            if variant == 0:
+                shipped.append(timed_collect(spec, episodes, workers=1))
+            else:
+                with without_environment_state():
+                    without.append(timed_collect(spec, episodes, workers=1))
+    frames = episodes * spec.steps
+    a, b = statistics.median(shipped), statistics.median(without)
+    env = spec.make_env()
+    try:
+        policy = make_policy(spec.policy, env)
+        started = time.perf_counter()
+        steps = roll_out(env, policy, 0).steps
+        frame_s = (time.perf_counter() - started) / steps
+        call_s = min(timeit.repeat(env.unwrapped.environment_state, number=10_000, repeat=5)) / 10_000
+        names = env.unwrapped.environment_state_names
+    finally:
+        env.close()
+    return {
+        "env": spec.env_id,
+        "environment_state_names": names,
+        "frames": frames,
+        "with_s": a,
+        "without_s": b,
+        "with_frames_per_s": frames / a,
+        "without_frames_per_s": frames / b,
+        "with_over_without_time": a / b,
+        "environment_state_us": call_s * 1e6,
+        "bare_frame_us": frame_s * 1e6,
+        "environment_state_over_frame": call_s / frame_s,
+    }
 
 
 def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> dict:
@@ -169,6 +252,11 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scale", action="store_true", help="run the scale benchmark instead")
     parser.add_argument("--writer", action="store_true", help="time the dataset writer alone instead")
+    parser.add_argument(
+        "--environment-state",
+        action="store_true",
+        help="time recording with and without observation.environment_state instead",
+    )
     parser.add_argument("--out", type=Path, help="dataset folder for --scale (must not exist)")
     parser.add_argument("--workers", type=int, default=2, help="workers for --scale")
     parser.add_argument("--json", type=Path, help="also write the results here")
@@ -180,6 +268,8 @@ def main() -> int:
         results = {"scale": bench_scale(spec, args.episodes, args.out, args.workers)}
     elif args.writer:
         results = {"writer": bench_writer(spec, args.repeats)}
+    elif args.environment_state:
+        results = {"environment_state": bench_environment_state(spec, args.episodes, args.repeats)}
     else:
         results = {
             "overhead_1_worker": bench_overhead(spec, args.episodes, args.repeats, workers=1),

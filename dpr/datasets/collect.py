@@ -12,6 +12,8 @@ rolls out only the seeds it does not hold yet. A killed run loses at most the ep
 
 Time: ``fps`` is the decision rate, one frame per env step of ``action_repeat`` physics steps
 (:mod:`dpr.datasets.timing`); a dataset recorded before that with ``action_repeat > 1`` is refused, named.
+Every frame carries ``observation.environment_state`` (the env's ``environment_state()``); a dataset recorded
+before it lacks it, and episodes are not added to it (one dataset, one layout), named.
 """
 
 from __future__ import annotations
@@ -112,6 +114,7 @@ class EpisodeRecord:
     successes: np.ndarray  # [T] bool
     metrics: EpisodeMetrics
     images: np.ndarray | None = None  # [T, H, W, 3] uint8
+    environment_states: np.ndarray | None = None  # [T, E] float32: the env's environment_state() at each frame
     physics_error: str | None = None
     seconds: float = 0.0
     trajectory: np.ndarray | None = None  # [T + 1, 2] the agent's positions (what the metrics are computed from)
@@ -138,13 +141,14 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
     base = env.unwrapped
     policy = make_policy(spec.policy, env)
     labeller = None if spec.label_policy is None else make_policy(spec.label_policy, env)
-    observations, actions, dones, successes, images = [], [], [], [], []
+    observations, actions, dones, successes, images, environment_states = [], [], [], [], [], []
     writer = None
 
     def on_reset(observation, info) -> None:
         nonlocal writer
         if labeller is not None:
             labeller.reset(seed)
+        environment_states.append(base.environment_state())
         if spec.pixels:
             images.append(env.render())
         if mcap_path is not None:
@@ -164,8 +168,10 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
             from dpr.datasets.mcap import log_env_step
 
             log_env_step(writer, env, step.index, step.action, step.reward, step.terminated, step.truncated, step.info)
-        if spec.pixels and not step.done:  # the frame of the next step shows the state it starts from
-            images.append(env.render())
+        if not step.done:  # the frame of the next step shows the state it starts from
+            environment_states.append(base.environment_state())
+            if spec.pixels:
+                images.append(env.render())
 
     try:
         result = roll_out(env, policy, seed, on_reset=on_reset, on_step=on_step)
@@ -194,6 +200,9 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
         images=np.array(images[:frames], dtype=np.uint8).reshape(frames, spec.image_size, spec.image_size, 3)
         if spec.pixels
         else None,
+        environment_states=np.array(environment_states[:frames], dtype=np.float32).reshape(
+            frames, len(base.environment_state_names)
+        ),
         physics_error=result.physics_error,
         seconds=time.perf_counter() - started,
         trajectory=result.trajectory,
@@ -206,6 +215,7 @@ def save_record(
     """Append ``record`` to the dataset as one episode; returns its index."""
     frames = {
         F.OBSERVATION: record.observations,
+        **({} if record.environment_states is None else {F.ENVIRONMENT_STATE: record.environment_states}),
         F.ACTION: record.actions,
         F.REWARD: record.rewards,
         F.DONE: record.dones,
@@ -397,7 +407,9 @@ def collect(
         info_extra["dpr"][F.ROBOT_MODEL_REVISION] = revision
     info_extra["dpr"].update(time_info(spec.env_kwargs))  # fps is the decision rate (dpr.datasets.timing)
     if (root / INFO_PATH).is_file():  # a dataset of the wrong fps is named, not resumed with the right one
-        check_dataset_time(root, load_info(root))
+        info = load_info(root)
+        check_dataset_time(root, info)
+        features = _resumed_features(root, info, spec, features, range(seed, seed + episodes))
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(
         root,
@@ -471,6 +483,33 @@ def collect(
         interrupted=interrupted,
         metrics=_metric_summary(added),
     )
+
+
+def _resumed_features(root: Path, info: dict, spec: CollectSpec, features: dict, seeds: range) -> dict:
+    """The features to open an existing dataset with: ``features``, unless the dataset was recorded before
+    datasets carried ``observation.environment_state``. Episodes with it are not added to such a dataset (a
+    DatasetError naming it, the feature and what to do); a run that adds none (every seed recorded: a rerun of
+    the same command, ``--verify``) opens it with its own features. A dataset of another env is named as such
+    first (the tasks' environment states differ, which would hide the cause)."""
+    recorded_by = info.get("dpr")
+    env_id = recorded_by.get(F.ENV_ID) if isinstance(recorded_by, dict) else None
+    if env_id is not None and env_id != spec.env_id:
+        raise DatasetError(
+            f"{root / INFO_PATH}: does not match the requested dataset: env_id is {env_id!r} in the dataset, "
+            f"{spec.env_id!r} requested"
+        )
+    recorded = info.get("features")
+    if not isinstance(recorded, dict) or F.ENVIRONMENT_STATE in recorded or F.ENVIRONMENT_STATE not in features:
+        return features  # (not dpr's older layout: LeRobotWriter.open names any other difference)
+    missing = set(seeds) - _recorded_seeds(root)
+    if missing:
+        raise DatasetError(
+            f"{root}: was recorded before dpr datasets carried the feature {F.ENVIRONMENT_STATE!r} (its "
+            f"meta/info.json has no such feature), and the episodes this run would add carry it: one dataset cannot "
+            f"hold both layouts. Record into a new folder (the same dpr collect command with another --out); this "
+            f"one still reads, and dpr bc still learns from it"
+        )
+    return {name: feature for name, feature in features.items() if name != F.ENVIRONMENT_STATE}
 
 
 _DISTANCES = tuple(name for name in F.METRIC_FIELDS if name != "success")

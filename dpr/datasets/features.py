@@ -1,11 +1,14 @@
 """The names shared by everything that writes or reads a dpr dataset: feature keys and episode-meta fields.
 
-Feature keys follow LeRobot's conventions (``observation.state``, ``action``, ``next.*``). Every episode's meta
-row carries the fields in :data:`EPISODE_META_FIELDS`, written by :func:`dpr.datasets.collect.save_record`.
-:func:`dataset_features` gives the features of a dpr env's dataset.
+Feature keys follow LeRobot's conventions (``observation.state``, ``observation.environment_state``, ``action``,
+``next.*``). Every episode's meta row carries the fields in :data:`EPISODE_META_FIELDS`, written by
+:func:`dpr.datasets.collect.save_record`. :func:`dataset_features` gives the features of a dpr env's dataset.
 """
 
 OBSERVATION = "observation.state"
+# what the env knows beyond each robot's own state (ParticleSwarmEnv.environment_state): LeRobot's FeatureType.ENV,
+# which its ACT and Diffusion Policy need when a dataset has no image. Datasets recorded before it lack it.
+ENVIRONMENT_STATE = "observation.environment_state"
 IMAGE = "observation.image"
 ACTION = "action"
 REWARD = "next.reward"
@@ -40,8 +43,9 @@ EPISODE_META_FIELDS = (
 
 
 def dataset_features(env, pixels: bool = False, image_size: int = 96) -> dict[str, dict]:
-    """LeRobot features for ``env``'s state observation and action (named per robot), rewards and flags
-    (``env``: a dpr env made with ``obs_type="state"``, wrapped or not)."""
+    """LeRobot features for ``env``'s state observation and action (named per robot), its environment state (named
+    by ``environment_state_names``), rewards and flags (``env``: a dpr env made with ``obs_type="state"``, wrapped
+    or not), and the image with ``pixels``."""
     base = env.unwrapped
     if base.obs_type != "state":
         raise ValueError(
@@ -53,8 +57,10 @@ def dataset_features(env, pixels: bool = False, image_size: int = 96) -> dict[st
         action = {"dtype": "int64", "shape": [1], "names": ["action"]}
     else:
         action = {"dtype": "float32", "shape": [n], "names": [f"robot{i}.expand" for i in range(n)]}
+    environment_names = base.environment_state_names
     features = {
         OBSERVATION: {"dtype": "float32", "shape": [len(state_names)], "names": state_names},
+        ENVIRONMENT_STATE: {"dtype": "float32", "shape": [len(environment_names)], "names": environment_names},
         ACTION: action,
         REWARD: {"dtype": "float32", "shape": [1], "names": None},
         DONE: {"dtype": "bool", "shape": [1], "names": None},

@@ -2,7 +2,8 @@
 
 A dataset is trustworthy when every replayed observation equals the recorded one bit for bit: the simulator
 is deterministic, so any difference means the recording, the simulator or the env kwargs changed. The replay
-is :func:`dpr.rollout.roll_out` with a policy that plays the recorded actions back.
+is :func:`dpr.rollout.roll_out` with a policy that plays the recorded actions back. The environment state is
+compared too where the dataset records it (datasets recorded before it do not).
 """
 
 from __future__ import annotations
@@ -52,16 +53,23 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
         raise DatasetError(f"{reader.root}: episode {index} lacks {missing}; it was not recorded by dpr collect")
     import dpr  # noqa: F401  (registers the ids)
 
-    recorded = reader.episode(index, columns=[F.ACTION, *COMPARED])
+    compared = (*COMPARED, F.ENVIRONMENT_STATE) if F.ENVIRONMENT_STATE in reader.features else COMPARED
+    recorded = reader.episode(index, columns=[F.ACTION, *compared])
     kwargs = dict(meta[F.ENV_KWARGS])
     kwargs.pop("render_mode", None)  # frames are not compared; skip rendering
     kwargs.pop("render_size", None)
     env = gym.make(meta[F.ENV_ID], **kwargs)
     action_type = env.unwrapped.action_type
     frames = len(recorded[F.ACTION])
-    replayed = {key: [] for key in COMPARED}
+    replayed = {key: [] for key in compared}
+    environment_states = []  # at the reset and after every step: frame t's is the t-th
+
+    def note_environment_state(*_) -> None:
+        if F.ENVIRONMENT_STATE in compared:
+            environment_states.append(env.unwrapped.environment_state())
 
     def on_step(step) -> None:
+        note_environment_state()
         replayed[F.OBSERVATION].append(step.observation)
         replayed[F.REWARD].append(step.reward)
         replayed[F.DONE].append(step.done)
@@ -69,11 +77,13 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
 
     policy = ReplayPolicy([_env_action(action, action_type) for action in recorded[F.ACTION]])
     try:
-        roll_out(env, policy, int(meta[F.SEED]), frames, on_step=on_step)
+        roll_out(env, policy, int(meta[F.SEED]), frames, on_reset=note_environment_state, on_step=on_step)
     finally:
         env.close()
+    if F.ENVIRONMENT_STATE in compared:
+        replayed[F.ENVIRONMENT_STATE] = environment_states[: len(replayed[F.OBSERVATION])]
     differences, first = {}, None
-    for key in COMPARED:
+    for key in compared:
         width = int(np.prod(recorded[key].shape[1:], dtype=int))
         a = recorded[key].reshape(frames, width)
         b = np.array(replayed[key], dtype=recorded[key].dtype).reshape(-1, width)

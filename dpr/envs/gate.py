@@ -35,6 +35,8 @@ class GateEnv(ParticleSwarmEnv):
 
     ## Observation Space
     As Navigation (the walls are fixed relative to the start and goal and not part of the state).
+    ``environment_state()`` ends with ``gate.dx``, ``gate.dy``: the opening's centre relative to the swarm's
+    centre, / 1000.
 
     ## Rewards
     As Navigation.
@@ -67,6 +69,7 @@ class GateEnv(ParticleSwarmEnv):
     task = "gate"
     task_description = "navigate the swarm through the gate to the goal"
     episode_measures = (GATE_PASSAGE, GATE_CONTACT_STEP)
+    environment_extra_names = ("gate.dx", "gate.dy")  # the opening's centre relative to the swarm's centre
 
     def __init__(self, gate_width: float = 150.0, gate_distance: float | None = GATE_DISTANCE, **kwargs):
         super().__init__(**kwargs)
@@ -90,6 +93,7 @@ class GateEnv(ParticleSwarmEnv):
         self.gate_distance = gate_distance
         self._gate_along = np.zeros(2)  # unit vector from the start toward the goal
         self._gate_near = 0.0  # the walls' near face, in units from the start along it
+        self._gate_centre = np.zeros(2)  # the opening's centre, on the line from the start to the goal
         self._contact_step = -1
 
     def _blocked_front(
@@ -138,7 +142,13 @@ class GateEnv(ParticleSwarmEnv):
             offsets = grid_centres(self.n_robots, (0.0, 0.0))
             self._gate_near = float(self._near_face(offsets, self._gate_along[None, :])[0])
         at = None if self.gate_distance is None else self._gate_near  # v0's walls as they always were, to the bit
-        return gate_polygons(start, self.goal, self.gate_width, thickness=WALL_THICKNESS, at=at)
+        walls = gate_polygons(start, self.goal, self.gate_width, thickness=WALL_THICKNESS, at=at)
+        self._gate_centre = (walls[0][0] + walls[0][3] + walls[1][0] + walls[1][3]) / 4  # the walls' inner corners
+        return walls
+
+    def _environment_extra(self) -> list[float]:
+        """The opening's centre relative to the swarm's centre (``gate.dx``, ``gate.dy``)."""
+        return (self._gate_centre - self.world.centre_of_mass).tolist()
 
     def _after_physics_step(self) -> None:
         if self._contact_step < 0 and self.world.robots_touch_walls():

@@ -52,6 +52,7 @@ class ManipulationEnv(ParticleSwarmEnv):
     ## Observation Space
     Navigation's ``6N`` robot features followed by the object's x, y (goal frame), vx, vy, all / 1000:
     ``Box(6N + 4,)``; with ``obs_last_action=True`` the previous action and its held steps follow (N + 1).
+    ``environment_state()`` is Navigation's followed by the object's x, y, vx, vy and distance to the goal.
 
     ## Rewards
     As Navigation, computed on the object's position. With ``approach_reward`` > 0, plus that weight times the

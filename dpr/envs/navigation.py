@@ -29,6 +29,9 @@ class NavigationEnv(ParticleSwarmEnv):
     reset. A policy that holds actions for some steps, as the wave does, is then a function of the observation.
     ``"pixels"``: ``Box(0, 255, (image_size, image_size, 3), uint8)``, a fixed top-down camera on the goal.
     ``"pixels_state"``: ``Dict(pixels=..., state=...)``.
+    Beside the observation, ``environment_state()`` gives what the env knows beyond each robot's own state
+    (named by ``environment_state_names``): the swarm's centre x, y (goal frame), vx, vy and its distance to the
+    goal, all / 1000 (datasets record it as ``observation.environment_state``).
 
     ## Rewards
     ``reward="piecewise"`` (default, the paper's eq. 2): the centre's displacement in this step projected on

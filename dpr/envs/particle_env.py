@@ -30,6 +30,8 @@ REWARDS = ("piecewise", "projected", "inverse_distance")
 MAX_DISCRETE_ROBOTS = 16  # Discrete(2^N) beyond 65536 actions is of no use to a learner
 ROBOT_FEATURES = 6  # x, y, vx, vy, angular velocity, expansion
 OBJECT_FEATURES = 4  # x, y, vx, vy
+# environment_state(): the swarm's centre and the object, each as x, y (goal frame), vx, vy, distance to the goal
+AGENT_ENVIRONMENT_PARTS = ("x", "y", "vx", "vy", "distance")
 HELD_STEPS_CAP = 20  # obs_last_action: steps an action has been held, counted up to twice the paper's hold
 LENGTH_SCALE = 1.0 / 1000.0
 GOAL = np.zeros(2)
@@ -105,6 +107,8 @@ class ParticleSwarmEnv(gym.Env):
     # info keys of the task's own measures of an episode, read at its last step beside the paper's metrics
     # (evaluation files and reports carry them)
     episode_measures: tuple[str, ...] = ()
+    # names of a task's own values at the end of environment_state() (see _environment_extra)
+    environment_extra_names: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -310,6 +314,42 @@ class ParticleSwarmEnv(gym.Env):
         if self.obs_last_action:
             names += [f"last_action.robot{i}" for i in range(n)] + ["last_action.held_steps"]
         return names
+
+    @property
+    def environment_state_names(self) -> list[str]:
+        """One name per value of :meth:`environment_state`, in order."""
+        names = [f"swarm.{part}" for part in AGENT_ENVIRONMENT_PARTS]
+        if self.has_object:
+            names += [f"object.{part}" for part in AGENT_ENVIRONMENT_PARTS]
+        return names + list(self.environment_extra_names)
+
+    def environment_state(self) -> np.ndarray:
+        """What the env knows beyond each robot's own state, as the state observation shows lengths (goal frame:
+        relative to the goal, world axes, / 1000): the swarm's centre of mass x, y, its velocity vx, vy (the
+        robots' mean) and its distance to the goal; with an object, the object's x, y, vx, vy and distance to the
+        goal; then the task's own values (:attr:`environment_extra_names`). float32, named by
+        :attr:`environment_state_names`; datasets record it as ``observation.environment_state`` at every frame,
+        and a policy in the env builds the same vector from this call."""
+        if self.world is None:
+            raise RuntimeError("call reset() before environment_state()")
+        world, scale = self.world, LENGTH_SCALE
+        # (Python floats: for a dozen values, cheaper than numpy's per-call cost; the robots are summed by numpy)
+        x, y = (world.centre_of_mass - self.goal).tolist()
+        vx, vy = world.swarm.velocity.sum(axis=0).tolist()
+        mean = scale / self.n_robots
+        values = [x * scale, y * scale, vx * mean, vy * mean, math.hypot(x, y) * scale]
+        if self.has_object:
+            ox, oy = (world.object_pose[0:2] - self.goal).tolist()
+            ovx, ovy = world.object_velocity.tolist()
+            values += [ox * scale, oy * scale, ovx * scale, ovy * scale, math.hypot(ox, oy) * scale]
+        if self.environment_extra_names:
+            values += [value * scale for value in self._environment_extra()]
+        return np.array(values, dtype=np.float32)
+
+    def _environment_extra(self) -> list[float]:
+        """The task's own values of :meth:`environment_state` (one per :attr:`environment_extra_names`), in world
+        units: lengths, which are scaled by 1/1000 with the rest."""
+        return []
 
     # -- pieces -------------------------------------------------------------------------------------------
     def _agent_position(self) -> np.ndarray:
