@@ -10,10 +10,13 @@ padding at episode boundaries, one DataLoader epoch and an episode subset.
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from pathlib import Path
 from types import ModuleType
 
+import gymnasium as gym
+import numpy as np
 import pytest
 
 if importlib.util.find_spec("lerobot") is None:
@@ -103,3 +106,75 @@ def test_checker_catches_silently_wrong_layouts(tool: ModuleType, tmp_path: Path
     report = tool.check_dataset(root, expected)
     failed = {c.name for c in report.failed}
     assert failed and failing_check in failed, report.format()
+
+
+# LeRobot's own policies on dpr datasets (tools/lerobot_policies.py), at sizes a CPU builds in a second
+TINY_POLICIES = {
+    "act": {"dim_model": 32, "dim_feedforward": 64, "n_heads": 2, "n_encoder_layers": 1, "latent_dim": 8},
+    "diffusion": {"down_dims": [16, 32], "horizon": 8, "n_action_steps": 4, "diffusion_step_embed_dim": 16},
+}
+
+
+@pytest.fixture(scope="module")
+def policies(tool: ModuleType) -> ModuleType:
+    """tools/lerobot_policies.py as a module (it imports the LeRobot check tool beside it)."""
+    path = TOOL_PATH.with_name("lerobot_policies.py")
+    spec = importlib.util.spec_from_file_location("lerobot_policies", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("kind", ["act", "diffusion"])
+@pytest.mark.parametrize("pixels", [False, True], ids=["state", "pixels"])
+def test_act_and_diffusion_policy_build_and_take_a_training_step(
+    tool: ModuleType, policies: ModuleType, tmp_path: Path, kind: str, pixels: bool
+) -> None:
+    """On a state-only dataset they read observation.environment_state; the batch holds the frames each policy's
+    delta_timestamps ask for (Diffusion: two observations and a horizon of actions; ACT: a chunk of actions)."""
+    root = tool.record(tmp_path / "ds", pixels=pixels, episodes=2, steps=30, action_repeat=2)
+    loss, held = policies.training_step(root, kind, batch_size=4, **TINY_POLICIES[kind])
+    assert np.isfinite(loss)
+    config = policies.policy_config(kind, **TINY_POLICIES[kind])
+    if kind == "diffusion":
+        assert held["observation.state"] == held["observation.environment_state"] == config.n_obs_steps == 2
+        assert held["action"] == config.horizon
+    else:
+        assert held["observation.state"] == 1 and held["action"] == config.chunk_size
+    if pixels:
+        assert held["observation.image"] == held["observation.state"]
+
+
+def test_a_trained_policy_runs_in_the_env_as_a_multibinary_action(
+    tool: ModuleType, policies: ModuleType, tmp_path: Path
+) -> None:
+    """LeRobot's training code trains a few steps, and the adapter drives the env the dataset was recorded on; the
+    evaluation file is dpr's, with the episode's metrics."""
+    root = tool.record(tmp_path / "ds", pixels=False, episodes=2, steps=30, action_repeat=2)
+    policies.train(root, "act", steps=2, batch_size=4, out=tmp_path / "act", **TINY_POLICIES["act"])
+    policy, pre, post, dataset = policies.load_policy(tmp_path / "act")
+    assert dataset == root
+    env = gym.make("dpr/Navigation-v0", n_robots=4, robot_model="disk", action_repeat=2)
+    adapter = policies.LeRobotPolicyAdapter(policy, pre, post, env)
+    observation, _ = env.reset(seed=5)
+    adapter.reset(5)
+    action = adapter(observation)
+    assert env.action_space.contains(action)
+    policies.evaluate(tmp_path / "act", [5], 40, tmp_path / "act.json")
+    record = json.loads((tmp_path / "act.json").read_text())
+    assert record["policy"] == "lerobot-act" and [e["seed"] for e in record["episodes"]] == [5]
+    assert record["episodes"][0]["steps"] == 40
+    with pytest.raises(ValueError, match="--json"):
+        policies.evaluate(tmp_path / "act", [5], 40, tmp_path / "act.json")
+
+
+def test_a_dataset_without_environment_state_is_refused_by_name(
+    tool: ModuleType, policies: ModuleType, tmp_path: Path
+) -> None:
+    root = tool.record(tmp_path / "ds", pixels=False, episodes=2, steps=10)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    del info["features"]["observation.environment_state"]
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(ValueError, match="observation.environment_state"):
+        policies.check_dataset(root)
