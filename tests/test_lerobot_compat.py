@@ -167,6 +167,10 @@ def test_a_trained_policy_runs_in_the_env_as_a_multibinary_action(
     assert record["episodes"][0]["steps"] == 40
     with pytest.raises(ValueError, match="--json"):
         policies.evaluate(tmp_path / "act", [5], 40, tmp_path / "act.json")
+    replanning, *_ = policies.load_policy(tmp_path / "act", n_action_steps=1)  # an inference-time setting
+    assert replanning.config.n_action_steps == 1
+    with pytest.raises(ValueError, match="--set: \\['horizon_of_doom'\\]"):
+        policies.load_policy(tmp_path / "act", horizon_of_doom=3)
 
 
 def test_a_dataset_without_environment_state_is_refused_by_name(

@@ -166,9 +166,10 @@ def training_step(dataset: Path, kind: str, batch_size: int = 4, **overrides: An
     return float(loss.detach()), {**held, F.ACTION: batch[F.ACTION].shape[1]}
 
 
-def load_policy(model: Path):
+def load_policy(model: Path, **overrides: Any):
     """The trained policy in ``model`` (a ``train`` output folder or its ``pretrained_model``), with its
-    processors and the dataset it was trained on."""
+    processors and the dataset it was trained on. ``overrides``: fields of its config that act at inference only
+    (e.g. ``n_action_steps``, ``num_inference_steps``, ACT's ``temporal_ensemble_coeff``)."""
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
@@ -176,6 +177,12 @@ def load_policy(model: Path):
     if not (folder / "config.json").is_file():
         raise ValueError(f"--model: {model} holds no trained LeRobot policy (no {MODEL_FOLDER}/config.json)")
     config = PreTrainedConfig.from_pretrained(folder)
+    unknown = sorted(set(overrides) - set(type(config).__dataclass_fields__))
+    if unknown:
+        raise ValueError(f"--set: {unknown} are not fields of LeRobot's {type(config).__name__}")
+    for name, value in overrides.items():
+        setattr(config, name, value)
+    config.__post_init__()  # LeRobot's own checks of the combination (e.g. n_action_steps against the horizon)
     config.device = "cpu"
     policy = get_policy_class(config.type).from_pretrained(folder, config=config)
     policy.eval()
@@ -214,9 +221,12 @@ class LeRobotPolicyAdapter:
         return (action[0].numpy() > EXPAND_THRESHOLD).astype(np.int8)
 
 
-def evaluate(model: Path, seeds: list[int], steps: int, json_path: Path, label: str | None = None) -> list:
-    """Score the policy in ``model`` on ``seeds`` over ``steps`` physics steps in the env its dataset was recorded
-    on, and write ``json_path`` as ``dpr evaluate --json`` does; returns the episodes' results."""
+def evaluate(
+    model: Path, seeds: list[int], steps: int, json_path: Path, label: str | None = None, **overrides: Any
+) -> list:
+    """Score the policy in ``model`` (with inference-time config ``overrides``) on ``seeds`` over ``steps`` physics
+    steps in the env its dataset was recorded on, and write ``json_path`` as ``dpr evaluate --json`` does; returns
+    the episodes' results."""
     import gymnasium as gym
     import torch
 
@@ -231,7 +241,7 @@ def evaluate(model: Path, seeds: list[int], steps: int, json_path: Path, label: 
     if json_path.exists():
         raise ValueError(f"--json: {json_path} exists; choose a new file")
     torch.set_num_threads(1)
-    policy, preprocessor, postprocessor, dataset = load_policy(model)
+    policy, preprocessor, postprocessor, dataset = load_policy(model, **overrides)
     reader = LeRobotReader(dataset)
     env_id = reader.episodes[0][F.ENV_ID]
     env_kwargs, _ = dataset_env(reader, env_id)
@@ -305,13 +315,21 @@ def main(argv: list[str] | None = None) -> int:
     score.add_argument("--steps", type=int, default=2500, help="physics steps per episode (default 2500)")
     score.add_argument("--json", type=Path, required=True, help="the evaluation file to write (new)")
     score.add_argument("--label", help="the policy's name in the file (default lerobot-<type>)")
+    score.add_argument(
+        "--set",
+        type=_setting,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a config field that acts at inference, e.g. n_action_steps=1 (re-plan at every decision)",
+    )
     args = parser.parse_args(argv)
     prepare()
     if args.command == "train":
         folder = train(args.dataset, args.policy, args.steps, args.batch_size, args.out, args.seed, **dict(args.set))
         print(f"trained {args.policy}: {folder}")
     else:
-        evaluate(args.model, args.seeds, args.steps, args.json, args.label)
+        evaluate(args.model, args.seeds, args.steps, args.json, args.label, **dict(args.set))
     return 0
 
 
