@@ -233,9 +233,8 @@ def evaluate(
     import dpr  # noqa: F401  (registers the env ids)
     from dpr.datasets.lerobot import LeRobotReader
     from dpr.envs import episode_steps
-    from dpr.envs.particle_env import action_repeat
     from dpr.imitation.bc import dataset_env
-    from dpr.rl.evaluation import EpisodeResult, format_table, save_evaluation
+    from dpr.rl.evaluation import episode_result, format_table, save_evaluation
     from dpr.rollout import roll_out
 
     if json_path.exists():
@@ -256,18 +255,7 @@ def evaluate(
             outcome = roll_out(env, LeRobotPolicyAdapter(policy, preprocessor, postprocessor, env), seed)
         finally:
             env.close()
-        results.append(
-            EpisodeResult(
-                env_id,
-                name,
-                seed,
-                outcome.metrics,
-                outcome.trajectory,
-                outcome.goal,
-                measures=outcome.measures,
-                action_repeat=action_repeat(env_kwargs),
-            )
-        )
+        results.append(episode_result(env_id, name, seed, outcome, env_kwargs))
         print(f"{name} seed {seed}: {outcome.metrics.projected_displacement:.1f}", file=sys.stderr)
     json_path.parent.mkdir(parents=True, exist_ok=True)
     save_evaluation(json_path, name, [env_id], env_kwargs, steps, seeds, results)

@@ -135,15 +135,21 @@ def run_episode(
         result = roll_out(env, make_policy(policy_name, env), seed)
     finally:
         env.close()
+    return episode_result(env_id, policy_name, seed, result, kwargs)
+
+
+def episode_result(env_id: str, policy: str, seed: int, rollout, env_kwargs: dict) -> EpisodeResult:
+    """The :class:`EpisodeResult` of ``rollout`` (what :func:`dpr.rollout.roll_out` returned) of ``policy`` on
+    ``env_id`` made with ``env_kwargs``."""
     return EpisodeResult(
         env_id,
-        policy_name,
+        policy,
         seed,
-        result.metrics,
-        result.trajectory,
-        result.goal,
-        measures=result.measures,
-        action_repeat=action_repeat(kwargs),
+        rollout.metrics,
+        rollout.trajectory,
+        rollout.goal,
+        measures=rollout.measures,
+        action_repeat=action_repeat(env_kwargs),
     )
 
 
