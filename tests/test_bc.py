@@ -182,6 +182,14 @@ def test_cli_bc_clones_an_actor_critic_into_the_swarm_actor_by_default(dataset, 
     assert dqn["policy"] == "MlpPolicy"
 
 
+def test_cli_bc_takes_the_env_the_dataset_was_recorded_on(dataset, tmp_path, capsys):
+    assert run(["bc", "--dataset", str(dataset), "--epochs", "1", "--out", str(tmp_path / "r")]) == 0
+    assert f"--env {ENV}" in capsys.readouterr().out  # the line that says how to evaluate it
+    assert read_model_info(tmp_path / "r" / "model.zip").env_id == ENV
+    assert run(["bc", "--dataset", str(tmp_path / "nothing"), "--out", str(tmp_path / "r2")]) == 2
+    assert "--dataset: " in capsys.readouterr().err and not (tmp_path / "r2").exists()
+
+
 # -- bad input -----------------------------------------------------------------------------------------------------
 def test_missing_dataset_is_named(tmp_path):
     with pytest.raises(ValueError, match="no_such_dataset"):

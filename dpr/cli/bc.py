@@ -56,7 +56,9 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         help="dataset folder(s) written by `dpr collect` on the same env; validation episodes come from the first",
     )
-    parser.add_argument("--env", required=True, help=f"env id the dataset was recorded on, e.g. {EXAMPLE_ENV_ID}")
+    parser.add_argument(
+        "--env", help=f"env id the dataset was recorded on, e.g. {EXAMPLE_ENV_ID} (default: the one its episodes name)"
+    )
     parser.add_argument(
         "--algo",
         choices=BC_ALGOS,
@@ -112,10 +114,29 @@ def bc_hyperparams(algo: str, given: dict) -> dict:
     return {"policy": SWARM_POLICY, **given} if algo in FINETUNE_ALGOS else dict(given)
 
 
+def recorded_env_id(args, parser: argparse.ArgumentParser) -> str:
+    """``--env``, or when it is not given the env id the first dataset's episodes were recorded on (a usage error
+    naming --dataset when it names none; a dataset of another env is refused later, naming both)."""
+    if args.env is not None:
+        return args.env
+    from dpr.datasets import LeRobotReader
+    from dpr.datasets.features import ENV_ID
+    from dpr.datasets.lerobot.format import DatasetError
+
+    try:
+        episodes = LeRobotReader(args.dataset[0]).episodes
+    except DatasetError as error:  # a missing or damaged folder: its own message (which names it), as --dataset's
+        parser.error(f"--dataset: {error}")
+    if not episodes or not isinstance(episodes[0].get(ENV_ID), str):
+        parser.error(f"--dataset: {args.dataset[0]} names no env id in its episodes; give --env")
+    return episodes[0][ENV_ID]
+
+
 def cmd_bc(args, parser) -> int:
     from dpr.imitation.bc import behaviour_clone
 
     check_seed(args, parser)
+    args.env = recorded_env_id(args, parser)
     if not args.lr > 0:
         parser.error(f"--lr must be > 0, got {args.lr}")
     requested = {
@@ -184,7 +205,9 @@ def bc_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
         help="dataset folder(s) written by `dpr collect` on the same env, of any swarm sizes (e.g. one of N=9 and "
         "one of N=25); every dataset of 2 or more episodes gives validation episodes",
     )
-    parser.add_argument("--env", required=True, help=f"env id the datasets were recorded on, e.g. {EXAMPLE_ENV_ID}")
+    parser.add_argument(
+        "--env", help=f"env id the datasets were recorded on, e.g. {EXAMPLE_ENV_ID} (default: the one they name)"
+    )
     parser.add_argument(
         "--algo",
         choices=FINETUNE_ALGOS,
@@ -210,6 +233,7 @@ def cmd_bc_decentralised(args, parser) -> int:
     from dpr.imitation.per_robot import behaviour_clone_per_robot
 
     check_seed(args, parser)
+    args.env = recorded_env_id(args, parser)
     if not args.lr > 0:
         parser.error(f"--lr must be > 0, got {args.lr}")
     try:
