@@ -74,12 +74,16 @@ def policy_config(kind: str, **overrides: Any):
         from lerobot.policies.act.configuration_act import ACTConfig as Config
     else:
         from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig as Config
-    fields = set(Config.__dataclass_fields__)
-    unknown = sorted(set(overrides) - fields)
-    if unknown:
-        raise ValueError(f"--set: {unknown} are not fields of LeRobot's {Config.__name__}")
+    _check_fields(Config, overrides)
     settings = {**CPU_DEFAULTS[kind], **overrides, "device": "cpu", "push_to_hub": False}
     return Config(**settings)
+
+
+def _check_fields(config_class: type, overrides: dict[str, Any]) -> None:
+    """Every name in ``overrides`` must be a field of LeRobot's ``config_class`` (a ValueError naming --set)."""
+    unknown = sorted(set(overrides) - set(config_class.__dataclass_fields__))
+    if unknown:
+        raise ValueError(f"--set: {unknown} are not fields of LeRobot's {config_class.__name__}")
 
 
 def check_dataset(root: Path) -> None:
@@ -131,7 +135,7 @@ def train(dataset: Path, kind: str, steps: int, batch_size: int, out: Path, seed
         "steps": steps,
         "batch_size": batch_size,
         "seed": seed,
-        "overrides": {name: list(value) if isinstance(value, tuple) else value for name, value in overrides.items()},
+        "overrides": overrides,
         "wall_seconds": round(time.perf_counter() - started, 1),
         "cpu_seconds": round(time.process_time() - cpu_started, 1),
     }
@@ -177,9 +181,7 @@ def load_policy(model: Path, **overrides: Any):
     if not (folder / "config.json").is_file():
         raise ValueError(f"--model: {model} holds no trained LeRobot policy (no {MODEL_FOLDER}/config.json)")
     config = PreTrainedConfig.from_pretrained(folder)
-    unknown = sorted(set(overrides) - set(type(config).__dataclass_fields__))
-    if unknown:
-        raise ValueError(f"--set: {unknown} are not fields of LeRobot's {type(config).__name__}")
+    _check_fields(type(config), overrides)
     for name, value in overrides.items():
         setattr(config, name, value)
     config.__post_init__()  # LeRobot's own checks of the combination (e.g. n_action_steps against the horizon)
@@ -264,15 +266,10 @@ def evaluate(
 
 
 def _setting(text: str) -> tuple[str, Any]:
-    """``NAME=VALUE`` with VALUE read as JSON where it parses (numbers, lists, null), else as text."""
-    name, sep, value = text.partition("=")
-    if not sep or not name:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    try:
-        parsed = json.loads(value)
-    except json.JSONDecodeError:
-        parsed = value
-    return name, tuple(parsed) if isinstance(parsed, list) else parsed
+    """``NAME=VALUE``, VALUE read as `dpr --env-kwarg` reads it (JSON where it parses: numbers, lists, null)."""
+    from dpr.cli.common import env_kwarg
+
+    return env_kwarg(text, "--set")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -164,10 +164,10 @@ def name_and_value(text: str, flag: str) -> tuple[str, str]:
 PYTHON_CONSTANTS = {"True": True, "False": False, "None": None}  # as a gym.make call would spell them
 
 
-def env_kwarg(text: str) -> tuple[str, object]:
+def env_kwarg(text: str, flag: str = "--env-kwarg") -> tuple[str, object]:
     """'object_type=box' -> ('object_type', 'box'); values parse as JSON when they can (numbers, true, [..]), and
-    True, False and None as in Python."""
-    key, value = name_and_value(text, "--env-kwarg")
+    True, False and None as in Python. ``flag`` names the option in the error for text that is not NAME=VALUE."""
+    key, value = name_and_value(text, flag)
     if value in PYTHON_CONSTANTS:
         return key, PYTHON_CONSTANTS[value]
     try:
