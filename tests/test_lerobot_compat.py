@@ -25,13 +25,20 @@ if importlib.util.find_spec("lerobot") is None:
 TOOL_PATH = Path(__file__).resolve().parents[1] / "tools" / "check_lerobot_load.py"
 
 
+def load_tool(path: Path) -> ModuleType:
+    """A script of tools/ as a module, registered under its name (dataclasses resolve their module through
+    sys.modules, and a tool that imports another one finds it there)."""
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.fixture(scope="module")
 def tool(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
     """tools/check_lerobot_load.py as a module, with LeRobot kept offline and its Arrow cache in a temp folder."""
-    spec = importlib.util.spec_from_file_location("check_lerobot_load", TOOL_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve their module through sys.modules
-    spec.loader.exec_module(module)
+    module = load_tool(TOOL_PATH)
     module.prepare_environment(tmp_path_factory.mktemp("hf-cache"))
     module.make_torchvision_importable()
     return module
@@ -118,12 +125,7 @@ TINY_POLICIES = {
 @pytest.fixture(scope="module")
 def policies(tool: ModuleType) -> ModuleType:
     """tools/lerobot_policies.py as a module (it imports the LeRobot check tool beside it)."""
-    path = TOOL_PATH.with_name("lerobot_policies.py")
-    spec = importlib.util.spec_from_file_location("lerobot_policies", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_tool(TOOL_PATH.with_name("lerobot_policies.py"))
 
 
 @pytest.mark.parametrize("kind", ["act", "diffusion"])
