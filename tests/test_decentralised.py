@@ -123,11 +123,79 @@ def test_clock_needs_local_observations_and_a_period_of_two_or_more():
             parallel_env("navigation", n_robots=4, local_obs=True, clock_period=bad, **DISK)
 
 
+# -- the distance's phase in place of the distance ------------------------------------------------------------
+PERIOD = 240.0
+
+
+def test_distance_period_gives_the_phase_of_the_distance_and_no_position():
+    env = parallel_env("navigation", n_robots=9, local_obs=True, clock_period=CLOCK, distance_period=PERIOD, **DISK)
+    layout = env.local_layout
+    assert (layout.goal.stop - layout.goal.start, layout.size) == (4, 6 + 7 * 8 + 4 + 2)
+    observations, _ = env.reset(seed=4)
+    for _ in range(3):
+        state = env.state()
+        for i, agent in enumerate(env.possible_agents):
+            row = observations[agent]
+            position = state[6 * i : 6 * i + 2].astype(np.float64)
+            distance = np.linalg.norm(position)
+            angle = 2 * np.pi * distance * 1000.0 / PERIOD
+            expected = [*(-position / distance), np.sin(angle), np.cos(angle)]
+            np.testing.assert_allclose(row[layout.goal], expected, atol=2e-5)
+            assert row[0] == row[1] == 0.0  # the own x, y: a robot does not know where it stands
+            assert env.observation_space(agent).contains(row)
+        observations, *_ = env.step(dict.fromkeys(env.agents, 1))
+
+
+def test_with_a_distance_period_nothing_in_a_row_grows_with_the_distance():
+    periodic, raw = LocalObservation(distance_period=PERIOD), LocalObservation()
+    rows = {layout: [] for layout in (periodic, raw)}
+    for periods in (1, 4, 40):  # one robot on the same ray, whole periods farther from the goal
+        state = np.zeros(6, dtype=np.float32)
+        state[0:2] = np.array([0.6, -0.8]) * (100.0 + periods * PERIOD) / 1000.0
+        for layout in rows:
+            rows[layout].append(layout.observe(state, 1, 60.0)[0])
+    np.testing.assert_allclose(rows[periodic][0], rows[periodic][2], atol=1e-5)
+    np.testing.assert_allclose(rows[periodic][0], rows[periodic][1], atol=1e-5)
+    assert rows[raw][2][raw.goal.start + 2] > 9 * rows[raw][0][raw.goal.start + 2]  # the raw distance grows
+
+
+@pytest.mark.parametrize("robot_model", ["disk", "paddle"])
+def test_the_wave_acts_the_same_on_the_distance_s_phase_as_on_the_distance(robot_model):
+    kwargs = {"n_robots": 25, "robot_model": robot_model, **wave_env_kwargs(robot_model)}
+    raw, periodic = parallel_env("navigation", **kwargs), parallel_env("navigation", distance_period=PERIOD, **kwargs)
+    on_raw, on_periodic = (DecentralisedWavePolicy.from_parallel_env(env) for env in (raw, periodic))
+    raw_observations, _ = raw.reset(seed=3)
+    periodic_observations, _ = periodic.reset(seed=3)
+    expanded = 0
+    for _ in range(120):
+        actions = on_raw.act_agents(raw_observations)
+        assert on_periodic.act_agents(periodic_observations) == actions
+        expanded += sum(actions.values())
+        raw_observations, *_ = raw.step(actions)
+        periodic_observations, *_ = periodic.step(actions)
+    assert 0 < expanded < 25 * 120
+
+
+def test_bad_distance_periods_are_refused_by_name():
+    with pytest.raises(ParameterError, match="distance_period.*local_obs"):
+        parallel_env("navigation", n_robots=4, distance_period=PERIOD, **DISK)
+    for bad in (0, -240.0, float("nan"), float("inf"), "240", True):
+        with pytest.raises(ParameterError, match="distance_period") as error:
+            parallel_env("navigation", n_robots=4, local_obs=True, distance_period=bad, **DISK)
+        assert error.value.parameter == "distance_period"
+    # the wave reads its band number mod n_phases from the phase: the period must hold whole cycles of bands
+    for period in (200.0, 180.0):
+        with pytest.raises(ParameterError, match="distance_period.*multiple of n_phases x bin_width"):
+            DecentralisedWavePolicy(LocalObservation(clock_period=8, distance_period=period), n_phases=4)
+    DecentralisedWavePolicy(LocalObservation(clock_period=8, distance_period=480.0), n_phases=4)
+
+
 @pytest.mark.parametrize(
     "task, options",
     [
         ("navigation", {"clock_period": CLOCK, "max_neighbours": 3}),
         ("unresponsive", {"clock_period": CLOCK}),
+        ("navigation", {"clock_period": CLOCK, "distance_period": 240.0}),
         ("manipulation", {"clock_period": CLOCK, "action_type": "continuous"}),
     ],
 )

@@ -104,7 +104,7 @@ def test_model_file_is_a_per_robot_model_with_its_layout(cloned):
     info = read_model_info(cloned.model_path)
     assert (info.algo, info.env_id, info.max_episode_steps, info.env_kwargs) == ("ppo", ENV, 64, DISK)
     spec = RobotModelSpec.from_info(info, cloned.model_path)
-    assert spec == RobotModelSpec("disk", 8, 16, False, False, 4, 4, (16,))
+    assert spec == RobotModelSpec("disk", 8, 16, False, False, 4, 4, (16,), distance_period=240.0)
     model, _ = load_model(cloned.model_path)
     assert model.observation_space == spec.layout.space() and model.action_space == gym.spaces.Discrete(2)
     config = yaml.safe_load(cloned.config_path.read_text())
@@ -171,6 +171,31 @@ def test_cli_bc_decentralised_then_evaluate_at_another_size(dataset, tmp_path, c
     assert tree_hash(tmp_path) == before
 
 
+def test_the_raw_distance_layout_and_model_files_that_predate_the_distance_period(dataset, tmp_path, capsys):
+    """``--distance-period none`` clones on the raw distance; a file without the field (older) reads as one."""
+    out = tmp_path / "raw"
+    argv = ["bc-decentralised", "--dataset", str(dataset), "--epochs", "1", "--distance-period", "none"]
+    assert run([*argv, "--out", str(out)]) == 0
+    capsys.readouterr()
+    spec = RobotModelPolicy.load(out / "model.zip").spec
+    assert spec.distance_period is None and spec.layout.size == 6 + 7 * 8 + 3 + 2
+    older = tmp_path / "older.zip"
+    with zipfile.ZipFile(out / "model.zip") as source, zipfile.ZipFile(older, "w") as target:
+        for item in source.namelist():
+            data = source.read(item)
+            if item == METADATA_MEMBER:
+                meta = json.loads(data)
+                del meta["per_robot"]["distance_period"]
+                data = json.dumps(meta)
+            target.writestr(item, data)
+    assert RobotModelPolicy.load(older).spec == spec
+    drive(env := gym.make(ENV, n_robots=25, **DISK), make_policy(str(older), env), steps=5, seed=1)
+    for bad in ("0", "-60", "nan", "inf", "wavy"):
+        assert run([*argv[:-1], bad, "--out", str(tmp_path / "bad")]) == 2
+        assert "--distance-period" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 # -- refused -------------------------------------------------------------------------------------------------------
 def test_max_neighbours_below_one_is_refused(dataset, tmp_path):
     with pytest.raises(ParameterError, match="max_neighbours"):
@@ -206,9 +231,14 @@ def test_envs_the_model_was_not_trained_for_are_refused(cloned):
         make_policy(path, gym.make(ENV, n_robots=4, obs_type="pixels", **DISK))
     with pytest.raises(ValueError, match="it was trained on dpr/Navigation-v0, this env is dpr/Unresponsive-v0"):
         load_model(path, AgentsAsVecEnv(parallel_env("unresponsive", n_robots=4, local_obs=True, **DISK)))
-    other_clock = parallel_env("navigation", n_robots=4, local_obs=True, clock_period=20, **DISK)
+    other_clock = parallel_env("navigation", n_robots=4, local_obs=True, clock_period=20, distance_period=240, **DISK)
     with pytest.raises(ValueError, match="the model reads clock_period=16, the env gives clock_period=20"):
         load_model(path, AgentsAsVecEnv(other_clock))
+    raw_distance = parallel_env("navigation", n_robots=4, local_obs=True, clock_period=16, **DISK)
+    with pytest.raises(
+        ValueError, match="the model reads the distance's phase .distance_period=240., the env gives the raw"
+    ):
+        load_model(path, AgentsAsVecEnv(raw_distance))
     no_local = parallel_env("navigation", n_robots=4, **DISK)
     with pytest.raises(ValueError, match="local_obs=True"):
         load_model(path, AgentsAsVecEnv(no_local))

@@ -223,6 +223,15 @@ def bc_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
         f"wave as teacher, the hold it ran with (default the robot model's: {holds})",
     )
     default_argument(parser, "--n-phases", clone["n_phases"], "phases of one wave cycle (the clock's period)")
+    parser.add_argument(
+        "--distance-period",
+        type=distance_period,
+        default=clone["distance_period"],
+        metavar="{wave,none,LENGTH}",
+        help="what a robot senses of its distance to the goal: 'wave' (default) its phase in a band pattern of one "
+        "wave length (--n-phases x 60 units), so nothing in its observation grows with the swarm and the model "
+        "carries to large N; a LENGTH > 0 in world units for another period; 'none' the raw distance",
+    )
     add_fit_flags(parser, clone, "robot-frames", "fraction of each dataset's episodes held out")
     parser.add_argument(
         "--out", help="new run folder (default runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>)"
@@ -244,6 +253,7 @@ def cmd_bc_decentralised(args, parser) -> int:
             max_neighbours=args.max_neighbours,
             hold_steps=args.hold_steps,
             n_phases=args.n_phases,
+            distance_period=args.distance_period,
             epochs=args.epochs,
             batch_size=args.batch_size,
             lr=args.lr,
@@ -268,6 +278,21 @@ def cmd_bc_decentralised(args, parser) -> int:
     return 0
 
 
+def distance_period(text: str) -> float | str | None:
+    """``--distance-period``: 'wave', 'none' or a length > 0."""
+    from dpr.imitation.per_robot import WAVE_LENGTH
+
+    if text in (WAVE_LENGTH, "none"):
+        return None if text == "none" else text
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected 'wave', 'none' or a length > 0, got {text!r}")
+    return value
+
+
 # dpr.imitation.per_robot parameters, said as the flags that set them.
 BC_DECENTRALISED_FLAGS = {"dataset_dirs": "--dataset"}
 
@@ -290,7 +315,8 @@ COMMANDS = (
         help="behaviour-clone recorded datasets into one per-robot model that runs any swarm size",
         description="Relabel every frame of the datasets (recorded by `dpr collect`, e.g. with --policy "
         "decentralised-wave, of one or several swarm sizes) into per-robot samples: each robot's local observation "
-        "(its own state, its K nearest magnet neighbours with a mask, its goal direction and distance, a clock of "
+        "(its own state, its K nearest magnet neighbours with a mask, its goal direction and its distance's phase "
+        "in the wave's band pattern (--distance-period), a clock of "
         "one wave cycle, its dead flag and the object where the task has them), computed from the recorded state, "
         "and the action that robot took. Train one PPO/A2C model on them whose observation is one robot's and "
         "whose action is Discrete(2), as on the PettingZoo env parallel_env(..., local_obs=True); whole episodes "

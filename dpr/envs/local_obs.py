@@ -16,13 +16,15 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
-from dpr.checks import check_int
+from dpr.checks import check_int, check_number
 from dpr.envs.particle_env import LENGTH_SCALE, OBJECT_FEATURES, ROBOT_FEATURES, ParticleSwarmEnv
 from dpr.sim.neighbours import pairs_within
 
 MAX_NEIGHBOURS = 8  # neighbour slots of a local observation (a robot on the start grid has 8 within magnet range)
 NEIGHBOUR_FEATURES = ROBOT_FEATURES  # x, y relative to the robot, vx, vy, angular velocity, expansion
 GOAL_FEATURES = 3  # unit vector from the robot toward the goal (x, y), distance to the goal / 1000
+# With distance_period: the unit vector, then sin and cos of 2 pi distance / period in place of the distance.
+PERIODIC_GOAL_FEATURES = 4
 CLOCK_FEATURES = 2  # sin and cos of 2 pi step / clock_period
 EXPANSION = 5  # index of the expansion among a robot's features (own, and in each neighbour slot)
 
@@ -39,30 +41,44 @@ class LocalObservation:
       index); beyond K only the K nearest are kept. Unused slots are zeros;
     * ``mask`` (K): 1.0 where the slot holds a neighbour, 0.0 where it is padding;
     * ``goal`` (3): the goal signal as the robot senses it: the unit vector from the robot toward the goal
-      (zeros on the goal itself), then its distance to the goal (/ 1000);
+      (zeros on the goal itself), then its distance to the goal (/ 1000). With ``distance_period`` P (world
+      units), the goal part is 4 values: the unit vector, then ``sin`` and ``cos`` of ``2 pi d / P`` in place of
+      the distance d, and the own x, y are zeros: the robot senses where it stands in a band pattern of period P
+      around the goal, not how far the goal is, so nothing in its row grows with the swarm's size;
     * ``clock`` (2, with ``clock_period``): sin and cos of ``2 pi t / clock_period``, t the steps since the
       reset, the same for every robot;
     * ``dead`` (1, with ``dead_flag``: tasks with unresponsive robots): 1.0 if this robot ignores commands;
     * ``object`` (4, with ``has_object``: Manipulation): the object's x, y (goal frame), vx, vy, / 1000.
 
-    ``size`` is ``6 + 7K + 3`` plus the optional parts; it does not depend on the number of robots.
+    ``size`` is ``6 + 7K + 3`` (``+ 4`` with ``distance_period``) plus the optional parts; it does not depend
+    on the number of robots.
     """
 
     max_neighbours: int = MAX_NEIGHBOURS
     has_object: bool = False
     clock_period: int | None = None
     dead_flag: bool = False
+    distance_period: float | None = None
 
     def __post_init__(self):
         check_int("max_neighbours", self.max_neighbours, 1)
         if self.clock_period is not None:
             check_int("clock_period", self.clock_period, 2)  # a period of 1 would be a constant
+        if self.distance_period is not None:
+            check_number("distance_period", self.distance_period, above=0)
+            object.__setattr__(self, "distance_period", float(self.distance_period))
 
     @classmethod
-    def for_env(cls, env, max_neighbours: int = MAX_NEIGHBOURS, clock_period: int | None = None) -> LocalObservation:
+    def for_env(
+        cls,
+        env,
+        max_neighbours: int = MAX_NEIGHBOURS,
+        clock_period: int | None = None,
+        distance_period: float | None = None,
+    ) -> LocalObservation:
         """The layout for ``env`` (a super-agent env, wrapped or not): its object, its dead robots' flag."""
         base: ParticleSwarmEnv = env.unwrapped
-        return cls(max_neighbours, bool(base.has_object), clock_period, bool(base.has_dead_robots))
+        return cls(max_neighbours, bool(base.has_object), clock_period, bool(base.has_dead_robots), distance_period)
 
     # -- where each part sits ------------------------------------------------------------------------------
     @property
@@ -80,7 +96,8 @@ class LocalObservation:
 
     @property
     def goal(self) -> slice:
-        return slice(self.mask.stop, self.mask.stop + GOAL_FEATURES)
+        size = GOAL_FEATURES if self.distance_period is None else PERIODIC_GOAL_FEATURES
+        return slice(self.mask.stop, self.mask.stop + size)
 
     @property
     def clock(self) -> slice:
@@ -99,8 +116,8 @@ class LocalObservation:
         return self.object.stop
 
     def space(self) -> spaces.Box:
-        """``Box(size,)`` float32: expansions, mask, dead flag in [0, 1]; goal direction and clock in [-1, 1];
-        distance >= 0; the rest unbounded."""
+        """``Box(size,)`` float32: expansions, mask, dead flag in [0, 1]; goal direction, distance phase and clock
+        in [-1, 1]; distance >= 0; the rest unbounded."""
         low = np.full(self.size, -np.inf, dtype=np.float32)
         high = np.full(self.size, np.inf, dtype=np.float32)
         k = self.max_neighbours
@@ -108,8 +125,12 @@ class LocalObservation:
         unit += [*range(self.mask.start, self.mask.stop), *range(self.dead.start, self.dead.stop)]
         low[unit], high[unit] = 0.0, 1.0
         signed = [self.goal.start, self.goal.start + 1, *range(self.clock.start, self.clock.stop)]
+        if self.distance_period is None:
+            low[self.goal.start + 2] = 0.0
+        else:
+            signed += [self.goal.start + 2, self.goal.start + 3]
+            low[self.own.start : self.own.start + 2] = high[self.own.start : self.own.start + 2] = 0.0
         low[signed], high[signed] = -1.0, 1.0
-        low[self.goal.start + 2] = 0.0
         return spaces.Box(low, high, dtype=np.float32)
 
     def observe(
@@ -132,7 +153,12 @@ class LocalObservation:
         distance = np.hypot(positions[:, 0], positions[:, 1])
         goal = out[:, self.goal]
         np.divide(-positions, distance[:, None], out=goal[:, 0:2], where=distance[:, None] > 0)
-        goal[:, 2] = distance
+        if self.distance_period is None:
+            goal[:, 2] = distance
+        else:
+            angle = (2.0 * math.pi / (self.distance_period * LENGTH_SCALE)) * distance
+            goal[:, 2], goal[:, 3] = np.sin(angle), np.cos(angle)
+            out[:, 0:2] = 0.0
         if self.clock_period is not None:
             angle = 2.0 * math.pi * (int(step) % self.clock_period) / self.clock_period
             out[:, self.clock] = (math.sin(angle), math.cos(angle))
@@ -170,10 +196,15 @@ def _nearest_neighbours(positions: np.ndarray, neighbour_range: float, k: int):
 
 
 def local_observation_size(
-    max_neighbours: int, has_object: bool, *, clock_period: int | None = None, dead_flag: bool = False
+    max_neighbours: int,
+    has_object: bool,
+    *,
+    clock_period: int | None = None,
+    dead_flag: bool = False,
+    distance_period: float | None = None,
 ) -> int:
     """Length of one robot's local observation (see :class:`LocalObservation`)."""
-    return LocalObservation(max_neighbours, has_object, clock_period, dead_flag).size
+    return LocalObservation(max_neighbours, has_object, clock_period, dead_flag, distance_period).size
 
 
 def local_observations(
@@ -186,10 +217,11 @@ def local_observations(
     clock_period: int | None = None,
     step: int = 0,
     dead: np.ndarray | None = None,
+    distance_period: float | None = None,
 ) -> np.ndarray:
     """Every robot's local observation, one row each, from a global ``state`` vector (layout in
     :class:`LocalObservation`; the dead flag is included when ``dead`` is given)."""
-    layout = LocalObservation(max_neighbours, has_object, clock_period, dead is not None)
+    layout = LocalObservation(max_neighbours, has_object, clock_period, dead is not None, distance_period)
     return layout.observe(state, n_robots, neighbour_range, step, dead)
 
 
@@ -198,6 +230,7 @@ __all__ = [
     "GOAL_FEATURES",
     "MAX_NEIGHBOURS",
     "NEIGHBOUR_FEATURES",
+    "PERIODIC_GOAL_FEATURES",
     "LocalObservation",
     "local_observation_size",
     "local_observations",

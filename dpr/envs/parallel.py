@@ -87,7 +87,7 @@ class ParticleParallelEnv(ParallelEnv):
     ``local_obs=False`` (default, the paper's setup): the super-agent env's global state vector, ``Box(6N,)``
     (``+4`` in Manipulation); every agent receives the same read-only array.
 
-    ``local_obs=True``: what the robot senses, ``Box(6 + 7K + 3 [+ 2] [+ 1] [+ 4],)`` float32 with
+    ``local_obs=True``: what the robot senses, ``Box(6 + 7K + 3 (or 4) [+ 2] [+ 1] [+ 4],)`` float32 with
     K = ``max_neighbours`` (8), the same for every swarm size N; rows of one read-only array. In order:
 
     * own state (6): x, y (goal frame), vx, vy (all / 1000), angular velocity, expansion in [0, 1];
@@ -96,7 +96,8 @@ class ParticleParallelEnv(ParallelEnv):
       expansion; zeros in unused slots;
     * the neighbours' mask (K): 1 for a filled slot, 0 for padding (fewer than K neighbours, N - 1 < K);
     * the goal signal (3): the unit vector from the robot toward the goal, and its distance to the goal
-      (/ 1000);
+      (/ 1000); with ``distance_period=P``, 4 values: the unit vector, then ``sin`` and ``cos`` of
+      ``2 pi d / P`` in place of the distance d, with the own x, y zeroed (nothing grows with N);
     * with ``clock_period=T``, a clock shared by all robots (2): ``sin`` and ``cos`` of ``2 pi t / T``, t the
       steps since the reset;
     * on tasks with unresponsive robots (Unresponsive), the robot's own dead flag (1): 1 if it ignores
@@ -118,10 +119,11 @@ class ParticleParallelEnv(ParallelEnv):
 
     ## Arguments
     ``task`` (``"navigation"``, ``"gate"``, ``"unresponsive"``, ``"manipulation"``), ``max_episode_steps``
-    (``MAX_EPISODE_STEPS``), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, an
-    integer >= 1, with ``local_obs``), ``clock_period`` (None: no clock; an integer >= 2, with ``local_obs``
-    only), and the super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``,
-    ``reward``, ``render_mode``, task options such as ``n_dead``...). Only ``obs_type="state"`` is supported.
+    (``MAX_EPISODE_STEPS``), ``local_obs`` (False), ``shared_reward`` (True), ``max_neighbours`` (8, an integer
+    >= 1, with ``local_obs``), ``clock_period`` (None: no clock; an integer >= 2, with ``local_obs`` only),
+    ``distance_period`` (None: the raw distance; a length > 0 in world units, with ``local_obs`` only), and the
+    super-agent env's keyword arguments (``n_robots``, ``robot_model``, ``action_type``, ``reward``,
+    ``render_mode``, task options such as ``n_dead``...). Only ``obs_type="state"`` is supported.
     ``state()`` returns the global state; ``swarm_env`` is the wrapped super-agent env.
     """
 
@@ -136,6 +138,7 @@ class ParticleParallelEnv(ParallelEnv):
         shared_reward: bool = True,
         max_neighbours: int = MAX_NEIGHBOURS,
         clock_period: int | None = None,
+        distance_period: float | None = None,
         **env_kwargs: Any,
     ):
         if task not in TASK_CLASSES:
@@ -164,6 +167,11 @@ class ParticleParallelEnv(ParallelEnv):
                 "clock_period", int(clock_period) if isinstance(clock_period, np.integer) else clock_period, 2
             )
         self.clock_period = clock_period
+        if distance_period is not None and not self.local_obs:
+            raise ParameterError(
+                "distance_period", "the distance's phase is part of the local observation: set local_obs=True"
+            )
+        self.distance_period = distance_period
 
         self._env: ParticleSwarmEnv = TASK_CLASSES[task](**env_kwargs)
         base = self._env
@@ -177,7 +185,8 @@ class ParticleParallelEnv(ParallelEnv):
         self._all_agents = frozenset(self.possible_agents)
         self._steps = 0
 
-        self.local_layout = LocalObservation.for_env(base, self.max_neighbours, self.clock_period)
+        self.local_layout = LocalObservation.for_env(base, self.max_neighbours, self.clock_period, self.distance_period)
+        self.distance_period = self.local_layout.distance_period  # checked, as a float
         if self.local_obs:
             observation_space = self.local_layout.space()
         else:

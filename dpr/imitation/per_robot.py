@@ -38,7 +38,7 @@ import torch
 import yaml
 
 from dpr import runs
-from dpr.checks import ParameterError, check_int
+from dpr.checks import ParameterError, check_int, check_number
 from dpr.datasets.features import ACTION, OBSERVATION, SEED
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import MAX_EPISODE_STEPS, TASKS
@@ -58,9 +58,11 @@ from dpr.policies.decentralised import DEFAULT_N_PHASES, MODEL_DEFAULTS, wave_en
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.per_robot_spec import RobotModelSpec
 from dpr.policies.sb3 import DEFAULT_ALGO, FINETUNE_ALGOS, ModelInfo, trained_parameters, write_model_info
+from dpr.policies.wave import BIN_WIDTH
 from dpr.sim.models import swarm_class
 
 __all__ = [
+    "WAVE_LENGTH",
     "behaviour_clone_per_robot",
     "episode_dead_robots",
     "relabel_dataset",
@@ -77,6 +79,7 @@ CENTRALISED_ONLY_KWARGS = ("n_robots", "action_type", "obs_type", "obs_last_acti
 # leaves them out. Where the swarm starts changes which distances to the goal the robots see, not what a robot
 # observes or does, so demonstrations from wider starts teach the distances that larger swarms span.
 EPISODE_ONLY_KWARGS = ("n_robots", "start_radius")
+WAVE_LENGTH = "wave"  # distance_period: one wave length, n_phases x the wave's bin width
 _LOSS = {
     "loss": "mean per-sample NLL of the recorded action (one sample = one robot at one frame, Categorical(2))",
     "trained": "actor only",
@@ -242,6 +245,7 @@ def behaviour_clone_per_robot(
     max_neighbours: int = MAX_NEIGHBOURS,
     hold_steps: int | None = None,
     n_phases: int = DEFAULT_N_PHASES,
+    distance_period: float | str | None = WAVE_LENGTH,
     epochs: int = 20,
     batch_size: int = 512,
     lr: float = 1e-3,
@@ -261,8 +265,12 @@ def behaviour_clone_per_robot(
 
     The local observation has ``max_neighbours`` neighbour slots and a clock whose period is one wave cycle of the
     robot model: ``hold_steps`` (the robot model's wave hold by default, as the decentralised wave) x ``n_phases``;
-    with the decentralised wave as the teacher, they must be the values it ran with. ``hyperparams`` override the
-    algorithm's yaml entry for ``env_id`` (the network). Bad input raises ValueError before anything is written."""
+    with the decentralised wave as the teacher, they must be the values it ran with. ``distance_period`` replaces
+    the raw distance to the goal by its phase (:class:`~dpr.envs.local_obs.LocalObservation`): ``"wave"`` (the
+    default) one wave length, ``n_phases`` x the wave's bin width, so that a robot senses its band of the wave and
+    nothing that grows with the swarm; a length in world units; or None for the raw distance. ``hyperparams``
+    override the algorithm's yaml entry for ``env_id`` (the network). Bad input raises ValueError before anything is
+    written."""
     from dpr.envs.parallel import AgentsAsVecEnv, parallel_env
     from dpr.policies.sb3 import build_model
 
@@ -277,6 +285,10 @@ def behaviour_clone_per_robot(
     kwargs = kwargs_list[0]
     robot_model = kwargs.get("robot_model", "paddle")
     clock_period = wave_env_kwargs(robot_model, hold_steps, n_phases)["clock_period"]
+    if distance_period == WAVE_LENGTH:
+        distance_period = n_phases * BIN_WIDTH
+    elif distance_period is not None:
+        distance_period = check_number("distance_period", distance_period, above=0)
     hold = MODEL_DEFAULTS[robot_model]["hold_steps"] if hold_steps is None else hold_steps
     hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
     if hyper.env_kwargs:
@@ -297,6 +309,7 @@ def behaviour_clone_per_robot(
         local_obs=True,
         max_neighbours=max_neighbours,
         clock_period=clock_period,
+        distance_period=distance_period,
         **task_kwargs,
     )
     layout = swarm_env.local_layout
@@ -309,6 +322,7 @@ def behaviour_clone_per_robot(
         hold,
         n_phases,
         tuple(sorted(set(n_values))),
+        layout.distance_period,
     )
     splits = []
     for reader in readers:  # whole episodes of every dataset with two or more are held out

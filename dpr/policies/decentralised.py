@@ -65,6 +65,9 @@ class DecentralisedWavePolicy:
     ``"far"`` runs it toward the goal. Across a large swarm several waves, ``n_phases``
     bands apart, travel at once.
 
+    With a layout that has a ``distance_period`` (a multiple of ``n_phases x bin_width``), a robot reads its band
+    number modulo ``n_phases`` from the distance's phase instead: the same actions, without the raw distance.
+
     A robot uses its own observation only: no swarm centre, no N, no other robot's goal signal; its
     neighbour slots are not used by this rule. The layout (where the goal signal and the clock sit) comes from
     the env; it must have a clock (``clock_period``). Dead robots are given actions like the others (the env
@@ -94,6 +97,14 @@ class DecentralisedWavePolicy:
         self.layout = layout
         self.action_type = action_type
         self.bin_width = check_number("bin_width", bin_width, above=0)
+        if layout.distance_period is not None:
+            bands = layout.distance_period / self.bin_width
+            if abs(bands - round(bands)) > 1e-9 or round(bands) % self.n_phases:
+                raise ParameterError(
+                    "distance_period",
+                    f"the wave reads its band number from the distance's phase: the period must be a multiple of "
+                    f"n_phases x bin_width ({self.n_phases} x {self.bin_width:g}), got {layout.distance_period:g}",
+                )
         self.start_side = check_choice("start_side", start_side, START_SIDES)
 
     @property
@@ -116,18 +127,20 @@ class DecentralisedWavePolicy:
         env,
         hold_steps: int | None = None,
         max_neighbours: int = MAX_NEIGHBOURS,
+        distance_period: float | None = None,
         **overrides,
     ) -> PerRobotPolicyAdapter:
         """The wave acting in a centralised env (wrapped or not): a :class:`PerRobotPolicyAdapter` that gives
         every robot its local observation, with a clock of period ``hold_steps`` x ``n_phases`` (the robot
-        model's hold by default). ``overrides``: ``n_phases``, ``bin_width``, ``start_side``."""
+        model's hold by default), and the distance's phase in place of the distance with ``distance_period``.
+        ``overrides``: ``n_phases``, ``bin_width``, ``start_side``."""
         base: ParticleSwarmEnv = env.unwrapped
         if base.obs_type == "pixels":
             raise ParameterError("obs_type", "the decentralised wave reads robot states: use 'state' or 'pixels_state'")
         defaults = MODEL_DEFAULTS[base.robot_model]
         n_phases = overrides.get("n_phases", DEFAULT_N_PHASES)
         clock_period = wave_env_kwargs(base.robot_model, hold_steps, n_phases)["clock_period"]
-        layout = LocalObservation.for_env(base, max_neighbours, clock_period)
+        layout = LocalObservation.for_env(base, max_neighbours, clock_period, distance_period)
         kwargs = {"start_side": defaults["start_side"], **overrides}
         return PerRobotPolicyAdapter(env, cls(layout, base.action_type, **kwargs))
 
@@ -139,7 +152,12 @@ class DecentralisedWavePolicy:
         rows = np.asarray(rows, dtype=np.float64)
         if rows.ndim != 2 or rows.shape[1] != self.layout.size:
             raise ValueError(f"expected rows of {self.layout.size} values (M, {self.layout.size}), got {rows.shape}")
-        distance = rows[:, self.layout.goal.start + 2] / LENGTH_SCALE
+        goal = self.layout.goal.start
+        if self.layout.distance_period is None:
+            distance = rows[:, goal + 2] / LENGTH_SCALE
+        else:  # the distance modulo the period is all the band number mod n_phases needs
+            cycle = np.mod(np.arctan2(rows[:, goal + 2], rows[:, goal + 3]) / (2 * math.pi), 1.0)
+            distance = cycle * self.layout.distance_period
         band = np.floor(distance / self.bin_width).astype(np.int64)
         clock = rows[:, self.layout.clock]
         turn = np.mod(np.arctan2(clock[:, 0], clock[:, 1]) / (2 * math.pi), 1.0)  # fraction of the cycle

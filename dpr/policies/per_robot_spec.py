@@ -20,18 +20,18 @@ from dpr.sim.models import ROBOT_MODELS, swarm_class
 # The parameter a model file is named by in the registry's error messages (dpr.policies.sb3.POLICY_PARAMETER).
 POLICY_PARAMETER = "policy"
 # The layout fields a model and an env must agree on, as the error messages name them.
-LAYOUT_FIELDS = ("max_neighbours", "clock_period", "dead_flag", "has_object")
+LAYOUT_FIELDS = ("max_neighbours", "clock_period", "dead_flag", "has_object", "distance_period")
 
 
 @dataclass(frozen=True)
 class RobotModelSpec:
     """What a per-robot model reads and what it was trained for (stored in its file as ``per_robot``).
 
-    ``max_neighbours``, ``clock_period``, ``dead_flag`` and ``has_object`` make its
-    :class:`~dpr.envs.local_obs.LocalObservation`; neighbours are the robots within ``robot_model``'s magnet
-    range. ``hold_steps`` and ``n_phases`` say how the clock period was chosen (one wave cycle, ``clock_period =
-    hold_steps x n_phases``; None when it was given directly); ``trained_n_robots`` are the swarm sizes of its
-    training data. Only the layout and the robot model decide where it can run: any N can.
+    ``max_neighbours``, ``clock_period``, ``dead_flag``, ``has_object`` and ``distance_period`` (None in files written
+    before it existed: the raw distance) make its :class:`~dpr.envs.local_obs.LocalObservation`; neighbours are the
+    robots within ``robot_model``'s magnet range. ``hold_steps`` and ``n_phases`` say how the clock period was chosen
+    (one wave cycle, ``clock_period = hold_steps x n_phases``; None when it was given directly); ``trained_n_robots``
+    are the swarm sizes of its training data. Only the layout and the robot model decide where it can run: any N can.
     """
 
     robot_model: str
@@ -42,10 +42,13 @@ class RobotModelSpec:
     hold_steps: int | None = None
     n_phases: int | None = None
     trained_n_robots: tuple[int, ...] = ()
+    distance_period: float | None = None
 
     def __post_init__(self):
         check_choice("robot_model", self.robot_model, ROBOT_MODELS)
-        self.layout  # noqa: B018  (validates max_neighbours >= 1 and clock_period >= 2)
+        self.layout  # noqa: B018  (validates max_neighbours >= 1, clock_period >= 2, distance_period > 0)
+        if self.distance_period is not None:
+            object.__setattr__(self, "distance_period", float(self.distance_period))
         for name in ("dead_flag", "has_object"):
             if not isinstance(getattr(self, name), bool):
                 raise ParameterError(name, f"expected True or False, got {getattr(self, name)!r}")
@@ -54,7 +57,9 @@ class RobotModelSpec:
 
     @property
     def layout(self) -> LocalObservation:
-        return LocalObservation(self.max_neighbours, self.has_object, self.clock_period, self.dead_flag)
+        return LocalObservation(
+            self.max_neighbours, self.has_object, self.clock_period, self.dead_flag, self.distance_period
+        )
 
     @property
     def neighbour_range(self) -> float:
@@ -67,6 +72,7 @@ class RobotModelSpec:
             "local_obs": True,
             "max_neighbours": self.max_neighbours,
             "clock_period": self.clock_period,
+            "distance_period": self.distance_period,
             "robot_model": self.robot_model,
         }
 
@@ -101,6 +107,8 @@ def _describe(name: str, value: Any) -> str:
         return "a dead-robot flag" if value else "no dead-robot flag"
     if name == "clock_period":
         return "no clock" if value is None else f"clock_period={value}"
+    if name == "distance_period":
+        return "the raw distance to the goal" if value is None else f"the distance's phase (distance_period={value:g})"
     return f"{name}={value}"
 
 
@@ -150,7 +158,9 @@ def check_per_robot_env(path: str | Path, info, env, centralised: bool = True) -
         # clock, neighbour slots and dead flag: where the task has no dead robots, every flag reads 0), so the
         # model runs on any task whose observation has the same parts: a Navigation model drives Gate and
         # Unresponsive swarms too, not knowing in advance which robots are dead. Only an object must match.
-        layout = LocalObservation(spec.max_neighbours, base.has_object, spec.clock_period, spec.dead_flag)
+        layout = LocalObservation(
+            spec.max_neighbours, base.has_object, spec.clock_period, spec.dead_flag, spec.distance_period
+        )
     env_id = ENV_IDS[base.task]
     problems = _layout_mismatch(spec, layout)
     if env_id != info.env_id and (is_parallel_env(env) or spec.has_object != base.has_object):

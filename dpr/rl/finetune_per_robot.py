@@ -71,7 +71,7 @@ RUNS_DIR = Path("runs/finetune-decentralised")
 DEFAULT_N_ROBOTS = 9  # the training size of a model that names none
 # Parallel-env kwargs the run sets itself: the swarm sizes, the model's layout, the reward sharing, the episode length.
 RESERVED_ENV_KWARGS = (
-    *("n_robots", "render_mode", "max_episode_steps", "local_obs", "max_neighbours", "clock_period"),
+    *("n_robots", "render_mode", "max_episode_steps", "local_obs", "max_neighbours", "clock_period", "distance_period"),
     "shared_reward",
 )
 
