@@ -289,6 +289,15 @@ def test_registry_makes_the_decentralised_wave_for_every_action_type(action_type
     drive(env, policy, steps=10, seed=0)
 
 
+def test_the_registry_name_carries_the_number_of_phases_and_the_hold():
+    env = gym.make(ENV_IDS["navigation"], n_robots=9, **DISK)
+    wave = make_policy("decentralised-wave:n_phases=6,hold_steps=3", env).policy
+    assert (wave.n_phases, wave.clock_period) == (6, 18)
+    default = make_policy("decentralised-wave", env).policy
+    assert (default.n_phases, default.clock_period) == (4, wave_env_kwargs("disk")["clock_period"])
+    drive(env, make_policy("decentralised-wave:n_phases=6", env), steps=10, seed=0)
+
+
 def test_bad_policy_arguments():
     with pytest.raises(ParameterError, match="local_obs"):
         DecentralisedWavePolicy.from_parallel_env(parallel_env("navigation", n_robots=4, **DISK))

@@ -436,7 +436,9 @@ def test_a_waves_name_carries_its_bin_width():
         ("wave-markov:hold_steps=6,bin_width=0", "bin_width must be a number > 0, got '0'"),
         ("wave-markov:bin_width=wide", "bin_width must be a number > 0, got 'wide'"),
         ("wave-markov:bin_width=inf", "bin_width must be a number > 0, got 'inf'"),
-        ("random:hold_steps=3", "only 'wave' and 'wave-markov' take settings"),
+        ("random:hold_steps=3", "only 'wave', 'wave-markov', 'decentralised-wave' take settings"),
+        ("decentralised-wave:n_phases=1", "n_phases must be an integer >= 2, got '1'"),
+        ("decentralised-wave:bin_width=50", "the settings are hold_steps and n_phases, each once"),
         ("waves:hold_steps=3", "policy must be one of"),
     ],
 )

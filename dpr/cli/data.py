@@ -41,8 +41,8 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         default=spec["policy"],
         help="'wave', 'wave-markov' (either may name its hold and bins: 'wave-markov:hold_steps=6,bin_width=50'; "
         "wave-markov reads the previous action, so it records with --env-kwarg obs_last_action=true by default), "
-        "'decentralised-wave', 'random' or a model .zip: any policy `dpr evaluate` "
-        f"accepts (default {spec['policy']})",
+        "'decentralised-wave' (or 'decentralised-wave:n_phases=6'), 'random' or a model .zip: any policy "
+        f"`dpr evaluate` accepts (default {spec['policy']})",
     )
     parser.add_argument(
         "--label-policy",

@@ -40,8 +40,8 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         "(its phase read from the observation), either with another hold or bin width "
         "('wave-markov:hold_steps=6,bin_width=50'), "
         "'decentralised-wave' (every robot decides from its own local "
-        "observation), 'random', or a model file MODEL.zip written by "
-        "`dpr train`/`dpr bc` (run with the env kwargs it was trained with)",
+        "observation; 'decentralised-wave:n_phases=6' for six phases a cycle), 'random', or a model file "
+        "MODEL.zip written by `dpr train`/`dpr bc` (run with the env kwargs it was trained with)",
     )
     parser.add_argument("--env", nargs="+", default=[EXAMPLE_ENV_ID], help=f"env ids ({ENV_ID_LIST}) or '{ALL_ENVS}'")
     parser.add_argument(

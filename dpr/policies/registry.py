@@ -56,27 +56,42 @@ def wave_name(base: str, hold_steps: int, bin_width: float | None = None) -> str
     return name if bin_width is None else f"{name},{BIN_WIDTH_PARAMETER}={bin_width:g}"
 
 
+N_PHASES_PARAMETER = "n_phases"
+# The settings each scripted policy's name may carry, in the order they are listed.
+POLICY_SETTINGS = {
+    WAVE: (HOLD_PARAMETER, BIN_WIDTH_PARAMETER),
+    WAVE_MARKOV: (HOLD_PARAMETER, BIN_WIDTH_PARAMETER),
+    DECENTRALISED_WAVE: (HOLD_PARAMETER, N_PHASES_PARAMETER),
+}
+_EXAMPLES = {
+    WAVE: "'wave:hold_steps=7'",
+    WAVE_MARKOV: f"{wave_name(WAVE_MARKOV, 7)!r} or {wave_name(WAVE_MARKOV, 6, 50)!r}",
+    DECENTRALISED_WAVE: "'decentralised-wave:n_phases=6'",
+}
+
+
 def parse_scripted_name(name: str) -> tuple[str, dict[str, float]]:
     """("wave-markov", {"hold_steps": 7}) from "wave-markov:hold_steps=7" (and "bin_width": 50.0 from
-    ",bin_width=50"); a plain name has no settings. A ValueError names what is wrong: an unknown policy, a
-    setting on a policy without settings, an unknown setting, a bad hold or bin width."""
+    ",bin_width=50"; "decentralised-wave:n_phases=6" gives {"n_phases": 6}); a plain name has no settings. A
+    ValueError names what is wrong: an unknown policy, a setting on a policy without settings, an unknown setting,
+    a bad hold, bin width or number of phases."""
     base, colon, text = name.partition(":")
     if base not in SCRIPTED_POLICIES:
         raise ValueError(f"policy must be one of {SCRIPTED_POLICIES} or a path to a .zip model, got {name!r}")
     if not colon:
         return base, {}
-    written = f"{wave_name(WAVE_MARKOV, 7)!r} or {wave_name(WAVE_MARKOV, 6, 50)!r}"
-    if base not in (WAVE, WAVE_MARKOV):
-        raise ValueError(f"policy {name!r}: only {WAVE!r} and {WAVE_MARKOV!r} take settings, written {written}")
+    if base not in POLICY_SETTINGS:
+        takers = ", ".join(map(repr, POLICY_SETTINGS))
+        raise ValueError(f"policy {name!r}: only {takers} take settings, written {_EXAMPLES[WAVE_MARKOV]}")
     from dpr.envs.particle_env import HELD_STEPS_CAP
 
+    allowed = POLICY_SETTINGS[base]
     settings: dict[str, float] = {}
     for setting in text.split(","):
         key, _, value = setting.partition("=")
-        if key not in (HOLD_PARAMETER, BIN_WIDTH_PARAMETER) or key in settings:
+        if key not in allowed or key in settings:
             raise ValueError(
-                f"policy {name!r}: the settings are {HOLD_PARAMETER} and {BIN_WIDTH_PARAMETER}, "
-                f"each once, written {written}"
+                f"policy {name!r}: the settings are {' and '.join(allowed)}, each once, written {_EXAMPLES[base]}"
             )
         if key == BIN_WIDTH_PARAMETER:
             try:  # the check WavePolicy and the pipeline's teacher_bin_widths make
@@ -84,6 +99,11 @@ def parse_scripted_name(name: str) -> tuple[str, dict[str, float]]:
             except ValueError:
                 problem = f"{BIN_WIDTH_PARAMETER} must be a number > 0, got {value!r}"
                 raise ValueError(f"policy {name!r}: {problem}") from None
+            continue
+        if key == N_PHASES_PARAMETER:
+            if not value.isdigit() or int(value) < 2:
+                raise ValueError(f"policy {name!r}: {N_PHASES_PARAMETER} must be an integer >= 2, got {value!r}")
+            settings[key] = int(value)
             continue
         cap = HELD_STEPS_CAP if base == WAVE_MARKOV else None  # the Markov wave reads its hold from the observation
         if not value.isdigit() or int(value) < 1 or (cap is not None and int(value) > cap):
@@ -110,8 +130,9 @@ def make_policy(name: str, env):
     number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
     can reproduce), either with another hold or bin width ("wave-markov:hold_steps=6,bin_width=50"), "random",
     "decentralised-wave" (every robot decides from its own local observation and a shared clock,
-    :mod:`dpr.policies.decentralised`), or a ``.zip`` model file trained on ``env``'s id and spaces; a per-robot
-    model file (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
+    :mod:`dpr.policies.decentralised`; "decentralised-wave:n_phases=6" runs six phases a cycle), or a ``.zip``
+    model file trained on ``env``'s id and spaces; a per-robot model file (:mod:`dpr.policies.per_robot_model`)
+    runs at any swarm size."""
     check_policy_name(name)
     from dpr.policies.sb3 import is_model_path, load_model_policy, read_model_info
 
@@ -133,5 +154,5 @@ def make_policy(name: str, env):
     if name == DECENTRALISED_WAVE:
         from dpr.policies.decentralised import DecentralisedWavePolicy
 
-        return DecentralisedWavePolicy.for_env(env)
+        return DecentralisedWavePolicy.for_env(env, **settings)
     return RandomPolicy(env)
