@@ -13,7 +13,7 @@ from helpers import run_cli as run
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
-from dpr.rl.model_card import load_model_card
+from dpr.rl.model_card import load_model_card, load_per_robot_models
 from dpr.rl.pipeline import run_pipeline
 from dpr.rl.pipeline_config import PipelineConfig
 from dpr.rl.train import TrainConfig, train
@@ -97,6 +97,34 @@ def test_a_bad_card_is_refused_naming_the_card_and_the_entry(tmp_path, content, 
     assert raised.value.parameter == "shipped"
     if isinstance(content, dict):
         assert "models[0]" in str(raised.value)
+
+
+def test_per_robot_models_of_the_card_are_checked_with_it(tmp_path):
+    shutil.copy(REPO_CARD.parent / "navigation-bc.zip", tmp_path / "central.zip")
+    shutil.copy(REPO_CARD.parent / "decentralised-disk-bc.zip", tmp_path / "disk.zip")
+    central = entry("navigation", "central.zip", "bc")
+
+    def card(*per_robot: dict) -> Path:
+        path = tmp_path / "card.yaml"
+        path.write_text(yaml.safe_dump({"format": 1, "models": [central], "per_robot_models": list(per_robot)}))
+        return path
+
+    disk = {"robot_model": "disk", "method": "bc", "file": "disk.zip", "made_by": "a test"}
+    assert [(m.robot_model, m.path.name) for m in load_per_robot_models(card(disk))] == [("disk", "disk.zip")]
+    assert [m.task for m in load_model_card(card(disk))] == ["navigation"]  # the pipeline's rows: models only
+    for bad, message in [
+        ({**disk, "robot_model": "paddle"}, "per-robot model of the disk robot model, not of paddle"),
+        ({**disk, "robot_model": "wheel"}, "robot_model must be one of"),
+        ({**disk, "file": "central.zip"}, "centralised model"),
+        ({**disk, "sha256": "0" * 64}, "sha256 differs"),
+        ({k: v for k, v in disk.items() if k != "made_by"}, "must have the keys"),
+    ]:
+        with pytest.raises(ParameterError, match=message) as raised:
+            load_model_card(card(bad))
+        assert "per_robot_models[0]" in str(raised.value) or "centralised" in str(raised.value)
+    (tmp_path / "card.yaml").write_text(yaml.safe_dump({"format": 1, "models": [central], "extra": []}))
+    with pytest.raises(ParameterError, match="per_robot_models"):
+        load_model_card(tmp_path / "card.yaml")
 
 
 def test_a_card_naming_one_task_and_method_twice_is_refused(tmp_path):

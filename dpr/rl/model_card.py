@@ -11,6 +11,16 @@
         env_id: dpr/Gate-v0       # optional: an earlier id of the task that the model was made on
         sha256: 5f1c...           # optional: the file's sha256, checked on load
 
+and, optionally, the per-robot models (one robot's local observation in, its action out; any swarm size), which
+``tools/decentralised_sweep.py`` scores across swarm sizes rather than the pipeline at one N::
+
+    per_robot_models:
+      - robot_model: paddle       # a key of dpr.sim.ROBOT_MODELS: the model's own, checked against its file
+        method: bc-ppo
+        file: decentralised-bc-ppo.zip
+        made_by: dpr bc-decentralised ... then dpr finetune-decentralised ... (median training seed)
+        sha256: 9a0c...           # optional, as above
+
 ``models/README.md`` describes the same models for people; ``dpr pipeline --shipped models/card.yaml`` (what
 ``make run`` does) evaluates each of them on the pipeline's test seeds, so that the claim is checked where the
 user runs it. :func:`load_model_card` checks the whole card, files included (their sha256 where the card gives it,
@@ -31,6 +41,8 @@ from dpr.policies.sb3 import load_model
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
+PER_ROBOT_KEYS = ("robot_model", "method", "file", "made_by")
+CARD_KEYS = {"format", "models", "per_robot_models"}
 # env_id: the task's registered id the model runs on, when not its current one; sha256: the file's, checked
 OPTIONAL_KEYS = ("env_id", "sha256")
 
@@ -50,10 +62,31 @@ class ShippedModel:
         return self.task_env_id or ENV_IDS[self.task]
 
 
+@dataclass(frozen=True)
+class ShippedPerRobotModel:
+    """One entry of the card's ``per_robot_models``: ``path`` is the model file (resolved beside the card)."""
+
+    robot_model: str
+    method: str
+    path: Path
+    made_by: str
+
+
 def load_model_card(card: str | Path, parameter: str = "shipped") -> list[ShippedModel]:
-    """The entries of the model card at ``card``; a :class:`ParameterError` about ``parameter`` naming the card,
-    the entry and what was expected when the card is malformed, names an unknown task, repeats a (task, method)
-    or names a model file that does not exist."""
+    """The entries of the model card at ``card`` (its per-robot models are checked too, and returned by
+    :func:`load_per_robot_models`); a :class:`ParameterError` about ``parameter`` naming the card, the entry and
+    what was expected when the card is malformed, names an unknown task, repeats a (task, method) or names a model
+    file that does not exist."""
+    return _load(card, parameter)[0]
+
+
+def load_per_robot_models(card: str | Path, parameter: str = "shipped") -> list[ShippedPerRobotModel]:
+    """The card's per-robot models, after the whole card is checked as :func:`load_model_card` does; each file
+    must hold a per-robot model of the entry's robot model."""
+    return _load(card, parameter)[1]
+
+
+def _load(card: str | Path, parameter: str) -> tuple[list[ShippedModel], list[ShippedPerRobotModel]]:
     card = Path(card)
     if not card.is_file():
         raise ParameterError(parameter, f"no model card at {card}")
@@ -61,8 +94,11 @@ def load_model_card(card: str | Path, parameter: str = "shipped") -> list[Shippe
         data = yaml.safe_load(card.read_text())
     except yaml.YAMLError as error:
         raise ParameterError(parameter, f"{card} is not YAML: {error}") from None
-    if not isinstance(data, dict) or data.get("format") != CARD_FORMAT:
-        raise ParameterError(parameter, f"{card}: expected a mapping with 'format: {CARD_FORMAT}' and 'models'")
+    keys = set(data) if isinstance(data, dict) else set()
+    if not {"format", "models"} <= keys <= CARD_KEYS or data.get("format") != CARD_FORMAT:
+        raise ParameterError(
+            parameter, f"{card}: expected a mapping with 'format: {CARD_FORMAT}' and 'models' (and 'per_robot_models')"
+        )
     entries = data.get("models")
     if not isinstance(entries, list) or not entries:
         raise ParameterError(parameter, f"{card}: 'models' must be a non-empty list of entries")
@@ -87,10 +123,48 @@ def load_model_card(card: str | Path, parameter: str = "shipped") -> list[Shippe
         if any((model.task, model.method) == (entry["task"], entry["method"]) for model in models):
             raise ParameterError(parameter, f"{where}: a second {entry['task']} {entry['method']} model")
         models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"], entry.get("env_id")))
+    per_robot = _per_robot_entries(card, data.get("per_robot_models", []), parameter)
     for index, (entry, model) in enumerate(zip(entries, models)):  # the files, once the card itself holds
-        if "sha256" in entry and hashlib.sha256(model.path.read_bytes()).hexdigest() != entry["sha256"]:
+        _check_file(f"{card}: models[{index}]", entry, model.path, parameter)
+    return models, per_robot
+
+
+def _check_file(where: str, entry: dict, path: Path, parameter: str) -> None:
+    if "sha256" in entry and hashlib.sha256(path.read_bytes()).hexdigest() != entry["sha256"]:
+        raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
+    load_model(path, parameter=parameter)  # a corrupt or crafted file is refused now, not hours later
+
+
+def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRobotModel]:
+    from dpr.policies.per_robot_spec import RobotModelSpec
+    from dpr.policies.sb3 import read_model_info
+    from dpr.sim.models import ROBOT_MODELS
+
+    if not isinstance(entries, list):
+        raise ParameterError(parameter, f"{card}: 'per_robot_models' must be a list of entries")
+    models: list[ShippedPerRobotModel] = []
+    for index, entry in enumerate(entries):
+        where = f"{card}: per_robot_models[{index}]"
+        if not isinstance(entry, dict) or not set(PER_ROBOT_KEYS) <= set(entry) <= {*PER_ROBOT_KEYS, "sha256"}:
             raise ParameterError(
-                parameter, f"{card}: models[{index}]: {model.path} is not the file the card names (its sha256 differs)"
+                parameter, f"{where} must have the keys {list(PER_ROBOT_KEYS)} (and may have sha256), got {entry!r}"
             )
-        load_model(model.path, parameter=parameter)  # a corrupt or crafted file is refused now, not hours later
+        if not all(isinstance(value, str) and value for value in entry.values()):
+            raise ParameterError(parameter, f"{where}: every value must be a non-empty string")
+        if entry["robot_model"] not in ROBOT_MODELS:
+            raise ParameterError(
+                parameter, f"{where}: robot_model must be one of {list(ROBOT_MODELS)}, got {entry['robot_model']!r}"
+            )
+        path = card.parent / entry["file"]
+        if not path.is_file():
+            raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
+        _check_file(where, entry, path, parameter)
+        spec = RobotModelSpec.from_info(read_model_info(path), path, parameter)
+        if spec.robot_model != entry["robot_model"]:
+            raise ParameterError(
+                parameter,
+                f"{where}: {path} is a per-robot model of the {spec.robot_model} robot model, not of "
+                f"{entry['robot_model']}",
+            )
+        models.append(ShippedPerRobotModel(entry["robot_model"], entry["method"], path, entry["made_by"]))
     return models
