@@ -355,8 +355,8 @@ def test_every_shipped_per_robot_model_drives_swarms_of_any_size(path):
     from dpr.policies.per_robot_model import RobotModelPolicy
 
     spec = RobotModelPolicy.load(path).spec
-    assert set(spec.trained_n_robots) <= {9, 25}
-    for n_robots in (4, 36):
+    assert set(spec.trained_n_robots) <= {9, 25, 100}
+    for n_robots in (4, 36):  # sizes no shipped model trained on
         env = gym.make(ENV_IDS["navigation"], n_robots=n_robots, robot_model=spec.robot_model, max_episode_steps=20)
         drive(env, make_policy(str(path), env), steps=20, seed=0)
 

@@ -57,6 +57,9 @@ def test_the_repository_card_names_existing_models_of_every_task():
     assert all(model.path.is_file() and model.path.suffix == ".zip" for model in models)
     entries = yaml.safe_load(REPO_CARD.read_text())["models"]
     assert all(len(entry.get("sha256", "")) == 64 for entry in entries)  # each file pinned by its content
+    per_robot = {(model.robot_model, model.method): model.path.name for model in load_per_robot_models(REPO_CARD)}
+    assert per_robot[("paddle", "bc-ppo")] == "decentralised-bc-ppo.zip"
+    assert per_robot[("disk", "bc-ppo")] == "decentralised-disk-bc-ppo.zip"
 
 
 def test_a_card_whose_file_changed_or_names_another_tasks_id_is_refused(tmp_path):
