@@ -171,7 +171,6 @@ class ParticleParallelEnv(ParallelEnv):
             raise ParameterError(
                 "distance_period", "the distance's phase is part of the local observation: set local_obs=True"
             )
-        self.distance_period = distance_period
 
         self._env: ParticleSwarmEnv = TASK_CLASSES[task](**env_kwargs)
         base = self._env
@@ -185,7 +184,7 @@ class ParticleParallelEnv(ParallelEnv):
         self._all_agents = frozenset(self.possible_agents)
         self._steps = 0
 
-        self.local_layout = LocalObservation.for_env(base, self.max_neighbours, self.clock_period, self.distance_period)
+        self.local_layout = LocalObservation.for_env(base, self.max_neighbours, self.clock_period, distance_period)
         self.distance_period = self.local_layout.distance_period  # checked, as a float
         if self.local_obs:
             observation_space = self.local_layout.space()

@@ -46,9 +46,8 @@ class RobotModelSpec:
 
     def __post_init__(self):
         check_choice("robot_model", self.robot_model, ROBOT_MODELS)
-        self.layout  # noqa: B018  (validates max_neighbours >= 1, clock_period >= 2, distance_period > 0)
-        if self.distance_period is not None:
-            object.__setattr__(self, "distance_period", float(self.distance_period))
+        # the layout validates max_neighbours >= 1, clock_period >= 2 and distance_period > 0 (kept as its float)
+        object.__setattr__(self, "distance_period", self.layout.distance_period)
         for name in ("dead_flag", "has_object"):
             if not isinstance(getattr(self, name), bool):
                 raise ParameterError(name, f"expected True or False, got {getattr(self, name)!r}")

@@ -42,6 +42,7 @@ from dpr.policies.sb3 import load_model
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
 PER_ROBOT_KEYS = ("robot_model", "method", "file", "made_by")
+PER_ROBOT_OPTIONAL_KEYS = ("sha256",)
 CARD_KEYS = {"format", "models", "per_robot_models"}
 # env_id: the task's registered id the model runs on, when not its current one; sha256: the file's, checked
 OPTIONAL_KEYS = ("env_id", "sha256")
@@ -105,28 +106,40 @@ def _load(card: str | Path, parameter: str) -> tuple[list[ShippedModel], list[Sh
     models: list[ShippedModel] = []
     for index, entry in enumerate(entries):
         where = f"{card}: models[{index}]"
-        if not isinstance(entry, dict) or not set(ENTRY_KEYS) <= set(entry) <= {*ENTRY_KEYS, *OPTIONAL_KEYS}:
-            raise ParameterError(
-                parameter,
-                f"{where} must have the keys {list(ENTRY_KEYS)} (and may have {list(OPTIONAL_KEYS)}), got {entry!r}",
-            )
-        if not all(isinstance(value, str) and value for value in entry.values()):
-            raise ParameterError(parameter, f"{where}: every value must be a non-empty string")
+        _check_entry(where, entry, ENTRY_KEYS, OPTIONAL_KEYS, parameter)
         if entry["task"] not in ENV_IDS:
             raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
         if "env_id" in entry and TASKS.get(entry["env_id"]) != entry["task"]:
             ids = [env_id for env_id, task in TASKS.items() if task == entry["task"]]
             raise ParameterError(parameter, f"{where}: env_id must be one of {ids}, got {entry['env_id']!r}")
-        path = card.parent / entry["file"]
-        if not path.is_file():
-            raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
+        path = _entry_file(card, where, entry, parameter)
         if any((model.task, model.method) == (entry["task"], entry["method"]) for model in models):
             raise ParameterError(parameter, f"{where}: a second {entry['task']} {entry['method']} model")
         models.append(ShippedModel(entry["task"], entry["method"], path, entry["made_by"], entry.get("env_id")))
-    per_robot = _per_robot_entries(card, data.get("per_robot_models", []), parameter)
+    per_robot_entries = data.get("per_robot_models", [])
+    per_robot = _per_robot_entries(card, per_robot_entries, parameter)
     for index, (entry, model) in enumerate(zip(entries, models)):  # the files, once the card itself holds
         _check_file(f"{card}: models[{index}]", entry, model.path, parameter)
+    for index, (entry, model) in enumerate(zip(per_robot_entries, per_robot)):
+        _check_per_robot_file(f"{card}: per_robot_models[{index}]", entry, model, parameter)
     return models, per_robot
+
+
+def _check_entry(where: str, entry, keys: tuple[str, ...], optional: tuple[str, ...], parameter: str) -> None:
+    """An entry is a mapping of exactly ``keys`` (and any of ``optional``) to non-empty strings."""
+    if not isinstance(entry, dict) or not set(keys) <= set(entry) <= {*keys, *optional}:
+        raise ParameterError(
+            parameter, f"{where} must have the keys {list(keys)} (and may have {list(optional)}), got {entry!r}"
+        )
+    if not all(isinstance(value, str) and value for value in entry.values()):
+        raise ParameterError(parameter, f"{where}: every value must be a non-empty string")
+
+
+def _entry_file(card: Path, where: str, entry: dict, parameter: str) -> Path:
+    path = card.parent / entry["file"]
+    if not path.is_file():
+        raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
+    return path
 
 
 def _check_file(where: str, entry: dict, path: Path, parameter: str) -> None:
@@ -136,8 +149,6 @@ def _check_file(where: str, entry: dict, path: Path, parameter: str) -> None:
 
 
 def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRobotModel]:
-    from dpr.policies.per_robot_spec import RobotModelSpec
-    from dpr.policies.sb3 import read_model_info
     from dpr.sim.models import ROBOT_MODELS
 
     if not isinstance(entries, list):
@@ -145,26 +156,26 @@ def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRo
     models: list[ShippedPerRobotModel] = []
     for index, entry in enumerate(entries):
         where = f"{card}: per_robot_models[{index}]"
-        if not isinstance(entry, dict) or not set(PER_ROBOT_KEYS) <= set(entry) <= {*PER_ROBOT_KEYS, "sha256"}:
-            raise ParameterError(
-                parameter, f"{where} must have the keys {list(PER_ROBOT_KEYS)} (and may have sha256), got {entry!r}"
-            )
-        if not all(isinstance(value, str) and value for value in entry.values()):
-            raise ParameterError(parameter, f"{where}: every value must be a non-empty string")
+        _check_entry(where, entry, PER_ROBOT_KEYS, PER_ROBOT_OPTIONAL_KEYS, parameter)
         if entry["robot_model"] not in ROBOT_MODELS:
             raise ParameterError(
                 parameter, f"{where}: robot_model must be one of {list(ROBOT_MODELS)}, got {entry['robot_model']!r}"
             )
-        path = card.parent / entry["file"]
-        if not path.is_file():
-            raise ParameterError(parameter, f"{where} names {entry['file']}, but there is no file {path}")
-        _check_file(where, entry, path, parameter)
-        spec = RobotModelSpec.from_info(read_model_info(path), path, parameter)
-        if spec.robot_model != entry["robot_model"]:
-            raise ParameterError(
-                parameter,
-                f"{where}: {path} is a per-robot model of the {spec.robot_model} robot model, not of "
-                f"{entry['robot_model']}",
-            )
+        path = _entry_file(card, where, entry, parameter)
         models.append(ShippedPerRobotModel(entry["robot_model"], entry["method"], path, entry["made_by"]))
     return models
+
+
+def _check_per_robot_file(where: str, entry: dict, model: ShippedPerRobotModel, parameter: str) -> None:
+    """:func:`_check_file`, and the file holds a per-robot model of the entry's robot model."""
+    from dpr.policies.per_robot_spec import RobotModelSpec
+    from dpr.policies.sb3 import read_model_info
+
+    _check_file(where, entry, model.path, parameter)
+    spec = RobotModelSpec.from_info(read_model_info(model.path), model.path, parameter)
+    if spec.robot_model != model.robot_model:
+        raise ParameterError(
+            parameter,
+            f"{where}: {model.path} is a per-robot model of the {spec.robot_model} robot model, not of "
+            f"{model.robot_model}",
+        )
