@@ -125,6 +125,8 @@ def test_per_robot_models_of_the_card_are_checked_with_it(tmp_path):
         with pytest.raises(ParameterError, match=message) as raised:
             load_model_card(card(bad))
         assert "per_robot_models[0]" in str(raised.value) or "centralised" in str(raised.value)
+    with pytest.raises(ParameterError, match=r"per_robot_models\[1\]: a second disk bc model"):
+        load_model_card(card(disk, disk))
     (tmp_path / "card.yaml").write_text(yaml.safe_dump({"format": 1, "models": [central], "extra": []}))
     with pytest.raises(ParameterError, match="per_robot_models"):
         load_model_card(tmp_path / "card.yaml")

@@ -76,8 +76,8 @@ class ShippedPerRobotModel:
 def load_model_card(card: str | Path, parameter: str = "shipped") -> list[ShippedModel]:
     """The entries of the model card at ``card`` (its per-robot models are checked too, and returned by
     :func:`load_per_robot_models`); a :class:`ParameterError` about ``parameter`` naming the card, the entry and
-    what was expected when the card is malformed, names an unknown task, repeats a (task, method) or names a model
-    file that does not exist."""
+    what was expected when the card is malformed, names an unknown task, repeats a (task, method) or a per-robot
+    (robot_model, method), or names a model file that does not exist."""
     return _load(card, parameter)[0]
 
 
@@ -162,6 +162,8 @@ def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRo
                 parameter, f"{where}: robot_model must be one of {list(ROBOT_MODELS)}, got {entry['robot_model']!r}"
             )
         path = _entry_file(card, where, entry, parameter)
+        if any((model.robot_model, model.method) == (entry["robot_model"], entry["method"]) for model in models):
+            raise ParameterError(parameter, f"{where}: a second {entry['robot_model']} {entry['method']} model")
         models.append(ShippedPerRobotModel(entry["robot_model"], entry["method"], path, entry["made_by"]))
     return models
 
