@@ -37,7 +37,7 @@ import yaml
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, TASKS
-from dpr.policies.sb3 import load_model
+from dpr.policies.sb3 import ModelInfo, load_model
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
@@ -142,10 +142,11 @@ def _entry_file(card: Path, where: str, entry: dict, parameter: str) -> Path:
     return path
 
 
-def _check_file(where: str, entry: dict, path: Path, parameter: str) -> None:
+def _check_file(where: str, entry: dict, path: Path, parameter: str) -> ModelInfo:
+    """The file's :class:`ModelInfo`, once its sha256 (where the card gives one) matches and it loads as a model."""
     if "sha256" in entry and hashlib.sha256(path.read_bytes()).hexdigest() != entry["sha256"]:
         raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
-    load_model(path, parameter=parameter)  # a corrupt or crafted file is refused now, not hours later
+    return load_model(path, parameter=parameter)[1]  # a corrupt or crafted file is refused now, not hours later
 
 
 def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRobotModel]:
@@ -171,10 +172,9 @@ def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRo
 def _check_per_robot_file(where: str, entry: dict, model: ShippedPerRobotModel, parameter: str) -> None:
     """:func:`_check_file`, and the file holds a per-robot model of the entry's robot model."""
     from dpr.policies.per_robot_spec import RobotModelSpec
-    from dpr.policies.sb3 import read_model_info
 
-    _check_file(where, entry, model.path, parameter)
-    spec = RobotModelSpec.from_info(read_model_info(model.path), model.path, parameter)
+    info = _check_file(where, entry, model.path, parameter)
+    spec = RobotModelSpec.from_info(info, model.path, parameter)
     if spec.robot_model != model.robot_model:
         raise ParameterError(
             parameter,
