@@ -340,6 +340,22 @@ def test_decentralised_sweep_tool_prints_its_table_caches_and_plots(sweep_tool, 
     assert "4 episodes cached, 0 to run" in capsys.readouterr().err
 
 
+def test_decentralised_sweep_tool_runs_a_model_file_again_when_it_is_replaced(sweep_tool, tmp_path, capsys):
+    """The cache knows a model file by its content: another model under the same path does not take its episodes."""
+    import shutil
+
+    models = Path(__file__).resolve().parents[1] / "models"
+    policy = tmp_path / "per-robot.zip"
+    argv = ["--models", "disk", "--sizes", "4", "--seeds", "0", "--steps", "10", "--workers", "1"]
+    argv += ["--policies", str(policy), "--cache", str(tmp_path / "episodes.jsonl")]
+    runs = []
+    for source in ("decentralised-disk-bc.zip", "decentralised-disk-bc-ppo.zip", "decentralised-disk-bc.zip"):
+        shutil.copyfile(models / source, policy)
+        assert sweep_tool.main(argv) == 0
+        runs.append(capsys.readouterr().err.splitlines()[0])
+    assert runs == ["0 episodes cached, 1 to run", "0 episodes cached, 1 to run", "1 episodes cached, 0 to run"]
+
+
 def test_decentralised_sweep_tool_refuses_a_policy_that_is_not_one(sweep_tool, tmp_path, capsys):
     with pytest.raises(SystemExit):
         sweep_tool.main(["--policies", "centralised", str(tmp_path / "missing.zip")])

@@ -11,7 +11,8 @@ Policies, each run in the same centralised env (so the physics is the same):
 
 Prints a markdown table per robot model and N: median (min to max) over seeds, % of the centralised wave's median,
 and microseconds of wall time per robot-step (env + policy). ``--cache`` keeps every finished episode (paddle
-episodes of 100 robots take a minute or more), ``--json`` writes the rows, ``--plot`` draws median against N:
+episodes of 100 robots take a minute or more; a model file is known there by its content as well as its path),
+``--json`` writes the rows, ``--plot`` draws median against N:
 
     python tools/decentralised_sweep.py                                  # small default: 5 seeds x 500 steps
                                                                          # (paddle N=9, 25, 49; disk N=9, 100, 400)
@@ -23,6 +24,7 @@ episodes of 100 robots take a minute or more), ``--json`` writes the rows, ``--p
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -74,8 +76,16 @@ def run_episode(
     return {"displacement": float(result.metrics.projected_displacement), "seconds": seconds}
 
 
+def policy_identity(policy: str) -> str:
+    """What names a policy in the cache: a model file by its path and its content, so that a file replaced under
+    the same path runs again instead of taking the other file's episodes."""
+    if policy in (CENTRALISED, DECENTRALISED):
+        return policy
+    return f"{policy}@{hashlib.sha256(Path(policy).read_bytes()).hexdigest()[:12]}"
+
+
 def episode_key(env_id: str, model: str, n: int, policy: str, n_phases: int, side: str | None, steps: int, seed: int):
-    """The cache key of one episode."""
+    """The cache key of one episode (``policy`` as :func:`policy_identity` gives it)."""
     return f"{env_id}/{model}/{n}/{policy}/{n_phases}/{side}/{steps}/{seed}"
 
 
@@ -126,8 +136,9 @@ def main(argv: list[str] | None = None) -> int:
         else:
             variants.append((policy, 0, None))
     grid = [(model, n) for model in args.models for n in (args.sizes or DEFAULT_SIZES[model])]
+    identity = {policy: policy_identity(policy) for policy in args.policies}
     jobs = {
-        episode_key(args.env, model, n, policy, n_phases, side, args.steps, seed): (
+        episode_key(args.env, model, n, identity[policy], n_phases, side, args.steps, seed): (
             args.env,
             model,
             n,
@@ -168,7 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     for model, n in grid:
         centralised = None
         for policy, n_phases, side in variants:
-            keys = [episode_key(args.env, model, n, policy, n_phases, side, args.steps, seed) for seed in args.seeds]
+            keys = [
+                episode_key(args.env, model, n, identity[policy], n_phases, side, args.steps, seed)
+                for seed in args.seeds
+            ]
             if keys[0] not in jobs:
                 continue
             values = np.array([records[key]["displacement"] for key in keys])
