@@ -257,25 +257,3 @@ def test_dqn_clone_classifies_the_recorded_actions_as_integers(dataset, tmp_path
     assert int(expected) == chosen and len(bits) == 4
     results = evaluate([ENV], str(result.model_path), [0], steps=20)
     assert results[0].metrics.steps == 20
-
-
-def test_demonstrations_of_a_task_variant_clone_into_a_model_of_the_task(tmp_path):
-    """Gate demonstrations recorded with the walls out of reach clone into a model of Gate-v1 as registered: the
-    model's env kwargs leave the variant's out, and the run's config says what the dataset was recorded with."""
-    root = tmp_path / "far"
-    far = {"gate_distance": 300.0}
-    collect(root, CollectSpec("dpr/Gate-v1", robot_model="disk", n_robots=4, steps=16, env_kwargs=far), episodes=2)
-    result = behaviour_clone(
-        root, "dpr/Gate-v1", epochs=1, out=tmp_path / "run", demonstration_only_kwargs=["gate_distance"], log=print
-    )
-    info = read_model_info(result.model_path)
-    assert "gate_distance" not in info.env_kwargs and info.env_kwargs["robot_model"] == "disk"
-    config = yaml.safe_load((result.run_dir / "config.yaml").read_text())
-    assert config["dataset_env_kwargs"]["gate_distance"] == 300.0
-    assert "gate_distance" not in config["env_kwargs"]
-    assert len(evaluate(["dpr/Gate-v1"], str(result.model_path), [7], steps=16)) == 1  # runs on the task
-    with pytest.raises(ValueError, match="^demonstration_only_kwargs: .*robot_model makes the observations"):
-        behaviour_clone(root, "dpr/Gate-v1", out=tmp_path / "a", demonstration_only_kwargs=["robot_model"])
-    with pytest.raises(ValueError, match="^demonstration_only_kwargs: .*not recorded with gate_width"):
-        behaviour_clone(root, "dpr/Gate-v1", out=tmp_path / "b", demonstration_only_kwargs=["gate_width"])
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -184,9 +184,6 @@ def test_a_bad_settings_file_is_refused_naming_the_key_and_file_before_any_work(
         (["--seed", "0"], "unrecognized arguments: --seed"),
         (["--eval-seeds", "300"], "unrecognized arguments: --eval-seeds"),
         (["--preset", "tiny", "--config", "x.yaml"], "not allowed with argument"),
-        (["--demonstration-env-kwarg", "gate_distance=200"], "--demonstration-env-kwarg: .*expected ID:NAME=VALUE"),
-        (["--demonstration-env-kwarg", "dpr/Gate-v1:gate_distance=-1"], "--demonstration-env-kwarg: .*>= 0"),
-        (["--demonstration-env-kwarg", "dpr/Gate-v1:n_robots=4"], "--demonstration-env-kwarg: .*learners' own"),
     ],
 )
 def test_bad_pipeline_arguments_are_refused_before_any_work(tmp_path, capsys, args, message):
@@ -194,17 +191,6 @@ def test_bad_pipeline_arguments_are_refused_before_any_work(tmp_path, capsys, ar
     assert run_cli(["pipeline", *args, "--out", str(tmp_path / "run")]) == 2
     assert re.search(message, capsys.readouterr().err)
     assert not (tmp_path / "run").exists() and time.perf_counter() - started < 30
-
-
-def test_demonstration_env_kwargs_given_as_flags_go_over_the_configs(tmp_path):
-    from dpr.cli.main import build_parser
-    from dpr.cli.pipeline import pipeline_config
-
-    config = tmp_path / "settings.yaml"
-    config.write_text("tasks: [gate]\ndemonstration_env_kwargs: {dpr/Gate-v1: {gate_distance: 200, gate_width: 160}}\n")
-    flags = ["--demonstration-env-kwarg", "dpr/Gate-v1:gate_distance=300", "--demonstration-env-kwarg"]
-    args = build_parser().parse_args(["pipeline", "--config", str(config), *flags, "dpr/Gate-v1:gate_width=null"])
-    assert pipeline_config(args).demonstration_env_kwargs == {"dpr/Gate-v1": {"gate_distance": 300.0}}
 
 
 def test_a_refused_run_leaves_an_existing_folder_as_it_was(tiny, capsys):

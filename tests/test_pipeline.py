@@ -67,11 +67,6 @@ METHODS = ["wave", "bc", "bc-ppo", "ppo"]
         ({"scratch_hyperparams": {"n_stepz": 8}}, "scratch_hyperparams: .*n_stepz"),
         ({"actor": "transformer"}, "actor: expected one of"),
         ({"scratch_algos": ["ppo", "dqn"]}, "DQN from scratch has none"),
-        ({"demonstration_env_kwargs": {"gate": {}}}, "demonstration_env_kwargs: expected registered ids of the tasks"),
-        ({"demonstration_env_kwargs": {"dpr/Gate-v1": 5}}, "demonstration_env_kwargs: expected a mapping of env ids"),
-        ({"demonstration_env_kwargs": {"dpr/Gate-v1": {"n_robots": 4}}}, r"\['n_robots'\] are the learners' own"),
-        ({"demonstration_env_kwargs": {"dpr/Gate-v1": {"gate_distance": -1}}}, "demonstration_env_kwargs: .*>= 0"),
-        ({"demonstration_env_kwargs": {"dpr/Gate-v1": {"wall": 1}}}, "demonstration_env_kwargs: .*wall"),
     ],
 )
 def test_pipeline_config_refuses_bad_settings(kwargs, message):
@@ -166,18 +161,6 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
 
 
-def test_a_run_folder_from_before_a_setting_was_added_resumes_with_its_default(pipeline, tmp_path):
-    import shutil
-
-    out = tmp_path / "run"
-    shutil.copytree(pipeline[0], out)
-    record = yaml.safe_load((out / "pipeline.yaml").read_text())
-    del record["config"]["demonstration_env_kwargs"]
-    (out / "pipeline.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
-    _, lines = run_tiny(PIPELINE, out)
-    assert not built_stages(lines)
-
-
 def test_stored_models_hold_no_optimizer_state(pipeline):
     """What a run folder keeps is small enough to commit: models without the optimizer's moments, no pickles."""
     out, _, _ = pipeline
@@ -251,25 +234,6 @@ def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
     for method in ("bc-ppo", "ppo"):
         assert read_model_info(out / "models" / f"manipulation-{method}.zip").env_kwargs["approach_reward"] == 0.5
     assert "approach_reward" not in read_model_info(out / "models" / "manipulation-bc.zip").env_kwargs
-
-
-def test_pipeline_records_a_tasks_demonstrations_on_its_variant_and_clones_them_for_the_task(tmp_path):
-    """Gate's demonstrations recorded with the walls out of reach: the dataset holds the variant, every model is
-    made for Gate-v1 as registered, and the other tasks' stages keep their keys."""
-    from dpr.datasets.lerobot import LeRobotReader
-    from dpr.rl.pipeline import task_stages
-
-    variant = {"dpr/Gate-v1": {"gate_distance": 300.0}}
-    out = tmp_path / "run"
-    run_tiny({**PIPELINE, "tasks": ["gate"], "demonstration_env_kwargs": variant}, out)
-    (demonstrations,) = (out / "stages" / "demonstrations").glob("*/dataset")
-    assert LeRobotReader(demonstrations).episodes[0]["env_kwargs"]["gate_distance"] == 300.0
-    for method in METHODS[1:]:
-        assert "gate_distance" not in read_model_info(out / "models" / f"gate-{method}.zip").env_kwargs, method
-    plain, varied = PipelineConfig(**PIPELINE), PipelineConfig(**PIPELINE, demonstration_env_kwargs=variant)
-    keys = [{name: stage.key for name, stage in task_stages(c, "navigation").models.items()} for c in (plain, varied)]
-    assert keys[0] == keys[1]
-    assert task_stages(plain, "gate").models["bc", 0].key != task_stages(varied, "gate").models["bc", 0].key
 
 
 def test_pipeline_gives_every_learner_its_actor(pipeline, tmp_path):

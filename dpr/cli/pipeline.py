@@ -26,7 +26,6 @@ PIPELINE_FLAGS = {
     "finetune_hyperparams": "--finetune-hyperparam",
     "scratch_hyperparams": "--scratch-hyperparam",
     "env_ids": "--env-id",
-    "demonstration_env_kwargs": "--demonstration-env-kwarg",
 }
 HYPERPARAM_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam", "scratch_hyperparams": "--scratch-hyperparam"}
 
@@ -42,17 +41,6 @@ def earlier_env_id(text: str) -> str:
     if text not in EARLIER_ENV_IDS:
         raise argparse.ArgumentTypeError(f"expected one of {list(EARLIER_ENV_IDS)}, got {text!r}")
     return text
-
-
-def demonstration_env_kwarg(text: str) -> tuple[str, str, object]:
-    """A ``--demonstration-env-kwarg`` value: 'dpr/Gate-v1:gate_distance=200' -> ('dpr/Gate-v1', 'gate_distance',
-    200.0)."""
-    from dpr.cli.learn import hyperparam
-
-    env_id, colon, pair = text.partition(":")
-    if not colon or not env_id:
-        raise argparse.ArgumentTypeError(f"expected ID:NAME=VALUE, e.g. dpr/Gate-v1:gate_distance=200, got {text!r}")
-    return (env_id, *hyperparam(pair))
 
 
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,19 +84,6 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="run a task on this earlier registered id of it instead of its current one (repeatable; "
         f"{', '.join(EARLIER_ENV_IDS)})",
-    )
-    parser.add_argument(
-        "--demonstration-env-kwarg",
-        dest="demonstration_env_kwargs",
-        action="append",
-        type=demonstration_env_kwarg,
-        metavar="ID:NAME=VALUE",
-        default=None,
-        help="record the demonstrations of the task on ID with this env kwarg, over the config's (a variant of the "
-        "task, e.g. dpr/Gate-v1:gate_distance=200, its walls out of reach); the clones and every other stage run "
-        "the task itself; NAME=null drops the config's value (repeatable; preset: "
-        + ", ".join(f"{name} {config.get('demonstration_env_kwargs') or 'none'}" for name, config in presets.items())
-        + ")",
     )
     preset_argument("--n-robots", "swarm size N")
     preset_argument("--episodes", "demonstration episodes per task")
@@ -252,14 +227,6 @@ def pipeline_config(args):
         if name in overrides:
             merged = {**base.get(name, {}), **dict(overrides[name])}
             overrides[name] = {key: value for key, value in merged.items() if value is not None}
-    if "demonstration_env_kwargs" in overrides:  # ID:NAME=VALUE over the config's; NAME=null drops its value
-        merged = {env_id: dict(kwargs) for env_id, kwargs in base.get("demonstration_env_kwargs", {}).items()}
-        for env_id, name, value in overrides["demonstration_env_kwargs"]:
-            merged.setdefault(env_id, {})[name] = value
-        overrides["demonstration_env_kwargs"] = {
-            env_id: {name: value for name, value in kwargs.items() if value is not None}
-            for env_id, kwargs in merged.items()
-        }
     if args.config:
         return load_config(args.config, **overrides)
     return load_config(preset=args.preset, **overrides)

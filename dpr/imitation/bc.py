@@ -33,7 +33,7 @@ import json
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,7 +56,6 @@ from dpr.policies.sb3 import (
     BC_ALGOS,
     DEFAULT_ALGO,
     DQN,
-    SPACE_KWARGS,
     ModelInfo,
     model_architecture,
     trained_parameters,
@@ -68,8 +67,6 @@ __all__ = ["BCResult", "behaviour_clone", "dataset_env"]
 RUNS_DIR = Path("runs/bc")
 # Recording-only env kwargs: they change how a dataset was rendered, not what the model sees or does.
 RECORDING_KWARGS = ("render_mode", "render_size")
-# Env kwargs that make what a dataset's frames are: its spaces and the physics steps between its decisions
-FIXED_BY_DATASET = (*SPACE_KWARGS, "action_repeat", "robot_model")
 # What a run's config.yaml says was trained, and on what loss.
 _ACTOR_CRITIC_LOSS = {
     "loss": "mean per-frame NLL of the recorded action (Bernoulli per robot, summed over robots)",
@@ -254,26 +251,6 @@ def dataset_env(
     return recorded, steps
 
 
-def task_kwargs(recorded: dict[str, Any], demonstration_only: Sequence[str], root: Path) -> dict[str, Any]:
-    """The env kwargs of the task a clone is made for: the demonstrations' (``recorded``, of the dataset at
-    ``root``) without the ``demonstration_only`` ones. A ParameterError about ``demonstration_only_kwargs`` when
-    one was not recorded or is fixed by the dataset."""
-    if isinstance(demonstration_only, str):
-        demonstration_only = [demonstration_only]
-    for name in demonstration_only:
-        if name in FIXED_BY_DATASET:
-            raise ParameterError(
-                "demonstration_only_kwargs",
-                f"{name} makes the observations or actions the dataset holds; the clone's task must have the "
-                f"dataset's {name}",
-            )
-        if name not in recorded:
-            raise ParameterError(
-                "demonstration_only_kwargs", f"{root} was not recorded with {name} (its env kwargs: {recorded})"
-            )
-    return {name: value for name, value in recorded.items() if name not in demonstration_only}
-
-
 def split_episodes(num_episodes: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
     """Dataset episode indices for training and validation (at least one each, disjoint, chosen by ``seed``)."""
     if num_episodes < 2:
@@ -388,7 +365,6 @@ def behaviour_clone(
     env_kwargs: dict[str, Any] | None = None,
     hyperparams: dict[str, Any] | None = None,
     change_weight: float = 1.0,
-    demonstration_only_kwargs: Sequence[str] = (),
     show_progress: bool = False,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> BCResult:
@@ -398,9 +374,6 @@ def behaviour_clone(
     (a new or empty folder; default ``runs/bc/<task>-<algo>-seed<S>-<timestamp>``).
 
     ``env_kwargs`` may restate kwargs (e.g. ``{"n_robots": 9}``); any that differ from the dataset's are an error.
-    ``demonstration_only_kwargs`` names kwargs the demonstrations were recorded with that the clone's task does not
-    take (a variant of the task, e.g. Gate's walls out of the swarm's reach): the clone is made for the env with each
-    at its default. None may change the spaces or the decision interval (:data:`FIXED_BY_DATASET`).
     Bad input raises ValueError (DatasetError for an unreadable dataset) before anything is written."""
     from dpr.policies.sb3 import build_model, make_vec_env
 
@@ -420,8 +393,6 @@ def behaviour_clone(
                 f"{other.root} was recorded with {recorded}, "
                 f"{reader.root} with {(kwargs, steps)}; datasets cloned together must match",
             )
-    recorded_kwargs = dict(kwargs)
-    kwargs = task_kwargs(kwargs, demonstration_only_kwargs, reader.root)
     hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
     for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
         # DQN's Discrete(2^N) actions are the recorded MultiBinary ones, encoded as integers
@@ -461,7 +432,6 @@ def behaviour_clone(
         "env_kwargs": kwargs,
         "steps_per_episode": steps,
         "dataset": str(reader.root.resolve()),
-        **({"dataset_env_kwargs": recorded_kwargs} if recorded_kwargs != kwargs else {}),
         "dataset_episodes": reader.num_episodes,
         "dataset_frames": reader.num_frames,
         "train_episodes": train_ids,

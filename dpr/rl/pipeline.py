@@ -108,14 +108,10 @@ def _teacher_stages(config: PipelineConfig, task: str, env: dict[str, Any]) -> T
 
 def _learner_stages(config: PipelineConfig, task: str, env: dict[str, Any], stages: TaskStages) -> None:
     """The demonstrations, and per training seed the clone, its fine-tuning and the runs from scratch."""
-    recording = {**env, "episodes": config.episodes, "demo_seed": config.demo_seed}
-    variant = config.demonstration_kwargs(task)
-    if variant:  # only then: the stages of a task recorded as it runs keep their keys
-        recording["env_kwargs"] = variant
     demonstrations = Stage(
         "demonstrations",
         f"{task}: {config.episodes} demonstrations",
-        recording,
+        {**env, "episodes": config.episodes, "demo_seed": config.demo_seed},
         build.record_demonstrations,
         {TEACHER: stages.teacher},
     )
@@ -125,8 +121,6 @@ def _learner_stages(config: PipelineConfig, task: str, env: dict[str, Any], stag
     for seed in config.train_seeds:
         cloning = {"env_id": env["env_id"], "algo": BC_ALGO, "epochs": config.bc_epochs, "seed": seed}
         cloning["hyperparams"] = config.actor_hyperparams()
-        if variant:
-            cloning["demonstration_only_kwargs"] = sorted(variant)
         clone = Stage("clone", f"{task}: bc, seed {seed}", cloning, build.clone, {"demonstrations": demonstrations})
         stages.models["bc", seed] = clone
         for algo in config.finetune_algos:
@@ -272,7 +266,6 @@ def _join_folder(config: PipelineConfig, out: Path) -> None:
         if path.exists():
             record = yaml.safe_load(path.read_text()) or {}
             earlier = record.get("config") if isinstance(record.get("config"), dict) else {}
-            earlier = {**asdict(PipelineConfig()), **earlier}  # a setting added since that run had its default
             differ = [
                 f"{name}: {earlier.get(name)!r} there, {value!r} here"
                 for name, value in settings.items()

@@ -8,7 +8,6 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import yaml
 
 from dpr.checks import ParameterError, check_choice, check_int, check_number, check_seeds
@@ -91,9 +90,6 @@ class PipelineConfig:
     actor: str = "swarm"  # one of ACTORS
     # task -> an earlier registered id of it that the task runs on instead of its current one (ENV_IDS)
     env_ids: dict[str, str] = field(default_factory=dict)
-    # env id -> kwargs its demonstrations are recorded with, over its learners' (a variant of the task, e.g. Gate's
-    # walls out of the swarm's reach); the clones are made for the task itself. An id no task runs on is unused.
-    demonstration_env_kwargs: dict[str, dict] = field(default_factory=dict)
 
     def __post_init__(self):
         check_types(self)
@@ -110,7 +106,6 @@ class PipelineConfig:
         idle = [env_id for task, env_id in self.env_ids.items() if task not in self.tasks]
         if idle:
             raise ParameterError("env_ids", f"{idle} belong to tasks this run does not run ({self.tasks})")
-        self._check_demonstration_env_kwargs()
         if self.actor not in ACTORS:
             raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
         if self.actor != "mlp" and DQN in self.scratch_algos:
@@ -161,28 +156,6 @@ class PipelineConfig:
                     load_hyperparams(algo, self.env_id(task), DEFAULT_ENTRY, self.scratch_hyperparams_at(WAVE_HOLD))
                 except ValueError as error:
                     raise ParameterError("scratch_hyperparams", str(error)) from None
-
-    def _check_demonstration_env_kwargs(self) -> None:
-        """Each entry names a task's registered id and kwargs that make its env, with the learners' spaces."""
-        from dpr.imitation.bc import FIXED_BY_DATASET
-
-        name = "demonstration_env_kwargs"
-        for env_id, kwargs in self.demonstration_env_kwargs.items():
-            if env_id not in TASKS:
-                raise ParameterError(name, f"expected registered ids of the tasks ({', '.join(TASKS)}), got {env_id!r}")
-            if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
-                raise ParameterError(name, f"{env_id}: expected a mapping of env kwargs, got {kwargs!r}")
-            fixed = sorted(set(kwargs) & {*FIXED_BY_DATASET, "max_episode_steps"})
-            if fixed:
-                raise ParameterError(name, f"{env_id}: {fixed} are the learners' own; the demonstrations keep them")
-            try:
-                gym.make(env_id, n_robots=self.n_robots, **kwargs).close()
-            except (TypeError, ValueError) as error:
-                raise ParameterError(name, f"{env_id} {kwargs}: {error}") from None
-
-    def demonstration_kwargs(self, task: str) -> dict[str, Any]:
-        """The kwargs ``task``'s demonstrations are recorded with beyond its learners' (none for most tasks)."""
-        return dict(self.demonstration_env_kwargs.get(self.env_id(task), {}))
 
     def _check_seed_sets(self) -> None:
         """Training, demonstration, choosing (validation, teacher) and scoring (test) seeds never meet."""
@@ -321,9 +294,6 @@ def type_problem(name: str, value: Any) -> str | None:
         test, what = _TYPES[kind[5:-1]]
         if not isinstance(value, list) or not all(test(v) for v in value):
             return f"expected a list of {what.split(' ', 1)[1]}s, got {value!r}"
-    elif kind.startswith("dict[") and name == "demonstration_env_kwargs":
-        if not isinstance(value, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in value.items()):
-            return f"expected a mapping of env ids to mappings of env kwargs, got {value!r}"
     elif kind.startswith("dict["):
         if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
             return f"expected a mapping, got {value!r}"

@@ -68,15 +68,14 @@ def median_score(evaluation: Path) -> float:
 def record_demonstrations(
     settings: Mapping[str, Any], inputs: Mapping[str, Path], out: Path, work: Path, show_progress: bool
 ) -> None:
-    """``settings["episodes"]`` demonstrations of the chosen teacher from ``demo_seed`` on, as its learners run (on the
-    task's variant that ``settings["env_kwargs"]`` makes, if any). They are recorded in the work folder, so that a
-    stopped collection goes on from its saved episodes."""
+    """``settings["episodes"]`` demonstrations of the chosen teacher from ``demo_seed`` on, as its learners run. They
+    are recorded in the work folder, so that a stopped collection goes on from its saved episodes."""
     from tqdm import tqdm
 
     from dpr.datasets.collect import CollectSpec, collect
 
     teacher = read_teacher(inputs[TEACHER])
-    kwargs = {**learner_kwargs(settings, teacher), **settings.get("env_kwargs", {})}
+    kwargs = learner_kwargs(settings, teacher)
     spec = CollectSpec(
         settings["env_id"],
         policy=teacher.policy,
@@ -99,8 +98,7 @@ def record_demonstrations(
 
 
 def clone(settings: Mapping[str, Any], inputs: Mapping[str, Path], out: Path, work: Path, show_progress: bool) -> None:
-    """Behaviour cloning of the demonstrations (``inputs["demonstrations"]``) into an actor-critic for the task (without
-    the kwargs of a variant the demonstrations were recorded on)."""
+    """Behaviour cloning of the demonstrations (``inputs["demonstrations"]``) into an actor-critic."""
     from dpr.imitation.bc import behaviour_clone
 
     result = behaviour_clone(
@@ -110,7 +108,6 @@ def clone(settings: Mapping[str, Any], inputs: Mapping[str, Path], out: Path, wo
         epochs=settings["epochs"],
         hyperparams=settings["hyperparams"],
         seed=settings["seed"],
-        demonstration_only_kwargs=settings.get("demonstration_only_kwargs", ()),
         out=_fresh(work / "run"),
         show_progress=show_progress,
         log=_quiet,
