@@ -161,6 +161,18 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
 
 
+def test_a_run_folder_from_before_a_setting_was_added_resumes_with_its_default(pipeline, tmp_path):
+    import shutil
+
+    out = tmp_path / "run"
+    shutil.copytree(pipeline[0], out)
+    record = yaml.safe_load((out / "pipeline.yaml").read_text())
+    del record["config"]["env_ids"]  # as a folder written before the setting existed
+    (out / "pipeline.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
+    _, lines = run_tiny(PIPELINE, out)
+    assert not built_stages(lines)
+
+
 def test_stored_models_hold_no_optimizer_state(pipeline):
     """What a run folder keeps is small enough to commit: models without the optimizer's moments, no pickles."""
     out, _, _ = pipeline

@@ -266,6 +266,7 @@ def _join_folder(config: PipelineConfig, out: Path) -> None:
         if path.exists():
             record = yaml.safe_load(path.read_text()) or {}
             earlier = record.get("config") if isinstance(record.get("config"), dict) else {}
+            earlier = {**asdict(PipelineConfig()), **earlier}  # a setting added since that run had its default
             differ = [
                 f"{name}: {earlier.get(name)!r} there, {value!r} here"
                 for name, value in settings.items()
