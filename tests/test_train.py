@@ -246,6 +246,24 @@ def test_model_for_another_swarm_or_task_is_refused(runs, capsys):
     assert "trained with n_robots=4; --n-robots 9 makes a different observation" in capsys.readouterr().err
 
 
+def test_a_model_runs_on_another_task_with_its_spaces_as_a_transfer(runs, tmp_path, capsys):
+    """--transfer: a Navigation model scored on Gate-v1 as it is, over the same physics steps as on its own task;
+    a task of other spaces is still refused."""
+    path = str(runs["ppo"].model_path)
+    (own,) = evaluate([ENV], path, seeds=[0], steps=8)
+    (moved,) = evaluate(["dpr/Gate-v1"], path, seeds=[0], steps=8, transfer=True)
+    assert moved.env_id == "dpr/Gate-v1" and "gate_passage" in moved.measures
+    assert moved.metrics.steps == own.metrics.steps
+    with pytest.raises(ValueError, match="observation space"):
+        evaluate(["dpr/Manipulation-v0"], path, seeds=[0], steps=8, transfer=True)
+    argv = ["evaluate", "--policy", path, "--env", "dpr/Gate-v1", "--seeds", "0", "--steps", "8", "--workers", "1"]
+    assert run(argv) == 2
+    assert "it cannot be run on dpr/Gate-v1 (unless as a transfer" in capsys.readouterr().err
+    assert run([*argv, "--transfer"]) == 0
+    assert run([*argv, "--transfer", "--rerun", str(tmp_path / "x.rrd")]) == 2
+    assert "leave it out with --transfer" in capsys.readouterr().err
+
+
 def test_saved_model_loads_for_more_training(runs, tmp_path):
     """The fine-tuning path: load with schedules and a VecEnv, learn on, save with the same metadata."""
     from stable_baselines3.common.vec_env import DummyVecEnv

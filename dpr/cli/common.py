@@ -307,7 +307,8 @@ def policy_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser)
     resolved = {}
     for env_id in env_ids:
         try:
-            resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit)
+            transfer = getattr(args, "transfer", False)
+            resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit, transfer=transfer)
         except ValueError as error:
             message = flag_message(error)
             for name, flag in flags.items():  # name the flag the user typed, not the kwarg

@@ -59,6 +59,12 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"physics steps per episode (default {steps}; a model that decides every k steps, env kwarg "
         "action_repeat=k, makes steps/k decisions)",
     )
+    parser.add_argument(
+        "--transfer",
+        action="store_true",
+        help="run a model file on a task other than the one it was trained on, as it is (zero-shot transfer): "
+        "its env kwargs apply, and the task must have its observation and action spaces",
+    )
     workers_argument(parser, "episodes run in this many processes")
     env_kwarg_argument(parser, "object_start=paper")
     json_argument(parser, "episodes and summary")
@@ -74,6 +80,8 @@ def cmd_evaluate(args, parser) -> int:
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     check_output(args.json, parser, "--json")
     check_rerun_output(args, parser)
+    if args.transfer and args.rerun:
+        parser.error("--rerun replays episodes on the model's own task; leave it out with --transfer")
     env_kwargs = markov_env_kwargs(args, policy_env_kwargs(args, env_ids, parser), parser, "evaluate")
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
@@ -85,6 +93,7 @@ def cmd_evaluate(args, parser) -> int:
                 env_kwargs=env_kwargs,
                 workers=args.workers,
                 progress=lambda r: bar.update(1),
+                transfer=args.transfer,
             )
     except ValueError as error:
         parser.error(flag_message(error))

@@ -125,14 +125,14 @@ def check_policy_name(name: str) -> str:
     return name
 
 
-def make_policy(name: str, env):
+def make_policy(name: str, env, transfer: bool = False):
     """The policy called ``name`` for ``env``: "wave" (the paper's hand-crafted policy, phases held a fixed
     number of steps), "wave-markov" (the same wave with its phase read from the observation, which imitation
     can reproduce), either with another hold or bin width ("wave-markov:hold_steps=6,bin_width=50"), "random",
     "decentralised-wave" (every robot decides from its own local observation and a shared clock,
     :mod:`dpr.policies.decentralised`; "decentralised-wave:n_phases=6" runs six phases a cycle), or a ``.zip``
-    model file trained on ``env``'s id and spaces; a per-robot model file (:mod:`dpr.policies.per_robot_model`)
-    runs at any swarm size."""
+    model file trained on ``env``'s id and spaces (with ``transfer``, on any task with ``env``'s spaces); a per-robot
+    model file (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
     check_policy_name(name)
     from dpr.policies.sb3 import is_model_path, load_model_policy, read_model_info
 
@@ -141,7 +141,7 @@ def make_policy(name: str, env):
             from dpr.policies.per_robot_model import per_robot_model_policy
 
             return per_robot_model_policy(name, env)
-        return load_model_policy(name, env)
+        return load_model_policy(name, env, transfer)
     name, settings = parse_scripted_name(name)
     if name == WAVE:
         from dpr.policies.wave import WavePolicy

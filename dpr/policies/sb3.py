@@ -184,16 +184,23 @@ def _drives_any_task_like(info: ModelInfo, env_id: str) -> bool:
     return TASK_CLASSES[TASKS[env_id]].has_object == TASK_CLASSES[TASKS[info.env_id]].has_object
 
 
-def model_env_kwargs(path: str | Path, env_id: str, requested: dict[str, Any] | None = None) -> dict[str, Any]:
+def model_env_kwargs(
+    path: str | Path, env_id: str, requested: dict[str, Any] | None = None, *, transfer: bool = False
+) -> dict[str, Any]:
     """The env kwargs to run the model at ``path`` on ``env_id``: the model's own, plus any ``requested``
     kwargs it did not set. A requested value that differs from the model's is a ValueError naming both values,
     except ``n_robots`` for a :data:`SWARM_POLICY` model, which acts at any swarm size, and ``robot_model`` for a
     centralised model: the paddle and disk models share their spaces, so a policy learned on one runs on, and
     fine-tunes on, the other (:data:`TRANSFERABLE_KWARGS`). Another env id is a :class:`ParameterError` about
-    ``env_id``, but for a per-robot model on a task with the same object or none."""
+    ``env_id``, but for a per-robot model on a task with the same object or none, and with ``transfer``: a model
+    run on another task as it is (zero-shot transfer; its spaces are checked when it is loaded for the env)."""
     info = read_model_info(path)
-    if env_id != info.env_id and not _drives_any_task_like(info, env_id):
-        raise ParameterError("env_id", f"model {path} was trained on {info.env_id}; it cannot be run on {env_id}")
+    if env_id != info.env_id and not (transfer or _drives_any_task_like(info, env_id)):
+        raise ParameterError(
+            "env_id",
+            f"model {path} was trained on {info.env_id}; it cannot be run on {env_id} (unless as a transfer to "
+            "another task with the same spaces: --transfer)",
+        )
     kwargs = dict(info.env_kwargs)
     transferable = {"n_robots"} if has_swarm_actor(path) else set()  # its actor is shared by the robots: any N
     if info.per_robot is None:  # a per-robot model's local observation is laid out for its own robot model
@@ -272,17 +279,20 @@ def _swarm_model_resized(model, env):
     return model
 
 
-def load_model(path: str | Path, env=None, *, for_training: bool = False, parameter: str = POLICY_PARAMETER):
+def load_model(
+    path: str | Path, env=None, *, for_training: bool = False, parameter: str = POLICY_PARAMETER, transfer: bool = False
+):
     """The SB3 model at ``path`` and its :class:`ModelInfo`, checked against ``env`` (a gymnasium env: its id
     and spaces; or a VecEnv: its spaces) when one is given. Nothing in the file is unpickled
     (:func:`model_objects`). With ``for_training`` the model's schedules are restored from the file's plain values
     and ``env`` is attached, ready for ``learn``; otherwise they are constants (prediction does not use them). A
     file that is no model, or holds a pickled entry no dpr model holds, is a :class:`ParameterError` about
-    ``parameter`` (see :func:`read_model_info`)."""
+    ``parameter`` (see :func:`read_model_info`). With ``transfer`` the env may be another task's (its spaces are
+    still checked)."""
     path = Path(path)
     info = read_model_info(path, parameter)
     env_id = getattr(getattr(env, "spec", None), "id", None)
-    if env_id is not None and env_id != info.env_id:
+    if env_id is not None and env_id != info.env_id and not transfer:
         raise ValueError(f"model {path} was trained on {info.env_id}; this env is {env_id}")
     from dpr.policies.model_objects import model_objects
 
@@ -352,13 +362,14 @@ def single_thread_torch() -> None:
     torch.set_num_threads(1)
 
 
-def load_model_policy(path: str | Path, env) -> ModelPolicy:
-    """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env),
+def load_model_policy(path: str | Path, env, transfer: bool = False) -> ModelPolicy:
+    """The model file at ``path`` as a policy for ``env`` (ValueError when it was made for another env, but with
+    ``transfer`` for another task with its spaces),
     predicting on one torch thread (:func:`single_thread_torch`). A per-robot model is refused here: it acts in
     a centralised env through :func:`dpr.policies.per_robot_model.per_robot_model_policy` (what
     :func:`dpr.policies.registry.make_policy` returns for it)."""
     single_thread_torch()
-    model, info = load_model(path, env)
+    model, info = load_model(path, env, transfer=transfer)
     return ModelPolicy(model, info, Path(path))
 
 

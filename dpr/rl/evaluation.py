@@ -114,25 +114,30 @@ def evaluation_json(payload: dict) -> str:
     return _SPREAD_PAIR.sub(r"[\1, \2]", json.dumps(payload, indent=2))
 
 
-def policy_env_kwargs(policy: str, env_id: str, env_kwargs: dict | None) -> dict:
+def policy_env_kwargs(policy: str, env_id: str, env_kwargs: dict | None, transfer: bool = False) -> dict:
     """The env kwargs ``policy`` runs with on ``env_id``: a model file's own kwargs (trained-with values;
     a conflicting one in ``env_kwargs`` is a ValueError naming both), else ``env_kwargs`` as given."""
     if is_model_path(policy):
-        return model_env_kwargs(policy, env_id, env_kwargs)
+        return model_env_kwargs(policy, env_id, env_kwargs, transfer=transfer)
     return dict(env_kwargs or {})
 
 
 def run_episode(
-    env_id: str, policy_name: str, seed: int, steps: int = MAX_EPISODE_STEPS, env_kwargs: dict | None = None
+    env_id: str,
+    policy_name: str,
+    seed: int,
+    steps: int = MAX_EPISODE_STEPS,
+    env_kwargs: dict | None = None,
+    transfer: bool = False,
 ) -> EpisodeResult:
     """One episode of at most ``steps`` physics steps from ``reset(seed=seed)`` (a model file's env kwargs apply;
     one that decides every ``action_repeat`` steps gets ``steps / action_repeat`` env steps)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
 
-    kwargs = policy_env_kwargs(policy_name, env_id, env_kwargs)
+    kwargs = policy_env_kwargs(policy_name, env_id, env_kwargs, transfer)
     env = gym.make(env_id, max_episode_steps=episode_steps(kwargs, steps), **kwargs)
     try:
-        result = roll_out(env, make_policy(policy_name, env), seed)
+        result = roll_out(env, make_policy(policy_name, env, transfer), seed)
     finally:
         env.close()
     return episode_result(env_id, policy_name, seed, result, kwargs)
@@ -161,9 +166,11 @@ def evaluate(
     env_kwargs: dict | None = None,
     workers: int = 1,
     progress=None,
+    transfer: bool = False,
 ) -> list[EpisodeResult]:
     """Run ``policy`` (a scripted policy's name or a ``.zip`` model file) on every env id and seed (in
-    ``workers`` processes); results in input order. A model runs with the env kwargs it was trained with.
+    ``workers`` processes); results in input order. A model runs with the env kwargs it was trained with, and with
+    ``transfer`` on tasks other than its own whose spaces it fits (zero-shot transfer).
     ``steps`` counts physics steps, so policies that decide every step or every ``action_repeat`` steps are
     scored over the same time."""
     for env_id in env_ids:
@@ -173,8 +180,8 @@ def evaluate(
     if is_model_path(policy):
         load_model(policy)  # a corrupt model file is refused here, once, before any worker starts
     # Resolved here, once per env id, so that a conflict is reported before any episode runs.
-    kwargs_by_env = {env_id: policy_env_kwargs(policy, env_id, env_kwargs) for env_id in env_ids}
-    jobs = [(env_id, policy, seed, steps, kwargs_by_env[env_id]) for env_id in env_ids for seed in seeds]
+    kwargs_by_env = {env_id: policy_env_kwargs(policy, env_id, env_kwargs, transfer) for env_id in env_ids}
+    jobs = [(env_id, policy, seed, steps, kwargs_by_env[env_id], transfer) for env_id in env_ids for seed in seeds]
     results: list[EpisodeResult | None] = [None] * len(jobs)
     if workers <= 1:
         for i, job in enumerate(jobs):
