@@ -267,22 +267,39 @@ def run_stages(
         return origin | {stage.key: "built" for stage in needed}
 
 
+def chain_lengths(stages: Sequence[Stage]) -> dict[str, int]:
+    """Per stage key: how many of ``stages`` lie on the longest chain from it (itself included) through the stages
+    that need it, in turn. A stage with a long chain behind it holds up more of the run, so it goes first."""
+    dependents: dict[str, list[Stage]] = {stage.key: [] for stage in stages}
+    for stage in stages:
+        for need in stage.needs.values():
+            if need.key in dependents:
+                dependents[need.key].append(stage)
+    lengths: dict[str, int] = {}
+    for stage in reversed(closure(stages)):  # every stage after those it needs: reversed, dependents come first
+        if stage.key in dependents:
+            lengths[stage.key] = 1 + max((lengths[d.key] for d in dependents[stage.key]), default=0)
+    return lengths
+
+
 def _run_in_processes(needed: list[Stage], store: StageStore, workers: int, finished: Callable) -> None:
-    """Build ``needed`` (in order of their needs) in ``workers`` processes, each stage once all it needs is built."""
+    """Build ``needed`` in ``workers`` processes, each stage once all it needs is built; of the stages ready, the one
+    with the longest chain of stages behind it first (:func:`chain_lengths`; the order never changes an output)."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     waiting, done, running = list(needed), set(), {}
     building = {stage.key for stage in needed}
+    chain = chain_lengths(needed)
     # forked: the workers start with this process's imports (torch, SB3) instead of importing them again; every
     # builder seeds what it draws, so nothing a worker inherits changes an output
     context = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
         try:
             while waiting or running:
-                for stage in [
-                    s for s in waiting if all(n.key in done or n.key not in building for n in s.needs.values())
-                ]:
+                ready = [s for s in waiting if all(n.key in done or n.key not in building for n in s.needs.values())]
+                ready.sort(key=lambda s: -chain[s.key])  # stable: equal chains keep the order of their needs
+                for stage in ready[: workers - len(running)]:  # a free worker takes the ready stage first in line
                     waiting.remove(stage)
                     running[pool.submit(build_stage, stage, str(store.root), False)] = stage
                 complete, _ = wait(running, return_when=FIRST_COMPLETED)
