@@ -48,8 +48,8 @@ def blowing_up(monkeypatch):
     """Every policy the registry makes blows up at step BLOW_UP_AT (for evaluate, collect and view alike)."""
     real = registry.make_policy
 
-    def make_policy(name, env):
-        return BlowsUp(real(name, env), env)
+    def make_policy(name, env, *args):
+        return BlowsUp(real(name, env, *args), env)
 
     monkeypatch.setattr(registry, "make_policy", make_policy)
     monkeypatch.setattr(collect_module, "make_policy", make_policy)
