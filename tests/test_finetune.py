@@ -227,6 +227,10 @@ def test_cli_refuses_a_model_of_another_task_or_swarm(cloned, tmp_path, capsys):
     base = ["finetune", "--from", model, "--timesteps", "32", "--n-envs", "1"]
     assert run([*base, "--env", "dpr/Gate-v0", "--out", str(tmp_path / "gate")]) == 2
     assert f"{model} was trained on dpr/Navigation-v0, not on --env dpr/Gate-v0" in capsys.readouterr().err
+    assert run([*base, "--env", "dpr/Gate-v1", "--transfer", "--out", str(tmp_path / "moved")]) == 0
+    assert read_model_info(tmp_path / "moved" / "model.zip").env_id == "dpr/Gate-v1"  # now a Gate model
+    assert run([*base, "--env", "dpr/Manipulation-v0", "--transfer", "--out", str(tmp_path / "ball")]) == 2
+    assert "its observation_space" in capsys.readouterr().err and not (tmp_path / "ball").exists()
     assert run([*base, "--env", ENV, "--env-kwarg", "n_robots=9", "--out", str(tmp_path / "n9")]) == 2
     assert "trained with n_robots=4; n_robots=9 makes a different observation" in capsys.readouterr().err
     assert run([*base, "--env", ENV, "--env-kwarg", "obs_last_action=false", "--out", str(tmp_path / "plain")]) == 2
@@ -235,7 +239,7 @@ def test_cli_refuses_a_model_of_another_task_or_swarm(cloned, tmp_path, capsys):
     assert "invalid choice: 'dqn'" in capsys.readouterr().err
     assert run(["finetune", "--from", str(tmp_path / "none.zip"), "--env", ENV, "--out", str(tmp_path / "x")]) == 2
     assert "no model file" in capsys.readouterr().err
-    assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["moved"]  # nothing written but the transfer's run
 
 
 def test_cli_finetunes_a_ppo_clone_with_a2c(cloned, tmp_path, capsys):

@@ -216,6 +216,12 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
     config = defaults(TrainConfig)
     parser.add_argument("--from", dest="source", required=True, metavar="MODEL.zip", help="the model to start from")
     parser.add_argument("--env", required=True, help=f"env id the model was trained on, e.g. {EXAMPLE_ENV_ID}")
+    parser.add_argument(
+        "--transfer",
+        action="store_true",
+        help="fine-tune on --env although the model was trained on another task with the same observation and "
+        "action spaces (transfer learning, e.g. a Navigation model on Gate); its env kwargs apply",
+    )
     parser.add_argument("--algo", choices=FINETUNE_ALGOS, help="algorithm to fine-tune with (default: the model's)")
     parser.add_argument(
         "--robot-model",
@@ -303,10 +309,14 @@ def cmd_finetune(args, parser) -> int:
                 f"--from: {args.source} is a per-robot model (one robot's local observation in, its action out); "
                 f"fine-tune it with `dpr finetune-decentralised --from {args.source} --env {info.env_id} --n-robots N`"
             )
-        if info.env_id != args.env:
-            raise ValueError(f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env}")
+        if info.env_id != args.env and not args.transfer:
+            raise ValueError(
+                f"--from: {args.source} was trained on {info.env_id}, not on --env {args.env} (--transfer fine-tunes "
+                "it on another task with the same spaces)"
+            )
         requested = {**({"robot_model": args.robot_model} if args.robot_model else {}), **dict(args.env_kwarg or [])}
-        swarm, env_kwargs = split_swarm_kwargs(model_env_kwargs(args.source, args.env, requested))
+        kwargs = model_env_kwargs(args.source, args.env, requested, transfer=args.transfer)
+        swarm, env_kwargs = split_swarm_kwargs(kwargs)
         overrides = dict(args.hyperparam or [])
         algo = args.algo or info.algo
         if info.architecture is None:  # a file saved before models recorded their network: read it off the model

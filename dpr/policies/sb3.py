@@ -461,13 +461,11 @@ def trained_parameters(policy) -> list:
     return actor_parameters(policy)
 
 
-def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER) -> None:
-    """Copy the policy weights of the model file at ``path`` into ``model`` (same spaces and network).
-    A :class:`ParameterError` about ``parameter`` (the caller's name for ``path``; ``init_from`` of
-    :class:`dpr.rl.train.TrainConfig` by default) naming the file when they do not fit."""
-    source, info = load_model(path, parameter=parameter)
+def check_initial_spaces(path: str | Path, source, info: ModelInfo, target, parameter: str = INIT_PARAMETER) -> None:
+    """A :class:`ParameterError` about ``parameter`` naming the model file at ``path`` (loaded as ``source``, with
+    ``info``) when its observation or action space is not ``target``'s (a model or an env to train on)."""
     for name in ("observation_space", "action_space"):
-        if getattr(source, name) != getattr(model, name):
+        if getattr(source, name) != getattr(target, name):
             kind = (
                 "; it is a per-robot model (one robot's local observation): it trains on "
                 "AgentsAsVecEnv(parallel_env(..., local_obs=True)), not on the centralised env"
@@ -477,8 +475,16 @@ def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER
             raise ParameterError(
                 parameter,
                 f"{path}: its {name} {describe_space(getattr(source, name))} differs from "
-                f"this run's {describe_space(getattr(model, name))} (env kwargs {info.env_kwargs}){kind}",
+                f"this run's {describe_space(getattr(target, name))} (env kwargs {info.env_kwargs}){kind}",
             )
+
+
+def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER) -> None:
+    """Copy the policy weights of the model file at ``path`` into ``model`` (same spaces and network).
+    A :class:`ParameterError` about ``parameter`` (the caller's name for ``path``; ``init_from`` of
+    :class:`dpr.rl.train.TrainConfig` by default) naming the file when they do not fit."""
+    source, info = load_model(path, parameter=parameter)
+    check_initial_spaces(path, source, info, model, parameter)
     try:
         # another critic: e.g. a clone (whose value head BC never trained) fine-tuned with the swarm critic
         _load_weights(model.policy, source.policy.state_dict(), _critic_of(source.policy) == _critic_of(model.policy))

@@ -39,6 +39,7 @@ from dpr.policies.sb3 import (
     actor_parameters,
     build_model,
     check_hyperparameters,
+    check_initial_spaces,
     load_initial_policy,
     load_model,
     make_vec_env,
@@ -362,7 +363,7 @@ def train(
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
     try:
         if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
-            _, source = load_model(config.init_from, parameter=INIT_PARAMETER)
+            initial, source = load_model(config.init_from, parameter=INIT_PARAMETER)
             if source.per_robot is not None:
                 raise ParameterError(
                     INIT_PARAMETER,
@@ -370,6 +371,7 @@ def train(
                     "it trains on every robot of a PettingZoo swarm, not on the centralised env: fine-tune it with "
                     "`dpr finetune-decentralised` (dpr.rl.finetune_per_robot)",
                 )
+            check_initial_spaces(config.init_from, initial, source, probe)  # e.g. a model of another task
         demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
         check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
     finally:
