@@ -305,9 +305,9 @@ def policy_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser)
         check_env_kwargs(env_ids, env_kwargs, parser)
         return env_kwargs
     resolved = {}
+    transfer = getattr(args, "transfer", False)  # dpr evaluate's flag; dpr collect has none
     for env_id in env_ids:
         try:
-            transfer = getattr(args, "transfer", False)
             resolved[env_id] = model_env_kwargs(args.policy, env_id, explicit, transfer=transfer)
         except ValueError as error:
             message = flag_message(error)
