@@ -1,8 +1,9 @@
 """Gymnasium environments of the particle-robot tasks.
 
-``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v1``, ``dpr/Unresponsive-v0`` and
-``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``), and ``dpr/Gate-v0``, the gate at the
-paper's placement, which the swarm does not reach in an episode. Tasks of other packages come in through
+``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v2``, ``dpr/Unresponsive-v0`` and
+``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``), and the gate's earlier versions:
+``dpr/Gate-v0``, the paper's placement, which the swarm does not reach in an episode, and ``dpr/Gate-v1``, whose
+state does not hold the opening. Tasks of other packages come in through
 :func:`register_task`; the packages that ``DPR_ENV_PACKAGES`` names are imported last (``dpr --env-package``).
 """
 

@@ -17,6 +17,7 @@ GATE_DISTANCE = 5.0
 # info keys of the passage measure (ParticleSwarmEnv.episode_measures)
 GATE_PASSAGE = "gate_passage"
 GATE_CONTACT_STEP = "gate_contact_step"
+OPENING = "opening"  # the opening's centre, a landmark of the state observation with observe_opening
 
 
 class GateEnv(ParticleSwarmEnv):
@@ -24,7 +25,7 @@ class GateEnv(ParticleSwarmEnv):
     ## Description
     Navigation (see ``NavigationEnv``) with two static walls, 100 thick and 500 long, across the line from the
     swarm's start to the goal, leaving an opening of ``gate_width`` (150 by default) on that line: wider than
-    one expanded robot, narrower than the swarm, which must deform to squeeze through. On ``dpr/Gate-v1`` the
+    one expanded robot, narrower than the swarm, which must deform to squeeze through. From ``dpr/Gate-v1`` on the
     walls' near face stands ``gate_distance`` (5) ahead of the robots they block, so that the swarm meets them
     as soon as its front robots expand. ``dpr/Gate-v0`` keeps the paper's placement, the walls halfway
     between start and goal, 175-275 units ahead of the swarm: farther than the wave carries a swarm of 9 in
@@ -34,7 +35,11 @@ class GateEnv(ParticleSwarmEnv):
     As Navigation.
 
     ## Observation Space
-    As Navigation (the walls are fixed relative to the start and goal and not part of the state).
+    Navigation's ``6N`` robot features followed by the opening's centre, x and y in the goal frame, / 1000
+    (``opening.x``, ``opening.y``): ``Box(6N + 2,)``; with ``obs_last_action=True`` the previous action and its held
+    steps follow (N + 1). With ``observe_opening=False`` (v0, v1) the state is Navigation's: the walls are not in
+    it, and once the swarm has moved, how far ahead they stand cannot be read from it (the distance from the
+    start to the goal varies by 100 units).
     ``environment_state()`` ends with ``gate.dx``, ``gate.dy``: the opening's centre relative to the swarm's
     centre, / 1000.
 
@@ -42,7 +47,7 @@ class GateEnv(ParticleSwarmEnv):
     As Navigation.
 
     ## Starting State
-    As Navigation; the walls are placed once the start is drawn. On v1, the front is the farthest point toward
+    As Navigation; the walls are placed once the start is drawn. From v1 on, the front is the farthest point toward
     the goal of the contracted robots that the opening does not hold (of the whole swarm if it holds them all);
     robots it holds may start inside the opening. No robot starts in a wall, at any size.
 
@@ -56,10 +61,11 @@ class GateEnv(ParticleSwarmEnv):
 
     ## Arguments
     Navigation's, plus ``gate_width=150.0``, which must exceed one expanded robot's diameter (77.5) and be
-    finite and <= 1e5, and ``gate_distance`` (v1: 5.0; None: halfway, v0's placement), finite, >= 0 and at
-    most the near end of ``start_radius``.
+    finite and <= 1e5, ``gate_distance`` (v1, v2: 5.0; None: halfway, v0's placement), finite, >= 0 and at
+    most the near end of ``start_radius``, and ``observe_opening`` (v2: True; see Observation Space).
 
     ## Version History
+    * v2: the opening's centre in the state observation (``observe_opening``).
     * v1: the walls stand ``gate_distance`` ahead of the front of the robots they block, where the swarm meets
       them; the passage measure in ``info``.
     * v0: the paper's placement, halfway to the goal; walls collide with every robot (robot 0 used to pass
@@ -71,7 +77,17 @@ class GateEnv(ParticleSwarmEnv):
     episode_measures = (GATE_PASSAGE, GATE_CONTACT_STEP)
     environment_extra_names = ("gate.dx", "gate.dy")  # the opening's centre relative to the swarm's centre
 
-    def __init__(self, gate_width: float = 150.0, gate_distance: float | None = GATE_DISTANCE, **kwargs):
+    def __init__(
+        self,
+        gate_width: float = 150.0,
+        gate_distance: float | None = GATE_DISTANCE,
+        observe_opening: bool = True,
+        **kwargs,
+    ):
+        if not isinstance(observe_opening, (bool, np.bool_)):
+            raise ParameterError("observe_opening", f"expected True or False, got {observe_opening!r}")
+        self.observe_opening = bool(observe_opening)
+        self.landmark_names = (OPENING,) if self.observe_opening else ()  # before the spaces are built
         super().__init__(**kwargs)
         diameter = 2 * self.swarm_class.expanded_radius
         check_number("gate_width", gate_width, maximum=MAX_DISTANCE)
@@ -149,6 +165,10 @@ class GateEnv(ParticleSwarmEnv):
     def _environment_extra(self) -> list[float]:
         """The opening's centre relative to the swarm's centre (``gate.dx``, ``gate.dy``)."""
         return (self._gate_centre - self.world.centre_of_mass).tolist()
+
+    def _landmark_positions(self) -> np.ndarray:
+        """With ``observe_opening``: the opening's centre."""
+        return self._gate_centre[None, :]
 
     def _after_physics_step(self) -> None:
         if self._contact_step < 0 and self.world.robots_touch_walls():

@@ -30,6 +30,7 @@ REWARDS = ("piecewise", "projected", "inverse_distance")
 MAX_DISCRETE_ROBOTS = 16  # Discrete(2^N) beyond 65536 actions is of no use to a learner
 ROBOT_FEATURES = 6  # x, y, vx, vy, angular velocity, expansion
 OBJECT_FEATURES = 4  # x, y, vx, vy
+LANDMARK_FEATURES = 2  # x, y of each of a task's landmarks (ParticleSwarmEnv.landmark_names)
 # environment_state(): the swarm's centre and the object, each as x, y (goal frame), vx, vy, distance to the goal
 AGENT_ENVIRONMENT_PARTS = ("x", "y", "vx", "vy", "distance")
 HELD_STEPS_CAP = 20  # obs_last_action: steps an action has been held, counted up to twice the paper's hold
@@ -109,6 +110,9 @@ class ParticleSwarmEnv(gym.Env):
     episode_measures: tuple[str, ...] = ()
     # names of a task's own values at the end of environment_state() (see _environment_extra)
     environment_extra_names: tuple[str, ...] = ()
+    # names of the fixed points of a task that its state observation holds, x and y of each after the object's
+    # features (see _landmark_positions); a task sets them per instance before ParticleSwarmEnv.__init__
+    landmark_names: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -180,7 +184,8 @@ class ParticleSwarmEnv(gym.Env):
             self.action_space = spaces.Box(0.0, 1.0, (n,), dtype=np.float32)
 
         self.object_offset = ROBOT_FEATURES * n  # where the object's features start, when there is one
-        self.memory_offset = self.object_offset + (OBJECT_FEATURES if self.has_object else 0)
+        self.landmark_offset = self.object_offset + (OBJECT_FEATURES if self.has_object else 0)
+        self.memory_offset = self.landmark_offset + LANDMARK_FEATURES * len(self.landmark_names)
         self.state_size = self.memory_offset + (n + 1 if self.obs_last_action else 0)
         low_state = np.full(self.state_size, -np.inf, dtype=np.float32)
         high_state = np.full(self.state_size, np.inf, dtype=np.float32)
@@ -311,6 +316,7 @@ class ParticleSwarmEnv(gym.Env):
         names = [f"robot{i}.{part}" for i in range(n) for part in ("x", "y", "vx", "vy", "omega", "expansion")]
         if self.has_object:
             names += ["object.x", "object.y", "object.vx", "object.vy"]
+        names += [f"{landmark}.{part}" for landmark in self.landmark_names for part in ("x", "y")]
         if self.obs_last_action:
             names += [f"last_action.robot{i}" for i in range(n)] + ["last_action.held_steps"]
         return names
@@ -350,6 +356,11 @@ class ParticleSwarmEnv(gym.Env):
         """The task's own values of :meth:`environment_state` (one per :attr:`environment_extra_names`), in world
         units: lengths, which are scaled by 1/1000 with the rest."""
         return []
+
+    def _landmark_positions(self) -> np.ndarray:
+        """Where the task's landmarks (:attr:`landmark_names`) stand, (L, 2) in world coordinates; the state
+        observation holds them in the goal frame, / 1000, like the robots' positions."""
+        return np.zeros((0, 2))
 
     # -- pieces -------------------------------------------------------------------------------------------
     def _agent_position(self) -> np.ndarray:
@@ -419,6 +430,9 @@ class ParticleSwarmEnv(gym.Env):
             at = self.object_offset
             state[at : at + 2] = (world.object_pose[0:2] - self.goal) * LENGTH_SCALE
             state[at + 2 : at + 4] = world.object_velocity * LENGTH_SCALE
+        if self.landmark_names:
+            landmarks = (self._landmark_positions() - self.goal) * LENGTH_SCALE
+            state[self.landmark_offset : self.memory_offset] = landmarks.reshape(-1)
         if self.obs_last_action:
             at = self.memory_offset
             state[at : at + n] = self._last_targets

@@ -27,14 +27,17 @@ TASK_CLASSES: dict[str, type[ParticleSwarmEnv]] = {  # task name -> class; regis
     "manipulation": ManipulationEnv,
 }
 BUILT_IN_TASKS = tuple(TASK_CLASSES)
-VERSIONS = {"gate": 1}  # each built-in task's current version, where it is not 0
-ENV_IDS = {  # each task's current id: "gate" -> "dpr/Gate-v1"
+VERSIONS = {"gate": 2}  # each built-in task's current version, where it is not 0
+ENV_IDS = {  # each task's current id: "gate" -> "dpr/Gate-v2"
     task: f"dpr/{cls.__name__.removesuffix('Env')}-v{VERSIONS.get(task, 0)}" for task, cls in TASK_CLASSES.items()
 }
 # Earlier versions, still registered for the datasets, models and records made on them: id -> (task, the kwargs
 # that give its dynamics)
-EARLIER_ENV_IDS = {"dpr/Gate-v0": ("gate", {"gate_distance": None})}
-# every registered id -> its task: "dpr/Gate-v0" -> "gate", "dpr/Gate-v1" -> "gate"
+EARLIER_ENV_IDS = {
+    "dpr/Gate-v0": ("gate", {"gate_distance": None, "observe_opening": False}),
+    "dpr/Gate-v1": ("gate", {"observe_opening": False}),
+}
+# every registered id -> its task: "dpr/Gate-v0" -> "gate", "dpr/Gate-v2" -> "gate"
 TASKS = {**{env_id: task for task, env_id in ENV_IDS.items()}, **{i: t for i, (t, _) in EARLIER_ENV_IDS.items()}}
 # env id -> the env id whose entry of the algorithms' hyperparameter files its learners use (a user's task has
 # none of its own)

@@ -88,7 +88,7 @@ def model_architecture(hyper) -> dict[str, Any]:
 def loaded_architecture(path: str | Path) -> dict[str, Any] | None:
     """The network of the model file at ``path``, read off the loaded model, for files that do not record it
     (:attr:`ModelInfo.architecture`): a SwarmPolicy or SB3's MlpPolicy whose policy_kwargs are plain data (the
-    ``has_object`` flag the builder adds left out); None for any other."""
+    ``has_object`` flag and ``landmarks`` count the builder adds left out); None for any other."""
     model, _ = load_model(path)
     if type(model.policy).__module__ == SWARM_POLICY_MODULE:
         policy = SWARM_POLICY
@@ -96,7 +96,8 @@ def loaded_architecture(path: str | Path) -> dict[str, Any] | None:
         policy = "MlpPolicy"
     else:
         return None
-    kwargs = {name: value for name, value in (model.policy_kwargs or {}).items() if name != "has_object"}
+    layout = ("has_object", "landmarks")  # what the builder reads off the env
+    kwargs = {name: value for name, value in (model.policy_kwargs or {}).items() if name not in layout}
     if not all(isinstance(value, (bool, int, float, str, list, dict)) for value in kwargs.values()):
         return None
     return {"policy": policy, "policy_kwargs": kwargs}
@@ -428,7 +429,8 @@ def build_model(hyper, env, seed: int, tensorboard_log: str | None):
         from dpr.policies.swarm_policy import SwarmActorCriticPolicy
 
         policy = SwarmActorCriticPolicy
-        kwargs["policy_kwargs"] = {**kwargs.get("policy_kwargs", {}), "has_object": env.get_attr("has_object")[0]}
+        layout = {"has_object": env.get_attr("has_object")[0], "landmarks": len(env.get_attr("landmark_names")[0])}
+        kwargs["policy_kwargs"] = {**kwargs.get("policy_kwargs", {}), **layout}
     return algo_class(hyper.algo)(
         policy, env, seed=seed, verbose=0, device="cpu", tensorboard_log=tensorboard_log, **kwargs
     )

@@ -11,7 +11,8 @@ actor computes it the same way for every robot (Deep Sets, Zaheer et al. 2017):
   centre, its velocity in that frame, its angular velocity, its expansion and its last action;
 - ``phi``, one MLP applied to every robot, then the mean and the max of its outputs over the swarm;
 - ``rho``, one MLP applied to every robot on its own ``phi`` output, the two pooled vectors and the swarm's
-  globals (the held count, the distance to the goal, the object's position and velocity in the same frame);
+  globals (the held count, the distance to the goal, the object's position and velocity and the task's landmarks'
+  positions, such as Gate's opening, in the same frame);
 - one linear unit, shared, from each robot's ``rho`` output to its logit.
 
 Robots stay exchangeable: permuting the robots permutes the logits. The critic is SB3's usual MLP on the whole
@@ -35,7 +36,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
-from dpr.envs.particle_env import LENGTH_SCALE, OBJECT_FEATURES, ROBOT_FEATURES
+from dpr.envs.particle_env import LANDMARK_FEATURES, LENGTH_SCALE, OBJECT_FEATURES, ROBOT_FEATURES
 from dpr.policies.features import GoalFrame
 from dpr.policies.wave import BIN_WIDTH
 
@@ -52,22 +53,26 @@ _BIN = BIN_WIDTH * LENGTH_SCALE
 
 class SwarmLayout:
     """Where the parts of the state observation of ``n_robots`` robots are: the robots' features, the object's
-    (Manipulation) and the last action with its held count (``obs_last_action``); told apart by the size."""
+    (Manipulation), the task's ``landmarks`` (fixed points, x and y each: Gate's opening with
+    ``observe_opening``) and the last action with its held count (``obs_last_action``); told apart by the size."""
 
-    def __init__(self, size: int, n_robots: int, has_object: bool):
+    def __init__(self, size: int, n_robots: int, has_object: bool, landmarks: int = 0):
         self.n_robots = int(n_robots)
         self.object_at = ROBOT_FEATURES * self.n_robots
-        self.memory_at = self.object_at + (OBJECT_FEATURES if has_object else 0)
+        self.landmarks_at = self.object_at + (OBJECT_FEATURES if has_object else 0)
+        self.memory_at = self.landmarks_at + LANDMARK_FEATURES * int(landmarks)
         rest = size - self.memory_at
         if rest not in (0, self.n_robots + 1):
+            parts = ["an object" if has_object else "no object"] + ([f"{landmarks} landmarks"] if landmarks else [])
             raise ValueError(
-                f"{POLICY_NAME}: a state observation of {n_robots} robots "
-                f"{'with' if has_object else 'without'} an object has {self.memory_at} or "
-                f"{self.memory_at + self.n_robots + 1} values, got {size}"
+                f"{POLICY_NAME}: a state observation of {n_robots} robots with {' and '.join(parts)} has "
+                f"{self.memory_at} or {self.memory_at + self.n_robots + 1} values, got {size}"
             )
         self.has_memory = rest > 0
         self.has_object = bool(has_object)
-        self.globals = 2 + (OBJECT_FEATURES if has_object else 0)  # held count, distance to goal, object
+        self.landmarks = int(landmarks)
+        # held count, distance to goal, object, landmarks
+        self.globals = 2 + (OBJECT_FEATURES if has_object else 0) + LANDMARK_FEATURES * self.landmarks
 
     def split(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(robots (B, N, 7), globals (B, G))`` in the goal direction's frame."""
@@ -91,8 +96,11 @@ class SwarmLayout:
         )
         swarm = [held, frame.distance[:, 0] / 10.0]  # the distance in tens of bin widths
         if self.has_object:
-            thing = obs[:, self.object_at : self.memory_at].reshape(-1, 2, 2) / _BIN  # position, velocity
+            thing = obs[:, self.object_at : self.landmarks_at].reshape(-1, 2, 2) / _BIN  # position, velocity
             swarm += [frame.rotate(thing[:, :1] - frame.centre)[:, 0] / 10.0, frame.rotate(thing[:, 1:])[:, 0]]
+        if self.landmarks:  # each relative to the swarm's centre, like the object
+            points = obs[:, self.landmarks_at : self.memory_at].reshape(-1, self.landmarks, 2) / _BIN
+            swarm.append(frame.rotate(points - frame.centre).flatten(1) / 10.0)
         return per_robot, torch.cat(swarm, 1)
 
 
@@ -178,7 +186,8 @@ class RobotLogits(nn.Module):
 class SwarmActorCriticPolicy(ActorCriticPolicy):
     """SB3's ActorCriticPolicy with a shared per-robot actor (module docstring) for MultiBinary(N) actions.
     ``robot_net`` is the layer sizes of ``phi`` and ``rho``; ``net_arch`` (a list) the critic's; ``critic`` one of
-    :data:`CRITICS`."""
+    :data:`CRITICS`. ``has_object`` and ``landmarks`` (a count) describe the env's state (:class:`SwarmLayout`); the
+    model builder reads them off the env."""
 
     def __init__(
         self,
@@ -187,6 +196,7 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
         lr_schedule,
         *args,
         has_object: bool = False,
+        landmarks: int = 0,
         robot_net: list[int] | None = None,
         critic: str = "mlp",
         **kwargs,
@@ -197,14 +207,19 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
             raise ValueError(f"{POLICY_NAME} needs the 1-D state observation, got {observation_space}")
         if critic not in CRITICS:
             raise ValueError(f"{POLICY_NAME}: critic must be one of {CRITICS}, got {critic!r}")
-        self.layout = SwarmLayout(observation_space.shape[0], action_space.n, has_object)
+        self.layout = SwarmLayout(observation_space.shape[0], action_space.n, has_object, landmarks)
         self.robot_net = list(robot_net or [64, 64])
         self.critic = critic
         super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()
-        data.update(has_object=self.layout.has_object, robot_net=self.robot_net, critic=self.critic)
+        data.update(
+            has_object=self.layout.has_object,
+            landmarks=self.layout.landmarks,
+            robot_net=self.robot_net,
+            critic=self.critic,
+        )
         return data
 
     def _build_mlp_extractor(self) -> None:

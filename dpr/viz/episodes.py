@@ -35,7 +35,6 @@ from dpr.datasets import features as F
 from dpr.envs.particle_env import (
     LENGTH_SCALE,
     MAX_EPISODE_STEPS,
-    OBJECT_FEATURES,
     ROBOT_FEATURES,
     action_repeat,
     episode_steps,
@@ -255,6 +254,7 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
             "n": base.n_robots,
             "model": base.robot_model,
             "has_object": base.has_object,
+            "state_width": base.memory_offset,  # the state without the last action
             "goal": np.array(base.goal, dtype=np.float64),
             "walls": [_closed(wall) for wall in world.walls],
             "alive": ~world.dead,
@@ -265,7 +265,7 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
     data = reader.episode(index, columns=[F.OBSERVATION, F.REWARD])
     state = np.asarray(data[F.OBSERVATION], dtype=np.float64)
     n = scene["n"]
-    width = ROBOT_FEATURES * n + (OBJECT_FEATURES if scene["has_object"] else 0)
+    width = scene["state_width"]
     if state.ndim != 2 or state.shape[1] not in (width, width + n + 1):  # + the last action, with obs_last_action
         raise ViewError(f"{where}: observation.state has shape {state.shape}, expected [T, {width}] for {n} robots")
     if len(state) == 0:
