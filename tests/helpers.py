@@ -73,14 +73,19 @@ def visited_observations(env, seeds=(0, 1, 2), steps=25) -> np.ndarray:
     return np.array(out)
 
 
-def rotate_scene(observations: np.ndarray, n_robots: int, angle: float, object_at: int | None = None) -> np.ndarray:
+def rotate_scene(
+    observations: np.ndarray, n_robots: int, angle: float, object_at: int | None = None, landmarks: slice | None = None
+) -> np.ndarray:
     """State observations of the same scene rotated by ``angle`` about the goal: every robot's position and
-    velocity, and the object's (its features at ``object_at``) when there is one."""
+    velocity, the object's (its features at ``object_at``) when there is one, and the landmarks' positions (x, y
+    pairs in ``landmarks``)."""
     c, s = np.cos(angle), np.sin(angle)
     rotated = observations.copy()
     pairs = [rotated[:, : 6 * n_robots].reshape(len(rotated), n_robots, 6)[..., i : i + 2] for i in (0, 2)]
     if object_at is not None:
         pairs += [rotated[:, object_at + i : object_at + i + 2] for i in (0, 2)]
+    if landmarks is not None:
+        pairs.append(rotated[:, landmarks].reshape(len(rotated), -1, 2))
     for pair in pairs:  # views into `rotated`
         x, y = pair[..., 0].copy(), pair[..., 1].copy()
         pair[..., 0], pair[..., 1] = c * x - s * y, s * x + c * y

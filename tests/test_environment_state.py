@@ -31,6 +31,7 @@ NAMES = {
     NAV: SWARM,
     "dpr/Unresponsive-v0": SWARM,
     "dpr/Gate-v1": [*SWARM, "gate.dx", "gate.dy"],
+    "dpr/Gate-v2": [*SWARM, "gate.dx", "gate.dy"],
     MANIPULATION: [*SWARM, *OBJECT],
 }
 N = 4
@@ -95,6 +96,30 @@ def test_the_gate_state_is_the_openings_centre_from_the_swarms(make_env):
             np.testing.assert_allclose(centre, (base.start + base.goal) / 2, atol=1e-9)  # halfway: the paper's gate
         expected = (centre - base.world.centre_of_mass) * LENGTH_SCALE
         np.testing.assert_allclose(base.environment_state()[5:7], expected, rtol=1e-6, atol=1e-9)
+
+
+def test_gate_v2_observes_the_openings_centre_and_is_gate_v1_otherwise(make_env):
+    """The opening's centre in the goal frame, between the robots' features and the last action; the rest of the
+    state is Gate-v1's to the bit, and Gate-v0/v1 keep Navigation's state (their models still load)."""
+    v2, v1 = make_env("dpr/Gate-v2", obs_last_action=True), make_env("dpr/Gate-v1", obs_last_action=True)
+    base = v2.unwrapped
+    assert v2.observation_space.shape == (v1.observation_space.shape[0] + 2,)
+    assert base.state_names[6 * N : 6 * N + 3] == ["opening.x", "opening.y", "last_action.robot0"]
+    assert make_env("dpr/Gate-v0").observation_space.shape == make_env("dpr/Navigation-v0").observation_space.shape
+    (new, _), (old, _) = v2.reset(seed=4), v1.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        opening = (base._gate_centre - base.goal) * LENGTH_SCALE
+        np.testing.assert_allclose(new[6 * N : 6 * N + 2], opening, rtol=1e-6)
+        # the same point as the environment state's, there seen from the swarm's centre
+        np.testing.assert_allclose(
+            new[6 * N : 6 * N + 2] - base.environment_state()[0:2], base.environment_state()[5:7], atol=1e-6
+        )
+        np.testing.assert_array_equal(np.delete(new, [6 * N, 6 * N + 1]), old)
+        action = rng.integers(0, 2, N)
+        (new, *_), (old, *_) = v2.step(action), v1.step(action)
+    with pytest.raises(ValueError, match="observe_opening: expected True or False"):
+        make_env("dpr/Gate-v2", observe_opening="yes")
 
 
 def test_the_environment_state_is_deterministic():

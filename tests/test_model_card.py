@@ -73,7 +73,7 @@ def test_a_card_whose_file_changed_or_names_another_tasks_id_is_refused(tmp_path
     with pytest.raises(ValueError, match="sha256 differs"):
         load_model_card(card)
     card = write_card(tmp_path, [{**entry("gate", model.name), "env_id": "dpr/Navigation-v0"}])
-    with pytest.raises(ValueError, match=r"env_id must be one of \['dpr/Gate-v1', 'dpr/Gate-v0'\]"):
+    with pytest.raises(ValueError, match=r"env_id must be one of \['dpr/Gate-v2', 'dpr/Gate-v0', 'dpr/Gate-v1'\]"):
         load_model_card(card)
 
 
@@ -172,7 +172,7 @@ def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(t
         (evaluation,) = (out / "eval" / "shipped").glob(f"{stem}-*.json")
         payload = json.loads(evaluation.read_text())
         assert payload["seeds"] == [300, 301] and payload["policy"].endswith(f"{stem}.zip")
-    assert json.loads((out / "eval" / "shipped" / "wave-Gate-v1.json").read_text())["seeds"] == [300, 301]
+    assert json.loads((out / "eval" / "shipped" / "wave-Gate-v2.json").read_text())["seeds"] == [300, 301]
     text = (report / "results.md").read_text()
     for row in ("| Navigation | shipped bc-ppo |", "| Gate | wave |", "| Gate | shipped bc-ppo |"):
         assert row in text

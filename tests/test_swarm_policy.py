@@ -37,8 +37,9 @@ ENVS = [
     ("dpr/Unresponsive-v0", {"obs_last_action": True}),
     ("dpr/Manipulation-v0", {"obs_last_action": True}),
     ("dpr/Navigation-v0", {}),
+    ("dpr/Gate-v2", {"obs_last_action": True}),
 ]
-IDS = ["navigation", "unresponsive", "manipulation-object", "navigation-no-memory"]
+IDS = ["navigation", "unresponsive", "manipulation-object", "navigation-no-memory", "gate-opening"]
 
 
 def swarm_model(env_id, kwargs, seed=0, n_robots=N):
@@ -94,13 +95,15 @@ def test_rotating_the_scene_about_the_goal_leaves_the_actor_unchanged(env_id, kw
     base = logits(model, observations)
     layout = model.policy.layout
     for angle in (0.7, np.pi / 2, 2.5, -1.9):
-        rotated = rotate_scene(observations, N, angle, layout.object_at if layout.has_object else None)
+        landmarks = slice(layout.landmarks_at, layout.memory_at)
+        rotated = rotate_scene(observations, N, angle, layout.object_at if layout.has_object else None, landmarks)
         np.testing.assert_allclose(logits(model, rotated), base, atol=2e-4)
-    # the object is seen: moving it changes the logits
-    if layout.has_object:
-        moved = observations.copy()
-        moved[:, layout.object_at] += 0.05
-        assert not np.allclose(logits(model, moved), base, atol=1e-3)
+    # the object and the landmarks are seen: moving them changes the logits
+    for seen, at in ((layout.has_object, layout.object_at), (layout.landmarks, layout.landmarks_at)):
+        if seen:
+            moved = observations.copy()
+            moved[:, at] += 0.05
+            assert not np.allclose(logits(model, moved), base, atol=1e-3)
     env.close()
 
 
@@ -250,7 +253,7 @@ def values(model, observations: np.ndarray) -> np.ndarray:
         return model.policy.predict_values(torch.as_tensor(observations)).numpy()[:, 0]
 
 
-@pytest.mark.parametrize(("env_id", "kwargs"), ENVS[1:3], ids=IDS[1:3])
+@pytest.mark.parametrize(("env_id", "kwargs"), [ENVS[i] for i in (1, 2, 4)], ids=[IDS[i] for i in (1, 2, 4)])
 def test_the_swarm_critic_ignores_the_robots_order_and_takes_any_swarm_size(env_id, kwargs, tmp_path):
     """With ``critic: swarm`` the value is the same for any order of the robots, and a model saved at N values a
     swarm of N' with the same weights, critic included; the MLP critic's value changes with the order."""
