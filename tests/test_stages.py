@@ -37,3 +37,51 @@ def test_free_workers_take_the_stages_with_the_longest_chains_first(tmp_path):
     run_stages([leaf, end], StageStore(tmp_path / "stages"), workers=2, log=lambda line: None)
     started = {name: json.loads((log / name).read_text()) for name in ("leaf", "head", "other", "tail", "end")}
     assert max(started["head"], started["other"]) < started["leaf"]
+
+
+LONG_STAGES = """
+import sys, time
+from pathlib import Path
+from dpr import interrupts
+from dpr.rl.stages import Stage, StageStore, run_stages
+
+def wait_for_ctrl_c(settings, inputs, out, work, show_progress):
+    marks = Path(settings["marks"])
+    (marks / f"{settings['name']}.started").write_text("x")
+    try:
+        while True:
+            time.sleep(0.05)
+    except KeyboardInterrupt:
+        (marks / f"{settings['name']}.stopped").write_text("x")
+        raise
+
+interrupts.install()
+marks = Path(sys.argv[1])
+stages = [Stage("test", name, {"name": name, "marks": str(marks)}, wait_for_ctrl_c) for name in ("a", "b")]
+try:
+    run_stages(stages, StageStore(marks / "stages"), workers=2, log=lambda line: None)
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+def test_a_sigint_to_the_run_alone_stops_the_stages_in_flight(tmp_path):
+    """``kill -INT`` of the scheduling process (not of its process group, as Ctrl-C at a terminal is): the stages
+    in the workers are interrupted too, and the run ends, instead of waiting for them to finish."""
+    import signal
+    import subprocess
+    import sys
+
+    script = tmp_path / "long_stages.py"
+    script.write_text(LONG_STAGES)
+    run = subprocess.Popen([sys.executable, str(script), str(tmp_path)])
+    try:
+        deadline = time.time() + 60
+        while not all((tmp_path / f"{name}.started").exists() for name in "ab"):
+            assert time.time() < deadline and run.poll() is None, "the stages did not start"
+            time.sleep(0.1)
+        run.send_signal(signal.SIGINT)
+        assert run.wait(timeout=60) == 130
+    finally:
+        run.kill()
+    assert all((tmp_path / f"{name}.stopped").exists() for name in "ab")

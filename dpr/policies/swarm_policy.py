@@ -63,7 +63,9 @@ class SwarmLayout:
         self.memory_at = self.landmarks_at + LANDMARK_FEATURES * int(landmarks)
         rest = size - self.memory_at
         if rest not in (0, self.n_robots + 1):
-            parts = f"{'with' if has_object else 'without'} an object" + (f", {landmarks} landmarks" if landmarks else "")
+            parts = f"{'with' if has_object else 'without'} an object"
+            if landmarks:
+                parts += f" and {landmarks} landmarks"
             raise ValueError(
                 f"{POLICY_NAME}: a state observation of {n_robots} robots {parts} has "
                 f"{self.memory_at} or {self.memory_at + self.n_robots + 1} values, got {size}"

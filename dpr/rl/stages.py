@@ -307,9 +307,30 @@ def _run_in_processes(needed: list[Stage], store: StageStore, workers: int, fini
                     stage = running.pop(future)
                     finished(len(done) + 1, *future.result())
                     done.add(stage.key)
-        except BaseException:
+        except BaseException as error:
             pool.shutdown(wait=False, cancel_futures=True)
+            if isinstance(error, KeyboardInterrupt):
+                _interrupt_workers(running)
             raise
+
+
+STOP_GRACE_S = 5.0  # how long an interrupted run waits for its workers to stop by themselves
+
+
+def _interrupt_workers(running: Mapping) -> None:
+    """After a Ctrl-C: the workers' stages stop at their next safe point and keep what they did. A Ctrl-C at a
+    terminal reaches the workers too; a SIGINT sent to this process alone (``kill -INT``, a job manager) does not,
+    and the run would wait for every stage in flight to end, which can take an hour. So the workers still busy
+    after STOP_GRACE_S get the SIGINT passed on."""
+    import multiprocessing
+    import signal
+    from concurrent.futures import wait
+
+    _, busy = wait(running, timeout=STOP_GRACE_S)
+    if busy:
+        for worker in multiprocessing.active_children():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(worker.pid, signal.SIGINT)
 
 
 def _run_on_ray(needed: list[Stage], store: StageStore, finished: Callable) -> None:
