@@ -29,7 +29,6 @@ and each loaded as a model, which unpickles nothing), before anything runs.
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +37,7 @@ import yaml
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, TASKS
 from dpr.policies.sb3 import ModelInfo, load_model
+from dpr.rl.stages import file_sha256
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
@@ -144,7 +144,7 @@ def _entry_file(card: Path, where: str, entry: dict, parameter: str) -> Path:
 
 def _check_file(where: str, entry: dict, path: Path, parameter: str) -> ModelInfo:
     """The file's :class:`ModelInfo`, once its sha256 (where the card gives one) matches and it loads as a model."""
-    if "sha256" in entry and hashlib.sha256(path.read_bytes()).hexdigest() != entry["sha256"]:
+    if "sha256" in entry and file_sha256(path) != entry["sha256"]:
         raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
     return load_model(path, parameter=parameter)[1]  # a corrupt or crafted file is refused now, not hours later
 

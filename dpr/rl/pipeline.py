@@ -57,7 +57,7 @@ from dpr.rl.run_folder import (
     save_choices,
     tested_runs,
 )
-from dpr.rl.stages import Stage, StageStore, backend_session, run_stages
+from dpr.rl.stages import Stage, StageStore, backend_session, file_sha256, run_stages
 
 STORE = "stages"
 SETTINGS_LOCK = ".dpr-settings.lock"  # held while pipeline.yaml or choices.yaml is read and written
@@ -173,8 +173,6 @@ def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> l
     """(evaluation stage, report label, file name in ``eval/shipped``) of each shipped model on the test seeds, and
     of the wave on the ids of theirs that the run's tasks do not cover (the bar of their rows). A model is keyed,
     and named, by its content's SHA-256: a model replaced in ``models/`` is evaluated again, beside the old one."""
-    import hashlib
-
     scoring = {"steps": config.steps, "seeds": config.test_seeds}
     own = {config.env_id(task) for task in config.tasks}
     out = []
@@ -184,7 +182,7 @@ def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> l
         stage = Stage("evaluate", f"{env_id}: evaluate the wave", settings, build.evaluate_policy)
         out.append((stage, BASELINE, f"{BASELINE}-{env_id.removeprefix('dpr/')}.json"))
     for model in shipped:
-        digest = hashlib.sha256(model.path.read_bytes()).hexdigest()
+        digest = file_sha256(model.path)
         settings = {**scoring, "env_id": model.env_id, "sha256": digest, "label": str(model.path)}
         stage = Stage(
             "evaluate",

@@ -97,7 +97,8 @@ def closure(targets: Iterable[Stage]) -> list[Stage]:
     return list(ordered.values())
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of the file at ``path`` (hex), read in blocks."""
     digest = hashlib.sha256()
     with open(path, "rb") as file:
         for block in iter(lambda: file.read(1 << 20), b""):
@@ -112,7 +113,7 @@ def _files(folder: Path) -> list[Path]:
 def write_manifest(stage: Stage, folder: Path, seconds: float) -> None:
     """``stage.json`` in ``folder``: the stage, how long it took, and each file's size and SHA-256."""
     files = {
-        p.relative_to(folder).as_posix(): {"bytes": p.stat().st_size, "sha256": _sha256(p)} for p in _files(folder)
+        p.relative_to(folder).as_posix(): {"bytes": p.stat().st_size, "sha256": file_sha256(p)} for p in _files(folder)
     }
     record = {**stage.record(), "seconds": round(seconds, 1), "files": files}
     atomic_write_text(folder / MANIFEST, json.dumps(record, indent=1, sort_keys=True))
@@ -128,7 +129,7 @@ def damage(folder: Path) -> str | None:
     if set(present) != set(listed):
         return f"its files differ from {MANIFEST}'s list ({sorted(set(present) ^ set(listed))[:3]}...)"
     for name, path in present.items():
-        if path.stat().st_size != listed[name]["bytes"] or _sha256(path) != listed[name]["sha256"]:
+        if path.stat().st_size != listed[name]["bytes"] or file_sha256(path) != listed[name]["sha256"]:
             return f"{name} does not match its size and SHA-256 in {MANIFEST}"
     return None
 
