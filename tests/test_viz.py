@@ -352,6 +352,23 @@ def test_a_failed_save_leaves_no_file(dataset, tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_gate_v2_dataset_with_the_last_action_shows_the_robots_where_they_were(tmp_path):
+    """Gate-v2's state holds the opening between the robots and the last action: the view finds the robots."""
+    root = tmp_path / "gate"
+    spec = CollectSpec(
+        "dpr/Gate-v2",
+        policy="wave-markov",
+        robot_model="disk",
+        n_robots=4,
+        steps=20,
+        env_kwargs={"obs_last_action": True},
+    )
+    collect(root, spec, episodes=1, workers=1, mcap=True)
+    from_dataset = episode_from_dataset(LeRobotReader(root), 0)
+    from_mcap = episode_from_mcap(root / "mcap" / "seed-000000.mcap")
+    np.testing.assert_allclose(from_dataset.positions, from_mcap.positions[:-1], atol=1e-3)
+
+
 def test_dataset_without_dpr_metadata_is_refused(dataset):
     reader = LeRobotReader(dataset)
     del reader.episodes[0]["env_id"]  # as in a dataset recorded by another tool
