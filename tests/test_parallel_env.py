@@ -323,7 +323,7 @@ def test_make_vec_sync_and_async_agree(task):
             results[mode] = np.stack(trajectory)
         finally:
             envs.close()
-    expected_size = 6 * 4 + (4 if TASK_CLASSES[task].has_object else 0)
+    expected_size = 6 * 4 + (4 if TASK_CLASSES[task].has_object else 0) + (2 if task == "gate" else 0)  # the opening
     assert results["sync"].shape == (steps + 1, 2, expected_size)
     np.testing.assert_array_equal(results["sync"], results["async"])
     assert not np.array_equal(results["sync"][:, 0], results["sync"][:, 1])  # two different seeds

@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import dpr  # noqa: F401  (registers the env ids)
-from dpr.envs.tasks import ENV_IDS
+from dpr.envs.tasks import TASKS
 
 STEPS = 4
 PROPERTY_SETTINGS = settings(
@@ -49,6 +49,11 @@ TASK_KWARGS = {
     "dpr/Navigation-v0": {},
     "dpr/Gate-v0": {"gate_width": FLOAT_VALUES},
     "dpr/Gate-v1": {"gate_width": FLOAT_VALUES, "gate_distance": st.one_of(st.none(), FLOAT_VALUES)},
+    "dpr/Gate-v2": {
+        "gate_width": FLOAT_VALUES,
+        "gate_distance": st.one_of(st.none(), FLOAT_VALUES),
+        "observe_opening": st.sampled_from([True, False, 1, "yes"]),
+    },
     "dpr/Unresponsive-v0": {"n_dead": st.one_of(st.none(), INT_VALUES)},
     "dpr/Manipulation-v0": {
         "object_type": st.sampled_from(["ball", "box", "cube"]),
@@ -94,7 +99,7 @@ def roll(env: gym.Env, seed: int) -> list[tuple[np.ndarray, float]]:
     return trace
 
 
-@pytest.mark.parametrize("env_id", sorted(ENV_IDS.values()))
+@pytest.mark.parametrize("env_id", sorted(TASKS))  # every registered id, earlier versions too
 def test_any_kwargs_give_a_sound_env_or_a_clear_refusal(env_id: str) -> None:
     @PROPERTY_SETTINGS
     @given(kwargs=env_kwargs(env_id), seed=st.integers(0, 2**31 - 1))

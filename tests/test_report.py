@@ -78,7 +78,7 @@ def _write(path, policy, episodes, steps=100):
     return path
 
 
-NAV, GATE = "dpr/Navigation-v0", "dpr/Gate-v1"
+NAV, GATE = "dpr/Navigation-v0", "dpr/Gate-v2"
 
 
 @pytest.fixture
@@ -256,7 +256,7 @@ def test_a_model_named_after_its_task_is_labelled_by_its_method():
 
 
 def test_gate_evaluations_carry_the_passage_measure_into_the_report(tmp_path):
-    """An evaluation on Gate-v1 stores each episode's passage measure, summarises it, and the report shows it."""
+    """An evaluation on the gate stores each episode's passage measure, summarises it, and the report shows it."""
     path = tmp_path / "gate.json"
     kwargs = ["--robot-model", "disk", "--n-robots", "9"]
     argv = [
@@ -264,7 +264,7 @@ def test_gate_evaluations_carry_the_passage_measure_into_the_report(tmp_path):
         "--policy",
         "wave",
         "--env",
-        "dpr/Gate-v1",
+        "dpr/Gate-v2",
         "--seeds",
         "3-4",
         "--steps",
@@ -276,7 +276,7 @@ def test_gate_evaluations_carry_the_passage_measure_into_the_report(tmp_path):
     payload = json.loads(path.read_text())
     for episode in payload["episodes"]:
         result = run_episode(
-            "dpr/Gate-v1", "wave", episode["seed"], steps=400, env_kwargs={"robot_model": "disk", "n_robots": 9}
+            "dpr/Gate-v2", "wave", episode["seed"], steps=400, env_kwargs={"robot_model": "disk", "n_robots": 9}
         )
         assert episode["gate_passage"] == result.measures["gate_passage"]
         assert episode["gate_contact_step"] == result.measures["gate_contact_step"]

@@ -105,6 +105,14 @@ def test_run_folder_holds_models_and_the_resolved_config(runs, algo):
         assert (info.algo, info.env_id, info.env_kwargs, info.max_episode_steps) == (algo, ENV, env_kwargs, 64)
 
 
+def test_a_task_trains_on_its_earlier_registered_versions(tmp_path):
+    """Gate-v0 and Gate-v1 stay registered for the runs made on them (`dpr pipeline --env-id`), and train there."""
+    for env_id in ("dpr/Gate-v0", "dpr/Gate-v1"):
+        config = TrainConfig("ppo", env_id, timesteps=64, steps_per_episode=32, hyperparams=TINY["ppo"], **SMALL_ENV)
+        result = train(config, tmp_path / env_id[-2:], show_progress=False, log=lambda line: None)
+        assert read_model_info(result.model_path).env_id == env_id
+
+
 def test_trained_network_has_the_configured_layers(runs):
     policy = load_model_policy(runs["ppo"].model_path, gym.make(ENV, **SMALL_ENV))
     layers = [m.out_features for m in policy.model.policy.mlp_extractor.policy_net if hasattr(m, "out_features")]

@@ -28,7 +28,7 @@ import yaml
 
 from dpr import runs
 from dpr.checks import ParameterError, check_int
-from dpr.envs import ENV_IDS, episode_steps
+from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
@@ -89,8 +89,8 @@ class TrainConfig:
             raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
         if self.preset not in PRESETS:
             raise ValueError(f"preset must be one of {PRESETS}, got {self.preset!r}")
-        if self.env_id not in ENV_IDS.values():
-            raise ValueError(f"env must be one of {tuple(ENV_IDS.values())}, got {self.env_id!r}")
+        if self.env_id not in TASKS:  # a task's current id, or an earlier one kept for the runs made on it
+            raise ValueError(f"env must be one of {tuple(TASKS)}, got {self.env_id!r}")
         if self.steps_per_episode is None:
             self.steps_per_episode = episode_steps(self.env_kwargs)
         for name in ("n_robots", "n_envs", "steps_per_episode"):
