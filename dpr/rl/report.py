@@ -275,8 +275,8 @@ def results_table(evaluations: list[dict]) -> str:
 
 
 def passage_table(evaluations: list[dict]) -> str:
-    """Markdown table of the gate's passage measure, one row per (task, policy) whose episodes carry it (Gate-v1 on,
-    and its evaluations since the measure exists): the median fraction of robots past the walls' near face at
+    """Markdown table of the gate's passage measure, one row per (task, policy) whose episodes carry it (Gate-v1 and
+    later, in evaluations made since the measure exists): the median fraction of robots past the walls' near face at
     the end, how many episodes touched a wall, and the median physics step of the first touch. Empty if none."""
     lines = []
     for task, groups in _groups(evaluations).items():
