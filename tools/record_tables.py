@@ -24,6 +24,7 @@ import argparse
 import re
 import sys
 from collections.abc import Sequence
+from functools import cached_property
 from pathlib import Path
 
 import yaml
@@ -79,10 +80,15 @@ class Record:
         return int(choice["chosen_seed"]), {int(s): float(v) for s, v in choice["validation_medians"].items()}
 
     def interval_rows(self) -> list[list[str]]:
-        """The cells of the report's interval table, one list per row."""
+        """The cells of the report's interval table, one list per row (new lists: callers may change them)."""
+        return [list(cells) for cells in self._interval_cells]
+
+    @cached_property
+    def _interval_cells(self) -> list[tuple[str, ...]]:
+        # every task of the record reads the table: the report is read once
         path = self.folder / "report" / "results.md"
         lines = path.read_text().splitlines()
-        return [_cells(line) for line in lines[slice(*_table_body(lines, INTERVAL_HEADER, path))]]
+        return [tuple(_cells(line)) for line in lines[slice(*_table_body(lines, INTERVAL_HEADER, path))]]
 
 
 def load_records(folders: Sequence[Path]) -> list[Record]:
