@@ -358,6 +358,10 @@ def test_collect_names_the_image_size_flag_for_a_frame_size_out_of_range(size, t
         (1e9, "gate_distance: must be <= 450"),
         ("10", "gate_distance: expected a number"),
         (True, "gate_distance: expected a number"),
+        ([5.0], "gate_distance: expected a number or \\[low, high\\]"),
+        ([200.0, 5.0], "gate_distance: expected \\[low, high\\] with low <= high"),
+        ([5.0, 1e9], "gate_distance: must be <= 450"),
+        ([-1.0, 5.0], "gate_distance: must be >= 0"),
     ],
 )
 def test_gate_distance_out_of_range_is_one_error_naming_it(distance, message):

@@ -143,6 +143,27 @@ def test_gate_v1_walls_stand_gate_distance_from_the_nearest_robot(make_env, dist
     assert info["gate_contact_step"] == -1
 
 
+def test_gate_distance_range_is_drawn_each_episode(make_env):
+    """``gate_distance=[low, high]``: each reset places the walls as ``gate_distance`` = a draw in [low, high] would,
+    reproducibly per seed; the starts clear the walls at ``high``; one number draws nothing (the starts as before)."""
+
+    def walls_ahead(env, seed):  # the walls' near face, from the swarm's contracted front toward the goal
+        env.reset(seed=seed)
+        return env.unwrapped._gate_near
+
+    fixed = {d: make_env("dpr/Gate-v2", n_robots=9, gate_distance=d) for d in (20.0, 150.0)}
+    spread = make_env("dpr/Gate-v2", n_robots=9, gate_distance=[20.0, 150.0])
+    offsets = {d: walls_ahead(env, 0) - d for d, env in fixed.items()}  # the front, where distance 0 would stand
+    assert offsets[20.0] == pytest.approx(offsets[150.0])
+    drawn = [walls_ahead(spread, seed) for seed in range(12)]
+    assert [walls_ahead(spread, seed) for seed in range(12)] == drawn  # the same seed draws the same walls
+    front = [walls_ahead(make_env("dpr/Gate-v2", n_robots=9, gate_distance=0.0), seed) for seed in range(12)]
+    distances = np.subtract(drawn, front)
+    assert distances.min() >= 20.0 and distances.max() <= 150.0 and distances.std() > 20.0
+    assert spread.unwrapped.start_shift == fixed[150.0].unwrapped.start_shift > 0
+    assert fixed[20.0].unwrapped.start_shift == 0.0
+
+
 @pytest.mark.parametrize("robot_model", ROBOT_MODELS)
 def test_gate_v1_the_wave_meets_the_walls_and_the_passage_measure_says_when(make_env, robot_model):
     """The wave touches the v1 walls early while v0's stay out of reach; the passage measure counts robots past

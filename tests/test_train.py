@@ -406,3 +406,38 @@ def test_a_run_makes_the_steps_its_log_and_config_say(tmp_path, algo, hyperparam
         assert f"rollouts of {' '.join(f'{k}={v}' for k, v in fitted.items())} (" in note
     else:
         assert f"so this run makes {made} training steps for the {timesteps} asked" in note
+
+
+def test_training_env_kwargs_reach_the_training_envs_only(tmp_path, monkeypatch):
+    """`--training-env-kwarg`: the envs that gather experience draw Gate's walls over a spread of placements; the
+    model records the task as evaluated (no gate_distance), and its evaluation env is the task's."""
+    import dpr.rl.train as train_module
+
+    made = []
+    real = train_module.make_vec_env
+
+    def recording(env_id, env_kwargs, *args, **kwargs):
+        made.append(dict(env_kwargs))
+        return real(env_id, env_kwargs, *args, **kwargs)
+
+    monkeypatch.setattr(train_module, "make_vec_env", recording)
+    spread = {"gate_distance": [150.0, 200.0]}
+    config = TrainConfig(
+        "ppo", "dpr/Gate-v2", 4, "disk", 64, steps_per_episode=32, hyperparams=TINY["ppo"], training_env_kwargs=spread
+    )
+    result = train(config, tmp_path / "run", show_progress=False, log=lambda line: None)
+    assert [kwargs.get("gate_distance") for kwargs in made] == [[150.0, 200.0], None]  # training, then evaluation
+    assert "gate_distance" not in read_model_info(result.model_path).env_kwargs
+    recorded = yaml.safe_load((result.run_dir / "config.yaml").read_text())
+    assert recorded["training_env_kwargs"] == spread
+
+
+def test_training_env_kwargs_must_keep_the_spaces(tmp_path):
+    config = TrainConfig(
+        "ppo", "dpr/Gate-v2", timesteps=64, steps_per_episode=32, training_env_kwargs={"observe_opening": False}
+    )
+    with pytest.raises(ValueError, match="training_env_kwargs"):
+        train(config, tmp_path / "run", show_progress=False, log=lambda line: None)
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(ValueError, match="training_env_kwargs must not set"):
+        TrainConfig("ppo", "dpr/Gate-v2", training_env_kwargs={"n_robots": 4})

@@ -13,6 +13,7 @@ from dpr.cli.common import (
     check_seed,
     default_argument,
     defaults,
+    env_kwarg,
     env_kwarg_argument,
     flag_message,
     name_and_value,
@@ -72,6 +73,14 @@ def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> 
         type=non_negative_int,
     )
     env_kwarg_argument(parser, "reward=projected")
+    parser.add_argument(
+        "--training-env-kwarg",
+        action="append",
+        type=env_kwarg,
+        metavar="NAME=VALUE",
+        help="a gym.make kwarg of the envs that gather experience only, e.g. 'gate_distance=[5, 200]' (walls drawn "
+        "over a spread of placements): the model records --env-kwarg's task and is evaluated on it (repeatable)",
+    )
     parser.add_argument(
         "--hyperparam",
         action="append",
@@ -199,6 +208,7 @@ def cmd_train(args, parser) -> int:
             preset=args.preset,
             steps_per_episode=args.steps_per_episode,
             env_kwargs=dict(args.env_kwarg or []),
+            training_env_kwargs=dict(args.training_env_kwarg or []),
             hyperparams=dict(args.hyperparam or []),
             eval_episodes=args.eval_episodes,
         )
@@ -332,6 +342,7 @@ def cmd_finetune(args, parser) -> int:
             preset=FINETUNE_PRESET,
             steps_per_episode=info.max_episode_steps or episode_steps(info.env_kwargs),
             env_kwargs=env_kwargs,
+            training_env_kwargs=dict(args.training_env_kwarg or []),
             hyperparams={**defaults, **overrides},
             eval_episodes=args.eval_episodes,
             init_from=args.source,

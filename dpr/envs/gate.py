@@ -61,8 +61,10 @@ class GateEnv(ParticleSwarmEnv):
 
     ## Arguments
     Navigation's, plus ``gate_width=150.0``, which must exceed one expanded robot's diameter (77.5) and be
-    finite and <= 1e5, ``gate_distance`` (v1, v2: 5.0; None: halfway, v0's placement), finite, >= 0 and at
-    most the near end of ``start_radius``, and ``observe_opening`` (v2: True; see Observation Space).
+    finite and <= 1e5, ``gate_distance`` (v1, v2: 5.0; None: halfway, v0's placement; ``[low, high]``: drawn
+    uniformly each episode, to train on a spread of placements, every start then drawn as for ``high``),
+    finite, >= 0 and at most the near end of ``start_radius``, and ``observe_opening`` (v2: True; see
+    Observation Space).
 
     ## Version History
     * v2: the opening's centre in the state observation (``observe_opening``).
@@ -97,16 +99,8 @@ class GateEnv(ParticleSwarmEnv):
                 f"{self.robot_model!r}), got {gate_width!r}"
             )
         self.gate_width = float(gate_width)
-        if gate_distance is not None:
-            nearest_goal = self.start_radius[0]
-            gate_distance = check_number("gate_distance", gate_distance, minimum=0.0)
-            if gate_distance > nearest_goal:
-                raise ParameterError(
-                    "gate_distance",
-                    f"must be <= {nearest_goal:g} (the near end of start_radius) so that the walls stand between "
-                    f"the swarm and the goal; got {gate_distance:g}",
-                )
         self.gate_distance = gate_distance
+        self._gate_distances = None if gate_distance is None else self._distance_range(gate_distance)
         self._gate_along = np.zeros(2)  # unit vector from the start toward the goal
         self._gate_near = 0.0  # the walls' near face, in units from the start along it
         self._gate_centre = np.zeros(2)  # the opening's centre, on the line from the start to the goal
@@ -127,14 +121,33 @@ class GateEnv(ParticleSwarmEnv):
             reach = np.where(across >= half, radius, np.sqrt(np.maximum(radius**2 - (half - across) ** 2, 0.0)))
         return np.where(across + radius > half, along + reach, -np.inf).max(axis=0)
 
-    def _near_face(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    def _distance_range(self, gate_distance) -> tuple[float, float]:
+        """``gate_distance`` as the (low, high) it is drawn from (one number: both)."""
+        if isinstance(gate_distance, (list, tuple)):
+            if len(gate_distance) != 2:
+                raise ParameterError("gate_distance", f"expected a number or [low, high], got {gate_distance!r}")
+            low, high = (check_number("gate_distance", value, minimum=0.0) for value in gate_distance)
+            if low > high:
+                raise ParameterError("gate_distance", f"expected [low, high] with low <= high, got {gate_distance!r}")
+        else:
+            low = high = check_number("gate_distance", gate_distance, minimum=0.0)
+        nearest_goal = self.start_radius[0]
+        if high > nearest_goal:
+            raise ParameterError(
+                "gate_distance",
+                f"must be <= {nearest_goal:g} (the near end of start_radius) so that the walls stand between "
+                f"the swarm and the goal; got {high:g}",
+            )
+        return low, high
+
+    def _near_face(self, offsets: np.ndarray, directions: np.ndarray, gate_distance: float) -> np.ndarray:
         """Gate-v1: the walls' near face for each direction, in units from the swarm's centre: ``gate_distance``
         beyond the front of the contracted robots that the opening does not hold, where they meet the walls (of
         every robot if it holds them all)."""
         contracted = self.swarm_class.contracted_radius
         front = self._blocked_front(offsets, directions, contracted, corners=True)
         whole = (offsets @ directions.T).max(axis=0) + contracted
-        return np.where(np.isfinite(front), front, whole) + self.gate_distance
+        return np.where(np.isfinite(front), front, whole) + gate_distance
 
     def _start_distances(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Besides the goal's clearance, v0: every contracted robot that the opening does not hold stays
@@ -144,7 +157,7 @@ class GateEnv(ParticleSwarmEnv):
             front = self._blocked_front(offsets, directions, self.swarm_class.contracted_radius)
             walls = 2 * (front + WALL_CLEARANCE + WALL_THICKNESS / 2)
         else:
-            walls = self._near_face(offsets, directions) + WALL_THICKNESS + GOAL_CLEARANCE
+            walls = self._near_face(offsets, directions, self._gate_distances[1]) + WALL_THICKNESS + GOAL_CLEARANCE
         return np.maximum(super()._start_distances(offsets, directions), walls)
 
     def _walls(self, start: np.ndarray) -> list[np.ndarray]:
@@ -155,8 +168,10 @@ class GateEnv(ParticleSwarmEnv):
         if self.gate_distance is None:
             self._gate_near = distance / 2 - WALL_THICKNESS / 2
         else:
+            low, high = self._gate_distances
+            gate_distance = low if low == high else self.np_random.uniform(low, high)  # a number draws nothing
             offsets = grid_centres(self.n_robots, (0.0, 0.0))
-            self._gate_near = float(self._near_face(offsets, self._gate_along[None, :])[0])
+            self._gate_near = float(self._near_face(offsets, self._gate_along[None, :], gate_distance)[0])
         at = None if self.gate_distance is None else self._gate_near  # v0's walls as they always were, to the bit
         walls = gate_polygons(start, self.goal, self.gate_width, thickness=WALL_THICKNESS, at=at)
         self._gate_centre = (walls[0][0] + walls[0][3] + walls[1][0] + walls[1][3]) / 4  # the walls' inner corners

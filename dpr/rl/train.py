@@ -76,6 +76,9 @@ class TrainConfig:
     preset: str = DEFAULT_PRESET
     steps_per_episode: int | None = None  # env steps; None: a whole episode (dpr.envs.episode_steps)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    # on top of env_kwargs in the envs that gather experience only (e.g. a spread of Gate's wall placements): the
+    # model records env_kwargs, the task it is for, and is evaluated there
+    training_env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)  # overrides of the yaml entry
     eval_episodes: int = 2  # per evaluation during training (best_model.zip); 0: none
     init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
@@ -110,9 +113,10 @@ class TrainConfig:
             raise ValueError(f"anchor_weight must be a number > 0.0, got {self.anchor_weight!r}")
         if not _is_number(self.anchor_decay) or not 0 < self.anchor_decay <= 1:
             raise ValueError(f"anchor_decay must be a number in (0.0, 1.0], got {self.anchor_decay!r}")
-        reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
-        if reserved:
-            raise ValueError(f"env_kwargs must not set {reserved}: use n_robots, robot_model and steps_per_episode")
+        for name in ("env_kwargs", "training_env_kwargs"):
+            reserved = sorted(set(RESERVED_ENV_KWARGS) & set(getattr(self, name)))
+            if reserved:
+                raise ValueError(f"{name} must not set {reserved}: use n_robots, robot_model and steps_per_episode")
 
     @property
     def command(self) -> str:
@@ -131,6 +135,11 @@ class TrainConfig:
                 )
             env_kwargs[name] = value
         return hyper, env_kwargs, self.timesteps or hyper.n_timesteps
+
+    def training_kwargs(self, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+        """The kwargs of the envs that gather experience: ``env_kwargs`` (from :meth:`resolve`) with
+        ``training_env_kwargs`` over them."""
+        return {**env_kwargs, **self.training_env_kwargs}
 
 
 @dataclass(frozen=True)
@@ -312,6 +321,20 @@ def _close_quietly(vec_env) -> None:
         pass
 
 
+def _check_training_env(config: TrainConfig, env: gym.Env, training_kwargs: dict[str, Any]) -> None:
+    """The envs made with ``training_kwargs`` must take the observations and actions of ``env``, the task's (a
+    ValueError naming training_env_kwargs)."""
+    training = gym.make(config.env_id, **training_kwargs)
+    try:
+        if training.observation_space != env.observation_space or training.action_space != env.action_space:
+            raise ValueError(
+                f"training_env_kwargs {config.training_env_kwargs} change the observation or action space of "
+                f"{config.env_id}; they may change only what the training envs draw"
+            )
+    finally:
+        training.close()
+
+
 def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any]) -> Demonstrations | None:
     """The anchor's demonstration frames, checked against the spaces of ``env`` (made with ``env_kwargs``);
     None without ``anchor_datasets``."""
@@ -361,7 +384,10 @@ def train(
     if resume:
         check_resumable(out, config)
     probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
+    training_kwargs = config.training_kwargs(env_kwargs)
     try:
+        if config.training_env_kwargs:
+            _check_training_env(config, probe, training_kwargs)
         if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
             initial, source = load_model(config.init_from, parameter=INIT_PARAMETER)
             if source.per_robot is not None:
@@ -391,6 +417,7 @@ def train(
         "algo": config.algo,
         "env_id": config.env_id,
         "env_kwargs": env_kwargs,
+        "training_env_kwargs": dict(config.training_env_kwargs),
         "steps_per_episode": config.steps_per_episode,
         "hyperparameters": hyper.as_dict(),
         "hyperparameter_overrides": dict(config.hyperparams),
@@ -424,7 +451,7 @@ def train(
 
     env = make_vec_env(
         config.env_id,
-        env_kwargs,
+        training_kwargs,
         config.steps_per_episode,
         config.n_envs,
         snapshot and snapshot.train_episodes,
