@@ -184,6 +184,11 @@ def test_a_bad_settings_file_is_refused_naming_the_key_and_file_before_any_work(
         (["--seed", "0"], "unrecognized arguments: --seed"),
         (["--eval-seeds", "300"], "unrecognized arguments: --eval-seeds"),
         (["--preset", "tiny", "--config", "x.yaml"], "not allowed with argument"),
+        (["--training-env-kwarg", "gate_distance=5"], "expected TASK:NAME=VALUE"),
+        (
+            ["--tasks", "gate", "--training-env-kwarg", "gate:gate_distance=[50, 5]"],
+            r"--training-env-kwarg: gate: gate_distance: expected \[low, high\]",
+        ),
     ],
 )
 def test_bad_pipeline_arguments_are_refused_before_any_work(tmp_path, capsys, args, message):
@@ -191,6 +196,18 @@ def test_bad_pipeline_arguments_are_refused_before_any_work(tmp_path, capsys, ar
     assert run_cli(["pipeline", *args, "--out", str(tmp_path / "run")]) == 2
     assert re.search(message, capsys.readouterr().err)
     assert not (tmp_path / "run").exists() and time.perf_counter() - started < 30
+
+
+def test_training_env_kwarg_flags_add_to_the_configs_per_task():
+    import argparse
+
+    from dpr.cli.pipeline import pipeline_arguments, pipeline_config
+
+    parser = argparse.ArgumentParser()
+    pipeline_arguments(parser)
+    flags = ["--training-env-kwarg", "gate:gate_distance=[5, 200]", "--training-env-kwarg", "gate:gate_width=160"]
+    config = pipeline_config(parser.parse_args(["--preset", "tiny", "--tasks", "gate", *flags]))
+    assert config.training_env_kwargs == {"gate": {"gate_distance": [5, 200], "gate_width": 160}}
 
 
 def test_a_refused_run_leaves_an_existing_folder_as_it_was(tiny, capsys):

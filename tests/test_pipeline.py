@@ -14,7 +14,7 @@ from helpers import PIPELINE, QUIET, built_stages, run_tiny
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
 from dpr.policies.sb3 import load_model, read_model_info
-from dpr.rl.pipeline import run_pipeline
+from dpr.rl.pipeline import run_pipeline, task_stages
 from dpr.rl.pipeline_config import PipelineConfig, learner_env_kwargs
 
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
@@ -246,6 +246,49 @@ def test_pipeline_trains_manipulation_with_the_shaping(tmp_path):
     for method in ("bc-ppo", "ppo"):
         assert read_model_info(out / "models" / f"manipulation-{method}.zip").env_kwargs["approach_reward"] == 0.5
     assert "approach_reward" not in read_model_info(out / "models" / "manipulation-bc.zip").env_kwargs
+
+
+def test_pipeline_trains_a_task_on_its_training_env_kwargs(tmp_path):
+    """Gate's RL runs gather experience with the walls drawn over a spread; their models are Gate's as evaluated,
+    and the runs' config.yaml records the spread. The clone is untouched, and so are other tasks' stage keys."""
+    spread = {"gate": {"gate_distance": [5.0, 50.0]}}
+    out = tmp_path / "run"
+    run_tiny({**PIPELINE, "tasks": ["gate"], "training_env_kwargs": spread}, out)
+    for method in ("bc", "bc-ppo", "ppo"):
+        assert "gate_distance" not in read_model_info(out / "models" / f"gate-{method}.zip").env_kwargs
+    records = [yaml.safe_load(path.read_text()) for path in (out / "stages" / "rl").glob("*/config.yaml")]
+    assert len(records) == 2 and all(r["training_env_kwargs"] == spread["gate"] for r in records)
+    plain, spread_config = (
+        PipelineConfig(**{**PIPELINE, "tasks": ["navigation", "gate"], "training_env_kwargs": kwargs})
+        for kwargs in ({}, spread)
+    )
+
+    def keys(config, task):
+        stages = task_stages(config, task)
+        return [stage.key for stage in (*stages.models.values(), *stages.evaluations.values())]
+
+    assert keys(plain, "navigation") == keys(spread_config, "navigation")
+    assert keys(plain, "gate")[0] == keys(spread_config, "gate")[0]  # the clone
+    assert keys(plain, "gate")[1:] != keys(spread_config, "gate")[1:]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"swimming": {"gate_distance": 5.0}}, "training_env_kwargs: expected task -> mapping"),
+        ({"gate": [5.0, 50.0]}, "training_env_kwargs: expected task -> mapping"),
+        ({"gate": {"gate_distance": [50.0, 5.0]}}, r"training_env_kwargs: gate: gate_distance: expected \[low"),
+        ({"gate": {"observe_opening": False}}, "training_env_kwargs: gate: .* observation or action space"),
+    ],
+)
+def test_bad_training_env_kwargs_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        PipelineConfig(**{**PIPELINE, "tasks": ["gate"], "training_env_kwargs": kwargs})
+
+
+def test_a_training_env_kwarg_of_a_task_not_run_is_passed_over():
+    config = PipelineConfig(**{**PIPELINE, "training_env_kwargs": {"gate": {"gate_distance": "far"}}})
+    assert config.tasks == ["navigation"]
 
 
 def test_pipeline_gives_every_learner_its_actor(pipeline, tmp_path):

@@ -26,8 +26,13 @@ PIPELINE_FLAGS = {
     "finetune_hyperparams": "--finetune-hyperparam",
     "scratch_hyperparams": "--scratch-hyperparam",
     "env_ids": "--env-id",
+    "training_env_kwargs": "--training-env-kwarg",
 }
 HYPERPARAM_FLAGS = {"finetune_hyperparams": "--finetune-hyperparam", "scratch_hyperparams": "--scratch-hyperparam"}
+
+
+def _task_kwargs(mapping: dict) -> str:
+    return " ".join(f"{task}:{_pairs(kwargs)}" for task, kwargs in mapping.items()) or "none"
 
 
 def _pairs(mapping: dict) -> str:
@@ -41,6 +46,16 @@ def earlier_env_id(text: str) -> str:
     if text not in EARLIER_ENV_IDS:
         raise argparse.ArgumentTypeError(f"expected one of {list(EARLIER_ENV_IDS)}, got {text!r}")
     return text
+
+
+def task_env_kwarg(text: str) -> tuple[str, str, object]:
+    """A ``--training-env-kwarg`` value: ``TASK:NAME=VALUE``."""
+    from dpr.cli.common import env_kwarg
+
+    task, colon, rest = text.partition(":")
+    if not colon or not task:
+        raise argparse.ArgumentTypeError(f"expected TASK:NAME=VALUE (e.g. 'gate:gate_distance=[5, 200]'), got {text!r}")
+    return (task, *env_kwarg(rest, "--training-env-kwarg"))
 
 
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,6 +99,20 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="run a task on this earlier registered id of it instead of its current one (repeatable; "
         f"{', '.join(EARLIER_ENV_IDS)})",
+    )
+    training_kwargs = ", ".join(
+        f"{name} {_task_kwargs(config.get('training_env_kwargs', {}))}" for name, config in presets.items()
+    )
+    parser.add_argument(
+        "--training-env-kwarg",
+        dest="training_env_kwargs",
+        action="append",
+        type=task_env_kwarg,
+        metavar="TASK:NAME=VALUE",
+        default=None,
+        help="a kwarg of the envs that TASK's RL runs (fine-tuning, from scratch) gather experience on, over the "
+        "config's, e.g. 'gate:gate_distance=[5, 200]'; the models stay the task's and are evaluated on it "
+        f"(repeatable; preset: {training_kwargs})",
     )
     preset_argument("--n-robots", "swarm size N")
     preset_argument("--episodes", "demonstration episodes per task")
@@ -223,6 +252,11 @@ def pipeline_config(args):
     if "env_ids" in overrides:  # --env-id dpr/Gate-v0 -> {"gate": "dpr/Gate-v0"}
         overrides["env_ids"] = {TASKS[env_id]: env_id for env_id in overrides["env_ids"]}
     base = read_settings(args.config) if args.config else read_settings(preset_path(args.preset or "small"))
+    if "training_env_kwargs" in overrides:  # TASK:NAME=VALUE triples over the config's, per task
+        merged = {task: dict(kwargs) for task, kwargs in base.get("training_env_kwargs", {}).items()}
+        for task, name, value in overrides["training_env_kwargs"]:
+            merged.setdefault(task, {})[name] = value
+        overrides["training_env_kwargs"] = merged
     for name in HYPERPARAM_FLAGS:  # NAME=VALUE pairs over the config's; NAME=null drops the config's value
         if name in overrides:
             merged = {**base.get(name, {}), **dict(overrides[name])}

@@ -118,6 +118,8 @@ def _learner_stages(config: PipelineConfig, task: str, env: dict[str, Any], stag
     rl = {**env, "n_envs": config.n_envs}
     if task == "manipulation" and config.approach_reward:
         rl["approach_reward"] = float(config.approach_reward)
+    if config.training_env_kwargs.get(task):  # only then: the other tasks' stages keep their keys
+        rl["training_env_kwargs"] = dict(config.training_env_kwargs[task])
     for seed in config.train_seeds:
         cloning = {"env_id": env["env_id"], "algo": BC_ALGO, "epochs": config.bc_epochs, "seed": seed}
         cloning["hyperparams"] = config.actor_hyperparams()

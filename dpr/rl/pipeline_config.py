@@ -90,6 +90,10 @@ class PipelineConfig:
     actor: str = "swarm"  # one of ACTORS
     # task -> an earlier registered id of it that the task runs on instead of its current one (ENV_IDS)
     env_ids: dict[str, str] = field(default_factory=dict)
+    # task -> kwargs of the envs its RL runs (fine-tuning and from scratch) gather experience on, over the task's
+    # own; its models stay models of the task and are evaluated there (TrainConfig.training_env_kwargs). A task
+    # this run does not run is passed over, so that a preset may name any task.
+    training_env_kwargs: dict[str, dict] = field(default_factory=dict)
 
     def __post_init__(self):
         check_types(self)
@@ -106,6 +110,7 @@ class PipelineConfig:
         idle = [env_id for task, env_id in self.env_ids.items() if task not in self.tasks]
         if idle:
             raise ParameterError("env_ids", f"{idle} belong to tasks this run does not run ({self.tasks})")
+        self._check_training_env_kwargs()
         if self.actor not in ACTORS:
             raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
         if self.actor != "mlp" and DQN in self.scratch_algos:
@@ -156,6 +161,34 @@ class PipelineConfig:
                     load_hyperparams(algo, self.env_id(task), DEFAULT_ENTRY, self.scratch_hyperparams_at(WAVE_HOLD))
                 except ValueError as error:
                     raise ParameterError("scratch_hyperparams", str(error)) from None
+
+    def _check_training_env_kwargs(self) -> None:
+        """Each entry names a task and holds kwargs that its env takes without a change of spaces."""
+        import gymnasium as gym
+
+        for task, kwargs in self.training_env_kwargs.items():
+            if task not in ENV_IDS or not isinstance(kwargs, dict):
+                raise ParameterError(
+                    "training_env_kwargs",
+                    f"expected task -> mapping of env kwargs, tasks among {list(ENV_IDS)}; got {task!r}: {kwargs!r}",
+                )
+            if task not in self.tasks:
+                continue
+            env_id = self.env_id(task)
+            try:
+                task_env, training_env = gym.make(env_id), gym.make(env_id, **kwargs)
+            except (TypeError, ValueError) as error:
+                raise ParameterError("training_env_kwargs", f"{task}: {error}") from None
+            same = (task_env.observation_space, task_env.action_space) == (
+                training_env.observation_space,
+                training_env.action_space,
+            )
+            task_env.close()
+            training_env.close()
+            if not same:
+                raise ParameterError(
+                    "training_env_kwargs", f"{task}: {kwargs} change {env_id}'s observation or action space"
+                )
 
     def _check_seed_sets(self) -> None:
         """Training, demonstration, choosing (validation, teacher) and scoring (test) seeds never meet."""

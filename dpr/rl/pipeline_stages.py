@@ -144,6 +144,7 @@ def train_rl(
         timesteps=settings["physics_steps"] // repeat,
         steps_per_episode=episode_steps(kwargs, settings["steps"]),
         env_kwargs=kwargs,
+        training_env_kwargs=dict(settings.get("training_env_kwargs", {})),
         hyperparams=hyperparams,
         preset=FINETUNE_PRESET if fine_tuning else DEFAULT_PRESET,
         init_from=str(inputs["clone"] / MODEL) if fine_tuning else None,
