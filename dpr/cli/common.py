@@ -53,6 +53,7 @@ PARAMETER_FLAGS = {
     "env_id": "--env",
     "env_ids": "--env",
     "env_kwargs": "--env-kwarg",
+    "training_env_kwargs": "--training-env-kwarg",
     "hyperparams": "--hyperparam",
 }
 

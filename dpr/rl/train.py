@@ -321,18 +321,24 @@ def _close_quietly(vec_env) -> None:
         pass
 
 
-def _check_training_env(config: TrainConfig, env: gym.Env, training_kwargs: dict[str, Any]) -> None:
-    """The envs made with ``training_kwargs`` must take the observations and actions of ``env``, the task's (a
-    ValueError naming training_env_kwargs)."""
-    training = gym.make(config.env_id, **training_kwargs)
+def check_training_env_kwargs(env_id: str, env_kwargs: dict[str, Any], training_env_kwargs: dict[str, Any]) -> None:
+    """A :class:`ParameterError` about ``training_env_kwargs`` unless ``env_id`` made with them over ``env_kwargs``
+    takes the observations and actions it takes with ``env_kwargs`` alone (a kwarg the env refuses: its own
+    ValueError or TypeError)."""
+    task_env = gym.make(env_id, **env_kwargs)
     try:
-        if training.observation_space != env.observation_space or training.action_space != env.action_space:
-            raise ValueError(
-                f"training_env_kwargs {config.training_env_kwargs} change the observation or action space of "
-                f"{config.env_id}; they may change only what the training envs draw"
-            )
+        training_env = gym.make(env_id, **{**env_kwargs, **training_env_kwargs})
+        spaces = (task_env.observation_space, task_env.action_space)
+        same = spaces == (training_env.observation_space, training_env.action_space)
+        training_env.close()
     finally:
-        training.close()
+        task_env.close()
+    if not same:
+        raise ParameterError(
+            "training_env_kwargs",
+            f"{training_env_kwargs} change the observation or action space of {env_id}; they may change only what "
+            "the training envs draw",
+        )
 
 
 def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any]) -> Demonstrations | None:
@@ -387,7 +393,7 @@ def train(
     training_kwargs = config.training_kwargs(env_kwargs)
     try:
         if config.training_env_kwargs:
-            _check_training_env(config, probe, training_kwargs)
+            check_training_env_kwargs(config.env_id, env_kwargs, config.training_env_kwargs)
         if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
             initial, source = load_model(config.init_from, parameter=INIT_PARAMETER)
             if source.per_robot is not None:
