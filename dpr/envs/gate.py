@@ -99,8 +99,11 @@ class GateEnv(ParticleSwarmEnv):
                 f"{self.robot_model!r}), got {gate_width!r}"
             )
         self.gate_width = float(gate_width)
-        self.gate_distance = gate_distance
         self._gate_distances = None if gate_distance is None else self._distance_range(gate_distance)
+        if self._gate_distances is not None:  # the checked values: a float, or [low, high]
+            low, high = self._gate_distances
+            gate_distance = [low, high] if isinstance(gate_distance, (list, tuple)) else low
+        self.gate_distance = gate_distance
         self._gate_along = np.zeros(2)  # unit vector from the start toward the goal
         self._gate_near = 0.0  # the walls' near face, in units from the start along it
         self._gate_centre = np.zeros(2)  # the opening's centre, on the line from the start to the goal
