@@ -27,14 +27,14 @@ from dpr.envs.particle_env import LENGTH_SCALE
 NAV, MANIPULATION = "dpr/Navigation-v0", "dpr/Manipulation-v0"
 SWARM = ["swarm.x", "swarm.y", "swarm.vx", "swarm.vy", "swarm.distance"]
 OBJECT = ["object.x", "object.y", "object.vx", "object.vy", "object.distance"]
+N = 4
 NAMES = {
     NAV: SWARM,
-    "dpr/Unresponsive-v0": SWARM,
+    "dpr/Unresponsive-v0": [*SWARM, *(f"dead.robot{i}" for i in range(N))],
     "dpr/Gate-v1": [*SWARM, "gate.dx", "gate.dy"],
     "dpr/Gate-v2": [*SWARM, "gate.dx", "gate.dy"],
     MANIPULATION: [*SWARM, *OBJECT],
 }
-N = 4
 SMALL = {"n_robots": N, "robot_model": "disk"}
 
 
@@ -120,6 +120,26 @@ def test_gate_v2_observes_the_openings_centre_and_is_gate_v1_otherwise(make_env)
         (new, *_), (old, *_) = v2.step(action), v1.step(action)
     with pytest.raises(ValueError, match="observe_opening: expected True or False"):
         make_env("dpr/Gate-v2", observe_opening="yes")
+
+
+def test_the_unresponsive_state_flags_the_dead_robots_of_each_episode(make_env):
+    """One flag per robot, 1 for the dead ones of this episode (drawn anew at each reset), not scaled as lengths;
+    the swarm's five values are Navigation's."""
+    env = make_env("dpr/Unresponsive-v0", n_dead=2)
+    base = env.unwrapped
+    drawn = set()
+    for seed in range(6):
+        _, info = env.reset(seed=seed)
+        state = base.environment_state()
+        flags = state[len(SWARM) :]
+        assert flags.dtype == np.float32 and set(np.unique(flags)) == {0.0, 1.0}
+        np.testing.assert_array_equal(np.flatnonzero(flags), info["dead_robots"])
+        centre = (base.world.centre_of_mass - base.goal) * LENGTH_SCALE
+        np.testing.assert_array_equal(state[0:2], centre.astype(np.float32))
+        env.step(np.ones(N, dtype=np.int64))
+        np.testing.assert_array_equal(base.environment_state()[len(SWARM) :], flags)  # fixed for the episode
+        drawn.add(tuple(info["dead_robots"]))
+    assert len(drawn) > 1
 
 
 def test_the_environment_state_is_deterministic():

@@ -17,7 +17,8 @@ class UnresponsiveEnv(ParticleSwarmEnv):
 
     ## Observation Space
     As Navigation; a dead robot's expansion stays 0. Which robots are dead is not observed (it is in
-    ``info["dead_robots"]`` after reset).
+    ``info["dead_robots"]`` after reset). ``environment_state()`` (what datasets record as
+    ``observation.environment_state``) ends with one flag per robot, ``dead.robot<i>``: 1 for a dead robot, else 0.
 
     ## Rewards
     As Navigation.
@@ -45,6 +46,14 @@ class UnresponsiveEnv(ParticleSwarmEnv):
             n_dead = int(round(0.2 * self.n_robots))
         n_dead = int(n_dead) if isinstance(n_dead, np.integer) else n_dead
         self.n_dead = check_int("n_dead", n_dead, 0, self.n_robots - 1)  # at least one robot must respond
+
+    @property
+    def environment_state_names(self) -> list[str]:
+        return super().environment_state_names + [f"dead.robot{i}" for i in range(self.n_robots)]
+
+    def environment_state(self) -> np.ndarray:
+        """Navigation's, then each robot's dead flag (1 dead, 0 responsive): flags, not lengths, so not scaled."""
+        return np.concatenate([super().environment_state(), self.world.dead.astype(np.float32)])
 
     def _dead_robots(self) -> np.ndarray:
         return np.sort(self.np_random.choice(self.n_robots, size=self.n_dead, replace=False))
