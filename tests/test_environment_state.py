@@ -270,3 +270,31 @@ def test_a_dataset_without_the_environment_state_reads_and_is_not_resumed_with_i
     # what the message tells to do: a new folder records it
     fresh = collect(tmp_path / "new", old_spec, episodes=3, workers=1)
     assert fresh.episodes_total == 3 and F.ENVIRONMENT_STATE in LeRobotReader(tmp_path / "new").features
+
+
+def test_an_unresponsive_dataset_recorded_before_the_dead_flags_replays_equal(tmp_path, monkeypatch):
+    """Recorded when Unresponsive's state was Navigation's five values: replay compares those five, and a change
+    in them is still found."""
+    from dpr.envs.particle_env import ParticleSwarmEnv
+    from dpr.envs.unresponsive import UnresponsiveEnv
+
+    root = tmp_path / "old"
+    with monkeypatch.context() as patch:
+        patch.setattr(UnresponsiveEnv, "environment_state_names", ParticleSwarmEnv.environment_state_names)
+        patch.setattr(UnresponsiveEnv, "environment_state", ParticleSwarmEnv.environment_state)
+        collect(root, spec("dpr/Unresponsive-v0", steps=8), episodes=1, workers=1)
+    assert LeRobotReader(root).features[F.ENVIRONMENT_STATE]["names"] == SWARM
+    (check,) = replay_dataset(root)
+    assert check.equal and check.max_abs_difference[F.ENVIRONMENT_STATE] == 0.0
+
+    original = LeRobotReader.episode
+
+    def tampered(self, index, columns=None):
+        data = original(self, index, columns)
+        data[F.ENVIRONMENT_STATE] = data[F.ENVIRONMENT_STATE].copy()
+        data[F.ENVIRONMENT_STATE][3, 0] += 1e-3
+        return data
+
+    monkeypatch.setattr(LeRobotReader, "episode", tampered)
+    (check,) = replay_dataset(root)
+    assert not check.equal and check.first_mismatch == 3

@@ -63,10 +63,11 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
     frames = len(recorded[F.ACTION])
     replayed = {key: [] for key in compared}
     environment_states = []  # at the reset and after every step: frame t's is the t-th
+    columns = _recorded_columns(reader.features.get(F.ENVIRONMENT_STATE), env.unwrapped.environment_state_names)
 
     def note_environment_state(*_) -> None:
         if F.ENVIRONMENT_STATE in compared:
-            environment_states.append(env.unwrapped.environment_state())
+            environment_states.append(env.unwrapped.environment_state()[columns])
 
     def on_step(step) -> None:
         note_environment_state()
@@ -96,6 +97,15 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
         if len(unequal):
             first = int(unequal[0]) if first is None else min(first, int(unequal[0]))
     return ReplayCheck(index, int(meta[F.SEED]), frames, first is None, differences, first)
+
+
+def _recorded_columns(feature: dict | None, names: list[str]) -> list[int] | slice:
+    """Which of the env's environment-state values the dataset recorded: all of them, or, for a dataset recorded
+    before the env's state gained values (Unresponsive's dead flags), those its names list."""
+    recorded = (feature or {}).get("names")
+    if isinstance(recorded, list) and recorded != names and set(recorded) <= set(names):
+        return [names.index(name) for name in recorded]
+    return slice(None)
 
 
 def replay_dataset(root, episodes: list[int] | None = None, progress=None) -> list[ReplayCheck]:
