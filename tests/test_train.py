@@ -268,8 +268,26 @@ def test_a_model_runs_on_another_task_with_its_spaces_as_a_transfer(runs, tmp_pa
     assert run(argv) == 2
     assert "it cannot be run on dpr/Gate-v1 (unless as a transfer" in capsys.readouterr().err
     assert run([*argv, "--transfer"]) == 0
-    assert run([*argv, "--transfer", "--rerun", str(tmp_path / "x.rrd")]) == 2
-    assert "leave it out with --transfer" in capsys.readouterr().err
+    assert run([*argv, "--transfer", "--rerun", str(tmp_path / "x.rrd")]) == 0
+    assert (tmp_path / "x.rrd").stat().st_size > 0
+
+
+def test_the_viewer_shows_a_model_on_another_task_as_a_transfer(runs, tmp_path, capsys):
+    """dpr view --transfer rolls a Navigation model out on Gate-v1 (its walls in the episode); without the flag, or
+    on a dataset, it is refused before anything is written."""
+    from dpr.viz.episodes import rollout_episode
+
+    path = str(runs["ppo"].model_path)
+    episode = rollout_episode("dpr/Gate-v1", path, 0, steps=8, transfer=True, **SMALL_ENV)
+    assert len(episode.walls) == 2 and episode.n_states == 9
+    argv = ["view", "--env", "dpr/Gate-v1", "--policies", f"wave,{path}", "--steps", "8"]
+    argv += ["--n-robots", "4", "--robot-model", "disk"]
+    assert run([*argv, "--save", str(tmp_path / "refused.rrd")]) == 2
+    assert "unless as a transfer" in capsys.readouterr().err and not (tmp_path / "refused.rrd").exists()
+    assert run([*argv, "--transfer", "--save", str(tmp_path / "x.rrd")]) == 0
+    assert (tmp_path / "x.rrd").stat().st_size > 0
+    assert run(["view", str(tmp_path), "--transfer", "--save", str(tmp_path / "y.rrd")]) == 2
+    assert "--transfer rolls policies out with --env" in capsys.readouterr().err
 
 
 def test_saved_model_loads_for_more_training(runs, tmp_path):

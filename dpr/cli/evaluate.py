@@ -80,8 +80,6 @@ def cmd_evaluate(args, parser) -> int:
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     check_output(args.json, parser, "--json")
     check_rerun_output(args, parser)
-    if args.transfer and args.rerun:
-        parser.error("--rerun replays episodes on the model's own task; leave it out with --transfer")
     env_kwargs = markov_env_kwargs(args, policy_env_kwargs(args, env_ids, parser), parser, "evaluate")
     try:
         with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
@@ -122,7 +120,14 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
             task = env_id.split("/")[-1].removesuffix("-v0").lower()
             episodes.append(
                 rollout_episode(
-                    env_id, args.policy, seed, steps=args.steps, env_kwargs=extra, name=f"{task}_seed{seed}", **swarm
+                    env_id,
+                    args.policy,
+                    seed,
+                    steps=args.steps,
+                    env_kwargs=extra,
+                    name=f"{task}_seed{seed}",
+                    transfer=args.transfer,
+                    **swarm,
                 )
             )
     save_rrd(episodes, args.rerun, title=f"dpr evaluate {args.policy}")

@@ -60,6 +60,12 @@ def view_arguments(parser: argparse.ArgumentParser) -> None:
         type=policy_names,
         help=f"comma-separated policies for --env (default {WAVE}), e.g. wave,random",
     )
+    parser.add_argument(
+        "--transfer",
+        action="store_true",
+        help="with --env, run model files on a task other than the one they were trained on, as they are "
+        "(zero-shot transfer, as `dpr evaluate --transfer`): the task must have their observation and action spaces",
+    )
     default_argument(parser, "--seed", 0, "reset seed of every rollout", type=int)
     swarm_arguments(parser, rollout)
     default_argument(parser, "--steps", rollout["steps"], "max physics steps per rollout")
@@ -80,8 +86,9 @@ def _load_view_source(args, parser) -> list:
     from dpr.viz import episode_from_dataset, episode_from_mcap
 
     source = Path(args.source)
-    if args.policies is not None:
-        parser.error("--policies rolls policies out with --env; it does not apply to a dataset or MCAP file")
+    for flag, given in (("--policies", args.policies is not None), ("--transfer", args.transfer)):
+        if given:
+            parser.error(f"{flag} rolls policies out with --env; it does not apply to a dataset or MCAP file")
     if not source.exists():
         parser.error(f"SOURCE: {source} does not exist (expected a dataset folder or a .mcap file)")
     if source.is_dir():
@@ -127,6 +134,7 @@ def _roll_out_policies(args, parser) -> list:
                     steps=args.steps,
                     env_kwargs=env_kwargs,
                     on_step=lambda done: bar.update(min(done, bar.total) - bar.n),
+                    transfer=args.transfer,
                 )
             )
             if bar.n < bar.total:  # the episode ended early (goal reached, physics blow-up): that is its whole length

@@ -347,13 +347,15 @@ def rollout_episode(
     env_kwargs: Mapping[str, Any] | None = None,
     name: str | None = None,
     on_step: Callable[[int], None] | None = None,
+    transfer: bool = False,
 ) -> EpisodeLog:
     """Roll ``policy`` out for at most ``steps`` physics steps from ``reset(seed=seed)``
     (:func:`dpr.rollout.roll_out`) and record the state after every env step, at the physics step it belongs to
     (a model deciding every ``action_repeat`` = k steps: states at physics steps 0, k, 2k, ..., the last one at
     ``steps`` rounded up to a decision). Stops early when the episode ends; a physics blow-up ends the record at
     the last sane state. ``on_step(p)`` is called after each env step with the physics steps done so far, ``p``
-    (for a progress bar over ``steps``; the last may pass it by less than a decision). Bad arguments are a
+    (for a progress bar over ``steps``; the last may pass it by less than a decision). ``transfer`` runs a model
+    file on a task other than its own, as ``dpr evaluate --transfer`` does. Bad arguments are a
     :class:`ViewParameterError` naming the parameter."""
     from dpr.policies.registry import make_policy
 
@@ -368,7 +370,7 @@ def rollout_episode(
         from dpr.policies.sb3 import model_env_kwargs
 
         try:
-            kwargs = model_env_kwargs(policy, env_id, kwargs)
+            kwargs = model_env_kwargs(policy, env_id, kwargs, transfer=transfer)
         except ValueError as error:
             raise ViewParameterError("policy", str(error)) from error
     env = _make_env(env_id, {**kwargs, "max_episode_steps": episode_steps(kwargs, steps)})
@@ -384,7 +386,7 @@ def rollout_episode(
     try:
         result = roll_out(
             env,
-            make_policy(policy, env),
+            make_policy(policy, env, transfer),
             seed,
             on_reset=lambda observation, info: recorder.append(_Recorder(base.world)),
             on_step=record_step,
