@@ -238,3 +238,90 @@ def test_cli_finetune_points_a_per_robot_model_to_finetune_decentralised(cloned,
     argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--out", str(tmp_path / "ft")]
     assert run(argv) == 2
     assert "dpr finetune-decentralised" in capsys.readouterr().err and not (tmp_path / "ft").exists()
+
+
+# -- resume ------------------------------------------------------------------------------------------------------
+def _same_weights(path, other) -> bool:
+    """Whether two model files hold the same policy weights and optimizer state, value for value (the bytes of
+    equal optimizer states may differ: torch pickles the tensors a loaded state made in another order)."""
+    import io
+    import zipfile
+
+    def flat(value, prefix=""):
+        if isinstance(value, dict):
+            return {k: v for key, item in value.items() for k, v in flat(item, f"{prefix}/{key}").items()}
+        if isinstance(value, (list, tuple)):
+            return {k: v for i, item in enumerate(value) for k, v in flat(item, f"{prefix}/{i}").items()}
+        return {prefix: value}
+
+    def state(file, name):
+        with zipfile.ZipFile(file) as archive:
+            return flat(torch.load(io.BytesIO(archive.read(name)), weights_only=True))
+
+    for name in ("policy.pth", "policy.optimizer.pth"):
+        ours, theirs = state(path, name), state(other, name)
+        if ours.keys() != theirs.keys():
+            return False
+        for key, value in ours.items():
+            same = torch.equal(value, theirs[key]) if isinstance(value, torch.Tensor) else value == theirs[key]
+            if not same:
+                return False
+    return True
+
+
+def test_a_stopped_run_resumes_to_the_uninterrupted_model(cloned, tmp_path, capsys):
+    """Two swarm sizes, a warm-up, evaluations and checkpoints: stopped after its third snapshot and resumed, the
+    run ends with the weights, validation results and step count of a run never stopped; `--resume` of other
+    settings, or of a folder with no snapshot, is refused naming --out."""
+    from helpers import stopped_after_snapshots
+
+    from dpr.rl import resume as resume_state
+    from dpr.rl.finetune_per_robot import check_resumable
+
+    settings = dict(n_robots=(4, 5), timesteps=160, critic_warmup=32, eval_episodes=1)
+    whole = finetune(cloned, tmp_path / "whole", **settings)
+    assert not resume_state.snapshot_path(whole.run_dir).exists()  # a finished run drops its snapshot
+    with stopped_after_snapshots(3):
+        finetune(cloned, tmp_path / "stopped", **settings)
+    stopped = tmp_path / "stopped"
+    assert not (stopped / "model.zip").exists()
+    reached = resume_state.load_snapshot(stopped).reached
+    assert 0 < reached < yaml.safe_load(whole.config_path.read_text())["sb3_timesteps"]
+
+    config = PerRobotFinetuneConfig(
+        str(cloned.model_path), ENV, hyperparams=TINY_PPO, **{**settings, "n_robots": (4, 5)}
+    )
+    lines = []
+    resumed = finetune_per_robot(config, stopped, show_progress=False, resume=True, log=lines.append)
+    assert "resumed at swarm step" in lines[0]
+    assert _same_weights(resumed.model_path, whole.model_path)
+    assert _same_weights(resumed.best_model_path, whole.best_model_path)
+    evaluations = [json.loads((run / "eval" / "evaluations.json").read_text()) for run in (whole.run_dir, stopped)]
+    assert evaluations[0] == evaluations[1]
+    assert sorted(p.name for p in (stopped / "checkpoints").iterdir()) == sorted(
+        p.name for p in (whole.run_dir / "checkpoints").iterdir()
+    )
+    record = yaml.safe_load(resumed.config_path.read_text())
+    assert len(record["resumed"]) == 1 and record["timesteps_done"] == whole_steps(whole)
+    assert not resume_state.snapshot_path(stopped).exists()
+
+    with pytest.raises(ParameterError, match="holds no snapshot"):  # finished: nothing left to resume
+        check_resumable(stopped, config)
+    argv = ["finetune-decentralised", "--from", str(cloned.model_path), "--env", ENV, "--resume", "--n-robots", "4"]
+    argv += ["5", "--timesteps", "160", "--critic-warmup", "32", "--eval-episodes", "1"]
+    argv += [arg for name, value in TINY_PPO.items() for arg in ("--hyperparam", f"{name}={value}")]
+    assert run(argv) == 2
+    assert "--resume: name the stopped run's folder with --out" in capsys.readouterr().err
+    with stopped_after_snapshots(1):
+        finetune(cloned, tmp_path / "again", **settings)
+    before = tree_hash(tmp_path / "again")
+    assert run([*argv, "--out", str(tmp_path / "again"), "--seed", "7"]) == 2
+    err = capsys.readouterr().err
+    assert "--out: " in err and "differing: ['seed']" in err
+    assert tree_hash(tmp_path / "again") == before
+    assert run([*argv, "--out", str(tmp_path / "again")]) == 0
+    assert _same_weights(tmp_path / "again" / "model.zip", whole.model_path)
+
+
+def whole_steps(result) -> int:
+    return yaml.safe_load(result.config_path.read_text())["timesteps_done"]

@@ -17,7 +17,8 @@ from helpers import stopped_after_snapshots
 
 import dpr  # noqa: F401
 from dpr.checks import ParameterError
-from dpr.envs.replay import ReplayLog, replay
+from dpr.envs.parallel import parallel_env
+from dpr.envs.replay import ParallelReplayLog, ReplayLog, replay, replay_parallel
 from dpr.rl import resume as resume_state
 from dpr.rl.plain_state import write_state
 from dpr.rl.train import TrainConfig, resumable, train
@@ -47,6 +48,36 @@ def test_replayed_env_steps_like_the_original():
         if ours[3]:
             assert np.array_equal(env.reset()[0], clone.reset()[0])
     assert replay(make_env, None).episode() is None  # never reset: made as new
+
+
+def test_replayed_parallel_env_steps_like_the_original():
+    """The PettingZoo swarm of a per-robot run, rebuilt from its record, observes and rewards as the original."""
+
+    def make():
+        return ParallelReplayLog(
+            parallel_env("unresponsive", n_robots=4, robot_model="disk", max_episode_steps=12, local_obs=True)
+        )
+
+    rng = np.random.default_rng(0)
+    env = make()
+    env.reset(seed=5)
+    for _ in range(30):
+        *_, truncations, _ = env.step(dict(zip(env.possible_agents, rng.integers(0, 2, 4))))
+        if any(truncations.values()):
+            env.reset()
+    record = env.episode()
+    assert record["seed"] is None and 0 < len(record["actions"]) < 12
+    clone = replay_parallel(make, record)
+    for _ in range(40):
+        actions = dict(zip(env.possible_agents, rng.integers(0, 2, 4)))
+        ours, theirs = env.step(actions), clone.step(actions)
+        for a, b in zip(ours[:4], theirs[:4], strict=True):  # observations, rewards, terminations, truncations
+            for agent in env.possible_agents:
+                np.testing.assert_array_equal(a[agent], b[agent])
+        if any(ours[3].values()):
+            first, second = env.reset()[0], clone.reset()[0]
+            assert all(np.array_equal(first[agent], second[agent]) for agent in env.possible_agents)
+    assert replay_parallel(make, None).episode() is None
 
 
 def _config(**overrides) -> TrainConfig:

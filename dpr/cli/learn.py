@@ -89,12 +89,7 @@ def _run_arguments(parser: argparse.ArgumentParser, hyperparam_example: str) -> 
         help=f"override a yaml hyperparameter, e.g. {hyperparam_example} (repeatable)",
     )
     parser.add_argument("--out", help="new run folder (default runs/train/<task>-<algo>-seed<S>-<timestamp>)")
-    parser.add_argument(
-        "--resume",
-        action="store_true",
-        help="go on with the stopped run in --out, given the same flags: from the snapshot it writes every few "
-        "minutes, to the model it would have made without the stop",
-    )
+    _resume_argument(parser)
     rerun_argument(
         parser,
         "after training, roll out every checkpoint and the final model from the evaluation "
@@ -183,6 +178,15 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
         help="env steps per episode (default: a whole episode, 2500 physics steps / action_repeat)",
     )
     _run_arguments(parser, "n_steps=256 or learning_rate=lin_1e-3")
+
+
+def _resume_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="go on with the stopped run in --out, given the same flags: from the snapshot it writes every few "
+        "minutes, to the model it would have made without the stop",
+    )
 
 
 def _check_resume(args, parser) -> None:
@@ -419,6 +423,7 @@ def finetune_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", help="new run folder (default runs/finetune-decentralised/<task>-<algo>-seed<S>-<timestamp>)"
     )
+    _resume_argument(parser)
     rerun_argument(
         parser,
         "after training, roll out every checkpoint and the final model at the first --n-robots size from the "
@@ -429,6 +434,7 @@ def finetune_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
 def cmd_finetune_decentralised(args, parser) -> int:
     from dpr.rl.finetune_per_robot import PerRobotFinetuneConfig, finetune_per_robot
 
+    _check_resume(args, parser)
     check_seed(args, parser)
     check_rerun_output(args, parser)
     try:
@@ -445,7 +451,7 @@ def cmd_finetune_decentralised(args, parser) -> int:
             hyperparams=dict(args.hyperparam or []),
             eval_episodes=args.eval_episodes,
         )
-        result = finetune_per_robot(config, args.out)
+        result = finetune_per_robot(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, FINETUNE_DECENTRALISED_FLAGS))
     return _training_done(result, args, result.n_robots[0])

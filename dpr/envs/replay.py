@@ -17,7 +17,18 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["ReplayLog", "replay"]
+__all__ = ["ParallelReplayLog", "ReplayLog", "replay", "replay_parallel"]
+
+
+def _random_state(generator) -> dict[str, Any] | None:
+    return None if generator is None else copy.deepcopy(generator.bit_generator.state)
+
+
+def _set_random_state(env, state: dict[str, Any] | None) -> None:
+    if state is not None:
+        generator = np.random.Generator(getattr(np.random, state["bit_generator"])())
+        generator.bit_generator.state = state
+        env.np_random = generator
 
 
 class ReplayLog(gym.Wrapper):
@@ -31,7 +42,7 @@ class ReplayLog(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         generator = self.env.unwrapped._np_random  # None until first seeded: a seeded reset then makes it
-        state = None if seed is not None or generator is None else copy.deepcopy(generator.bit_generator.state)
+        state = None if seed is not None else _random_state(generator)
         self._episode = {"random_state": state, "seed": seed, "options": copy.deepcopy(options), "actions": []}
         return self.env.reset(seed=seed, options=options)
 
@@ -51,12 +62,47 @@ def replay(make: Callable[[], gym.Env], episode: dict[str, Any] | None) -> gym.E
     env = make()
     if episode is None:
         return env
-    state = episode["random_state"]
-    if state is not None:
-        generator = np.random.Generator(getattr(np.random, state["bit_generator"])())
-        generator.bit_generator.state = state
-        env.unwrapped.np_random = generator
+    _set_random_state(env.unwrapped, episode["random_state"])
     env.reset(seed=episode["seed"], options=episode["options"])
     for action in episode["actions"]:
         env.step(action)
+    return env
+
+
+class ParallelReplayLog:
+    """:class:`ReplayLog` for a :class:`dpr.envs.parallel.ParticleParallelEnv`: passes everything through unchanged
+    (attributes too) and records the current episode, each step's actions as one array in ``possible_agents``
+    order. :func:`replay_parallel` rebuilds the env from the record."""
+
+    def __init__(self, env):
+        self.env = env
+        self._episode: dict[str, Any] | None = None
+
+    def __getattr__(self, name: str):
+        return getattr(self.env, name)
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None):
+        state = None if seed is not None else _random_state(self.env.swarm_env._np_random)
+        self._episode = {"random_state": state, "seed": seed, "options": copy.deepcopy(options), "actions": []}
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, actions):
+        if self._episode is not None:
+            self._episode["actions"].append(np.array([actions[agent] for agent in self.env.possible_agents]))
+        return self.env.step(actions)
+
+    def episode(self) -> dict[str, Any] | None:
+        """The current episode's record (None before the first reset)."""
+        return copy.deepcopy(self._episode)
+
+
+def replay_parallel(make: Callable[[], ParallelReplayLog], episode: dict[str, Any] | None) -> ParallelReplayLog:
+    """``make()``, brought to where ``episode``'s env stood (as :func:`replay`, for a parallel env)."""
+    env = make()
+    if episode is None:
+        return env
+    _set_random_state(env.swarm_env, episode["random_state"])
+    env.reset(seed=episode["seed"], options=episode["options"])
+    for actions in episode["actions"]:
+        env.step(dict(zip(env.possible_agents, actions, strict=True)))
     return env

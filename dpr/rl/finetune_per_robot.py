@@ -22,6 +22,11 @@ highest mean team return (the start's weights when nothing beat them). A run fol
 ``best_model.zip``, ``checkpoints/model_<swarm steps>_steps.zip``, ``eval/evaluations.json``, ``config.yaml`` and
 ``tb/`` (with tensorboard). Every model written is a per-robot model with the layout it started with and
 ``trained_n_robots`` the union of the model's and this run's sizes, so it runs at any N.
+
+Every few minutes a run writes a snapshot of its training state into ``resume/`` (:mod:`dpr.rl.resume`: the
+model, each swarm's current episode, the validation results and schedule, the random states);
+``finetune_per_robot(config, out, resume=True)`` goes on from it to the model the run would have made without the
+stop.
 """
 
 from __future__ import annotations
@@ -53,6 +58,7 @@ from dpr.policies.sb3 import (
     read_model_info,
     save_model,
 )
+from dpr.rl import resume as resume_state
 from dpr.rl.recipe import default_critic_warmup
 from dpr.rl.train import (
     CHECKPOINTS,
@@ -187,12 +193,14 @@ def _resolve(config: PerRobotFinetuneConfig) -> _Resolved:
     )
 
 
-def _swarms(config: PerRobotFinetuneConfig, resolved: _Resolved):
+def _swarms(config: PerRobotFinetuneConfig, resolved: _Resolved, episodes: list | None = None):
     """The training VecEnv (every robot of every swarm an entry, episode returns monitored), each swarm checked
-    against the model's layout: a ValueError naming what differs."""
+    against the model's layout: a ValueError naming what differs. With ``episodes`` (a snapshot's, one per swarm),
+    each swarm is rebuilt where it stood."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from dpr.envs.parallel import SwarmsAsVecEnv, parallel_env
+    from dpr.envs.replay import ParallelReplayLog, replay_parallel
 
     kwargs = {
         **resolved.spec.parallel_env_kwargs(),
@@ -202,9 +210,11 @@ def _swarms(config: PerRobotFinetuneConfig, resolved: _Resolved):
     }
     envs = []
     try:
-        for n in resolved.sizes:
-            envs.append(parallel_env(TASKS[config.env_id], n_robots=n, **kwargs))
-            check_per_robot_env(config.init_from, resolved.info, envs[-1], centralised=False)
+        for index, n in enumerate(resolved.sizes):
+            envs.append(ParallelReplayLog(parallel_env(TASKS[config.env_id], n_robots=n, **kwargs)))
+            check_per_robot_env(config.init_from, resolved.info, envs[-1].env, centralised=False)
+            if episodes:
+                replay_parallel(lambda: envs[-1], episodes[index])  # brought to where it stood
         return VecMonitor(SwarmsAsVecEnv(envs))
     except BaseException:
         for env in envs:
@@ -244,15 +254,26 @@ def validate_per_robot_model(
 class _Validation:
     """Evaluations on the validation seeds, ``best_model.zip`` and ``eval/evaluations.json``."""
 
-    def __init__(self, run_dir: Path, config: PerRobotFinetuneConfig, resolved: _Resolved, log: Callable):
+    def __init__(
+        self,
+        run_dir: Path,
+        config: PerRobotFinetuneConfig,
+        resolved: _Resolved,
+        log: Callable,
+        resumed: dict[str, Any] | None = None,
+    ):
         self.best_path = run_dir / "best_model.zip"
         self.log_path = run_dir / "eval" / "evaluations.json"
-        self.log_path.parent.mkdir()
+        self.log_path.parent.mkdir(exist_ok=resumed is not None)
         self.candidate = run_dir / "eval" / "candidate.zip"
         self.config, self.resolved, self.log = config, resolved, log
         self.seeds = [config.seed + EVAL_SEED_OFFSET + i for i in range(config.eval_episodes)]
-        self.rows: list[dict[str, Any]] = []
-        self.best: dict[str, Any] | None = None
+        self.rows: list[dict[str, Any]] = [] if resumed is None else resumed["rows"]
+        self.best: dict[str, Any] | None = None if resumed is None else resumed["best"]
+
+    def state(self) -> dict[str, Any]:
+        """What a snapshot keeps of it (``resumed`` gives it back)."""
+        return {"rows": self.rows, "best": self.best}
 
     def __call__(self, model, steps: int, label: str) -> None:
         save_model(model, self.candidate, self.resolved.model_info())
@@ -291,10 +312,13 @@ class _Validation:
         )
 
 
-def _periodic(validation: _Validation, run_dir: Path, resolved: _Resolved, unit: StepUnit):
+def _periodic(
+    validation: _Validation, run_dir: Path, resolved: _Resolved, unit: StepUnit, resumed: dict[str, int] | None = None
+):
     """An SB3 callback that, at the start of each rollout (after an update), writes a checkpoint every
     ``timesteps / CHECKPOINTS`` swarm steps and evaluates every ``timesteps / EVALUATIONS``, counted from the end of
-    the warm-up; checkpoints are named by swarm steps, warm-up included."""
+    the warm-up; checkpoints are named by swarm steps, warm-up included. Its ``state()`` is its schedule, which
+    ``resumed`` gives back."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     every_eval = max(resolved.timesteps // EVALUATIONS, 1)
@@ -303,8 +327,16 @@ def _periodic(validation: _Validation, run_dir: Path, resolved: _Resolved, unit:
 
     class Periodic(BaseCallback):
         def _on_training_start(self) -> None:
-            self.first = self.model.num_timesteps
-            self.next_eval, self.next_checkpoint = every_eval, every_checkpoint
+            if resumed is None:
+                self.first = self.model.num_timesteps
+                self.next_eval, self.next_checkpoint = every_eval, every_checkpoint
+            else:
+                self.first, self.next_eval, self.next_checkpoint = (
+                    resumed[name] for name in ("first", "next_eval", "next_checkpoint")
+                )
+
+        def state(self) -> dict[str, int]:
+            return {"first": self.first, "next_eval": self.next_eval, "next_checkpoint": self.next_checkpoint}
 
         def _on_rollout_start(self) -> None:
             done = unit.from_sb3(self.model.num_timesteps - self.first)
@@ -328,20 +360,49 @@ def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
     return runs.default_run_dir(RUNS_DIR, env_id, algo, seed)
 
 
+MONITOR = ("episode_returns", "episode_lengths", "episode_count")  # VecMonitor's sums of the episodes under way
+
+
+def check_resumable(out: str | Path | None, config: PerRobotFinetuneConfig) -> None:
+    """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
+    from."""
+    if out is None or not resume_state.has_snapshot(out):
+        raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
+    config_path = Path(out) / "config.yaml"
+    recorded = yaml.safe_load(config_path.read_text()).get("config") if config_path.is_file() else None
+    wanted = yaml.safe_load(yaml.safe_dump(_config_record(config)))
+    if recorded != wanted:
+        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
+        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
+
+
+def _config_record(config: PerRobotFinetuneConfig) -> dict[str, Any]:
+    return {**asdict(config), "n_robots": list(config.n_robots)}
+
+
 def finetune_per_robot(
     config: PerRobotFinetuneConfig,
     out: str | Path | None = None,
     *,
     show_progress: bool = True,
+    resume: bool = False,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> PerRobotFinetuneResult:
     """Fine-tune the per-robot model ``config.init_from`` (module docstring) and save the run into ``out`` (a new or
     empty folder; default ``runs/finetune-decentralised/<task>-<algo>-seed<S>-<timestamp>``). Bad input (no such
     file, a centralised model, another task, robot model or layout, values SB3 refuses) raises ValueError before
-    anything is written. ``TrainResult.timesteps`` counts swarm steps."""
-    runs.check_new_folder(out)
+    anything is written. ``TrainResult.timesteps`` counts swarm steps. ``resume=True`` goes on from the snapshot of
+    the stopped run in ``out``, made with the same ``config`` (a ParameterError otherwise)."""
+    if resume:
+        check_resumable(out, config)
+    else:
+        runs.check_new_folder(out)
     resolved = _resolve(config)
-    venv = _swarms(config, resolved)
+    try:
+        snapshot = resume_state.load_snapshot(out) if resume else None
+    except ValueError as error:  # another version, or files that are not a snapshot: nothing was written yet
+        raise ParameterError("out", str(error)) from None
+    venv = _swarms(config, resolved, snapshot and snapshot.train_episodes)
     try:
         swarms = venv.venv
         unit = StepUnit(swarms.num_envs, len(swarms.swarms))
@@ -349,14 +410,20 @@ def finetune_per_robot(
             model = build_model(resolved.hyper, venv, config.seed, None)
         except (AssertionError, ValueError, TypeError) as error:
             raise ParameterError("hyperparams", f"{resolved.algo} refuses them: {error}") from None
-        load_initial_policy(model, config.init_from)  # another network than the finetune preset's
+        if snapshot is None:
+            load_initial_policy(model, config.init_from)  # another network than the finetune preset's
+        else:
+            snapshot.restore_model(model)
+            snapshot.restore_vec_env(swarms, "train")  # building the model seeded the swarms anew
+            for name in MONITOR:
+                setattr(venv, name, snapshot.extra["monitor"][name])
         run_dir = Path(out) if out is not None else default_run_dir(config.env_id, resolved.algo, config.seed)
         run_dir.mkdir(parents=True, exist_ok=True)
         tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
         model.tensorboard_log = tensorboard_log  # read by learn(); the folder did not exist when the model was built
         if tensorboard_log is None:
             log("dpr finetune-decentralised: tensorboard is not installed; no TensorBoard logs")
-        validation = _Validation(run_dir, config, resolved, log)
+        validation = _Validation(run_dir, config, resolved, log, snapshot and snapshot.extra["validation"])
         record: dict[str, Any] = {
             "algo": resolved.algo,
             "env_id": config.env_id,
@@ -378,32 +445,51 @@ def finetune_per_robot(
             "init_from": str(Path(config.init_from).resolve()),
             "tensorboard_log": tensorboard_log,
             "versions": runs.package_versions(),
-            "config": {**asdict(config), "n_robots": list(config.n_robots)},
+            "config": _config_record(config),
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
         config_path = run_dir / "config.yaml"
+        if snapshot is not None:  # the stopped run's record, with this resume added
+            record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
+            resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_swarm_steps": unit.from_sb3(snapshot.reached)}
+            record["resumed"] = [*record.get("resumed", []), resumed]
         atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
         sizes = " + ".join(str(n) for n in resolved.sizes)
+        again = "" if snapshot is None else f", resumed at swarm step {unit.from_sb3(snapshot.reached)}"
         log(
             f"dpr finetune-decentralised: per-robot {resolved.algo} on {config.env_id} swarms of {sizes} robots "
             f"{resolved.env_kwargs}, from {config.init_from} ({resolved.critic_warmup} critic warm-up steps first), "
-            f"{resolved.timesteps} swarm steps, seed {config.seed} -> {run_dir}"
+            f"{resolved.timesteps} swarm steps, seed {config.seed}{again} -> {run_dir}"
         )
         started = time.perf_counter()
-        validation(model, 0, "start")
+        if snapshot is None:
+            validation(model, 0, "start")
         desc = f"finetune-decentralised {resolved.algo} {config.env_id}"
-        callbacks = [
-            progress_bar(desc, resolved.timesteps, show_progress, unit),
-            _periodic(validation, run_dir, resolved, unit),
-        ]
+        periodic = _periodic(validation, run_dir, resolved, unit, snapshot and snapshot.extra["schedule"])
+        callbacks = _callback_list(
+            [progress_bar(desc, resolved.timesteps, show_progress, unit, snapshot and snapshot.origin), periodic]
+        )
         try:
-            if resolved.critic_warmup:
-                warm_up_critic(model, resolved.critic_warmup, show_progress, unit)
-            model.learn(
-                total_timesteps=unit.to_sb3(resolved.timesteps),
-                callback=callbacks,
-                reset_num_timesteps=not resolved.critic_warmup,
-            )
+            if snapshot is None:
+                if resolved.critic_warmup:
+                    warm_up_critic(model, resolved.critic_warmup, show_progress, unit)
+                origin = model.num_timesteps  # where the progress bar, the schedule and the snapshots count from
+                total, reset = unit.to_sb3(resolved.timesteps), not resolved.critic_warmup
+            else:
+                origin, total, reset = snapshot.origin, snapshot.total_timesteps - model.num_timesteps, False
+            if resolved.algo in resume_state.SNAPSHOT_ALGOS:
+
+                def extra() -> dict[str, Any]:
+                    monitor = {name: getattr(venv, name) for name in MONITOR}
+                    return {"validation": validation.state(), "schedule": periodic.state(), "monitor": monitor}
+
+                callbacks.callbacks.append(
+                    resume_state.snapshots(run_dir, swarms, None, callbacks, origin, extra=extra)
+                )
+            if snapshot is not None:
+                snapshot.restore_callbacks(callbacks)
+                snapshot.restore_random_states()
+            model.learn(total_timesteps=total, callback=callbacks, reset_num_timesteps=reset)
             interrupted = False
         except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
             interrupted = True
@@ -423,6 +509,8 @@ def finetune_per_robot(
         best_evaluation=validation.best,
     )
     atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
+    if not interrupted:
+        resume_state.drop_snapshot(run_dir)
     log(f"dpr finetune-decentralised: wrote {model_path} ({done} swarm steps in {seconds:.0f} s)")
     best = validation.best_path
     return PerRobotFinetuneResult(
@@ -435,3 +523,9 @@ def finetune_per_robot(
         interrupted,
         resolved.sizes,
     )
+
+
+def _callback_list(callbacks: list):
+    from stable_baselines3.common.callbacks import CallbackList
+
+    return CallbackList(callbacks)

@@ -6,7 +6,9 @@ training state into ``<run>/resume/``: the SB3 model's weights and optimizer sta
 observation, each env's current episode as a :class:`dpr.envs.replay.ReplayLog` record (its random state at reset
 and the actions since: the training envs' and the evaluation env's), the pending seeds of both vector envs, the
 counters and results of the callbacks, and the torch, numpy and Python random states. :func:`dpr.rl.train.train`
-with ``resume=True`` builds the run's model again, puts all of it back and goes on; the test
+with ``resume=True`` builds the run's model again, puts all of it back and goes on (as does
+:func:`dpr.rl.finetune_per_robot.finetune_per_robot`, whose swarms are recorded by
+:class:`dpr.envs.replay.ParallelReplayLog` and whose own state is the snapshot's ``extra``); the test
 ``tests/test_resume.py`` checks that the model it ends with is the one an uninterrupted run ends with, weight for
 weight. A stopped run loses at most the last :data:`SNAPSHOT_SECONDS`. Runs of :data:`SNAPSHOT_ALGOS` keep
 snapshots; DQN's (whose replay buffer a snapshot would have to hold) and runs anchored to demonstrations (whose
@@ -24,7 +26,8 @@ import random
 import shutil
 import time
 from collections import deque
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -124,6 +127,12 @@ def _callback_state(callback) -> list[dict[str, Any]]:
 
 
 def _episodes(vec_env) -> list[dict[str, Any] | None]:
+    """Each env's current episode: one per env of a VecEnv, one per swarm of a per-robot run's
+    :class:`~dpr.envs.parallel.SwarmsAsVecEnv` (whose every robot is an env); none without a VecEnv."""
+    if vec_env is None:
+        return []
+    if hasattr(vec_env, "parallel_envs"):
+        return [env.episode() for env in vec_env.parallel_envs]
     return list(vec_env.env_method("episode"))
 
 
@@ -141,6 +150,7 @@ class Snapshot:
     pending: dict[str, Any]  # the vector envs' seeds and options for their next reset
     callbacks: list[dict[str, Any]]
     random_states: dict[str, Any]
+    extra: dict[str, Any] = field(default_factory=dict)  # the run's own state beyond SB3's (a per-robot run's)
 
     def restore_model(self, model) -> None:
         """Put the weights, optimizer state and progress of the snapshot's model into ``model``, built again as the
@@ -194,7 +204,8 @@ def load_snapshot(run_dir: str | Path) -> Snapshot:
     version = state.get("version") if isinstance(state, dict) else None
     if version != STATE_VERSION:
         raise ValueError(f"{folder / STATE_FILE} is snapshot version {version}, expected {STATE_VERSION}")
-    if set(state) != {"version", *(field.name for field in fields(Snapshot) if field.name != "weights")}:
+    names = {each.name for each in fields(Snapshot) if each.name != "weights"}
+    if not names - {"extra"} <= set(state) - {"version"} <= names:  # (snapshots of runs that keep no extra lack it)
         raise ValueError(f"{folder / STATE_FILE}: not a snapshot dpr can read (its entries: {sorted(state)})")
     del state["version"]
     return Snapshot(weights=_read_weights(folder / WEIGHTS_FILE), **state)
@@ -216,8 +227,12 @@ def _read_weights(path: Path) -> dict[str, Any]:
     return weights
 
 
-def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: int) -> None:
-    """Write the run's state into ``run_dir/resume/``, replacing the last snapshot only once the new one is whole."""
+def save_snapshot(
+    run_dir: Path, model, train_env, eval_env, callback, origin: int, extra: dict[str, Any] | None = None
+) -> None:
+    """Write the run's state into ``run_dir/resume/``, replacing the last snapshot only once the new one is whole
+    (``eval_env`` None: a run evaluating without one; ``extra``: the run's own state, read back as
+    :attr:`Snapshot.extra`)."""
     import numpy as np
     import torch
 
@@ -239,9 +254,14 @@ def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: i
         "origin": int(origin),
         "train_episodes": _episodes(train_env),
         "eval_episodes": _episodes(eval_env),
-        "pending": {name: (env._seeds, env._options) for name, env in (("train", train_env), ("eval", eval_env))},
+        "pending": {
+            name: (env._seeds, env._options)
+            for name, env in (("train", train_env), ("eval", eval_env))
+            if env is not None
+        },
         "callbacks": _callback_state(callback),
         "random_states": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
+        "extra": extra or {},
     }
     write_state(state, fresh / STATE_FILE, fresh / ARRAYS_FILE)
     old = folder.with_name(OLD_DIR)
@@ -252,10 +272,18 @@ def save_snapshot(run_dir: Path, model, train_env, eval_env, callback, origin: i
         shutil.rmtree(old)
 
 
-def snapshots(run_dir: Path, train_env, eval_env, callback, origin: int, every: float | None = None):
+def snapshots(
+    run_dir: Path,
+    train_env,
+    eval_env,
+    callback,
+    origin: int,
+    every: float | None = None,
+    extra: Callable[[], dict[str, Any]] | None = None,
+):
     """An SB3 callback writing a snapshot at the start of a rollout once ``every`` seconds (default
     :data:`SNAPSHOT_SECONDS`, read when it runs) have passed since the last one; ``callback`` is the run's whole
-    callback list, this one included."""
+    callback list, this one included; ``extra()`` gives the run's own state to keep with it."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class Snapshots(BaseCallback):
@@ -264,7 +292,9 @@ def snapshots(run_dir: Path, train_env, eval_env, callback, origin: int, every: 
 
         def _on_rollout_start(self) -> None:
             if time.monotonic() - self.last >= (SNAPSHOT_SECONDS if every is None else every):
-                save_snapshot(run_dir, self.model, train_env, eval_env, callback, origin)
+                save_snapshot(
+                    run_dir, self.model, train_env, eval_env, callback, origin, None if extra is None else extra()
+                )
                 self.last = time.monotonic()
 
         def _on_step(self) -> bool:
