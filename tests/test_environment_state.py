@@ -190,18 +190,23 @@ def test_datasets_record_the_environment_state_at_every_frame(tmp_path, env_id, 
     assert all(check.equal for check in replay_dataset(root))
 
 
-def test_replay_compares_the_environment_state(tmp_path, monkeypatch):
-    root = tmp_path / "ds"
-    collect(root, spec(), episodes=1, workers=1)
+def tamper_environment_state(monkeypatch, frame: int, column: int) -> None:
+    """Every episode read from a dataset has its environment state at ``frame``, ``column`` moved by 1e-3."""
     original = LeRobotReader.episode
 
     def tampered(self, index, columns=None):
         data = original(self, index, columns)
         data[F.ENVIRONMENT_STATE] = data[F.ENVIRONMENT_STATE].copy()
-        data[F.ENVIRONMENT_STATE][4, 1] += 1e-3
+        data[F.ENVIRONMENT_STATE][frame, column] += 1e-3
         return data
 
     monkeypatch.setattr(LeRobotReader, "episode", tampered)
+
+
+def test_replay_compares_the_environment_state(tmp_path, monkeypatch):
+    root = tmp_path / "ds"
+    collect(root, spec(), episodes=1, workers=1)
+    tamper_environment_state(monkeypatch, 4, 1)
     (check,) = replay_dataset(root)
     assert not check.equal and check.first_mismatch == 4
     assert check.max_abs_difference[F.ENVIRONMENT_STATE] == pytest.approx(1e-3, rel=1e-3)
@@ -286,15 +291,6 @@ def test_an_unresponsive_dataset_recorded_before_the_dead_flags_replays_equal(tm
     assert LeRobotReader(root).features[F.ENVIRONMENT_STATE]["names"] == SWARM
     (check,) = replay_dataset(root)
     assert check.equal and check.max_abs_difference[F.ENVIRONMENT_STATE] == 0.0
-
-    original = LeRobotReader.episode
-
-    def tampered(self, index, columns=None):
-        data = original(self, index, columns)
-        data[F.ENVIRONMENT_STATE] = data[F.ENVIRONMENT_STATE].copy()
-        data[F.ENVIRONMENT_STATE][3, 0] += 1e-3
-        return data
-
-    monkeypatch.setattr(LeRobotReader, "episode", tampered)
+    tamper_environment_state(monkeypatch, 3, 0)
     (check,) = replay_dataset(root)
     assert not check.equal and check.first_mismatch == 3

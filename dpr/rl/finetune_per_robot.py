@@ -366,14 +366,7 @@ MONITOR = ("episode_returns", "episode_lengths", "episode_count")  # VecMonitor'
 def check_resumable(out: str | Path | None, config: PerRobotFinetuneConfig) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
     from."""
-    if out is None or not resume_state.has_snapshot(out):
-        raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
-    config_path = Path(out) / "config.yaml"
-    recorded = yaml.safe_load(config_path.read_text()).get("config") if config_path.is_file() else None
-    wanted = yaml.safe_load(yaml.safe_dump(_config_record(config)))
-    if recorded != wanted:
-        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
-        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
+    resume_state.check_resumable(out, _config_record(config))
 
 
 def _config_record(config: PerRobotFinetuneConfig) -> dict[str, Any]:

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from dpr.checks import ParameterError
 from dpr.rl.plain_state import read_state, write_state
 
 SNAPSHOT_ALGOS = ("ppo", "a2c")  # on-policy: nothing but the model and the envs carries over between rollouts
@@ -99,6 +100,24 @@ def snapshot_folder(run_dir: str | Path) -> Path | None:
 def has_snapshot(run_dir: str | Path) -> bool:
     """Whether ``run_dir`` holds a complete snapshot to resume from (changes nothing)."""
     return snapshot_folder(run_dir) is not None
+
+
+def check_resumable(out: str | Path | None, config: dict[str, Any]) -> None:
+    """A :class:`ParameterError` about ``out`` unless it is a stopped run with a snapshot to resume from whose
+    ``config.yaml`` records ``config`` (the run's settings, as it records them under ``config``)."""
+    import yaml
+
+    old = None if out is None else old_snapshot_error(out)
+    if old is not None:
+        raise ParameterError("out", f"{old} (another --out)")
+    if out is None or not has_snapshot(out):
+        raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
+    config_path = Path(out) / "config.yaml"
+    recorded = yaml.safe_load(config_path.read_text()).get("config") if config_path.is_file() else None
+    wanted = yaml.safe_load(yaml.safe_dump(config))
+    if recorded != wanted:
+        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
+        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
 
 
 def _all_callbacks(callback) -> list:

@@ -171,17 +171,7 @@ def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
 def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
     from."""
-    old = None if out is None else resume_state.old_snapshot_error(out)
-    if old is not None:
-        raise ParameterError("out", f"{old} (another --out)")
-    if out is None or not resume_state.has_snapshot(out):
-        raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
-    config_path = Path(out) / "config.yaml"
-    recorded = yaml.safe_load(config_path.read_text()).get("config") if config_path.is_file() else None
-    wanted = yaml.safe_load(yaml.safe_dump(asdict(config)))
-    if recorded != wanted:
-        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
-        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
+    resume_state.check_resumable(out, asdict(config))
 
 
 def resumable(out: str | Path, config: TrainConfig) -> bool:
