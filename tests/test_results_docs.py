@@ -18,6 +18,7 @@ def tool():
 
 
 HEADLINE = ROOT / "docs" / "results" / "full-lr3e4"  # the record of all four tasks
+GATE = ROOT / "docs" / "results" / "gate-v2"  # Gate's record on dpr/Gate-v2, whose rows replace the first one's
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +66,7 @@ def test_a_misquoted_figure_is_named(tool, records, tmp_path):
     at = next(i for i in range(card.index("    file: navigation-bc-ppo.zip"), len(card)) if "made_by:" in card[i])
     card[at] = card[at].replace(f"(seed {seed})", f"(seed {seed + 1})")
     (docs / "models/card.yaml").write_text("\n".join(card) + "\n")
-    shipped = next(row for row in tool.shipped_rows(records) if row.startswith("| Gate-v0 | shipped bc-ppo |"))
+    shipped = next(row for row in tool.shipped_rows(records) if row.startswith("| Gate | shipped bc-ppo |"))
     _replace_once(docs / "docs/pipeline.md", shipped, _misquoted(shipped))
     problems = tool.check(records, docs)
     assert len(problems) == 4, problems
@@ -75,12 +76,12 @@ def test_a_misquoted_figure_is_named(tool, records, tmp_path):
     assert problems[3].startswith(f"models/card.yaml: made_by of navigation-bc-ppo.zip should end (seed {seed})")
 
 
-def _other_record(tool, folder: Path, tasks=("navigation", "gate", "unresponsive", "manipulation")) -> Path:
-    """A record of ``tasks`` in ``folder`` unlike the headline: the same evaluations, another chosen run of every
+def _other_record(tool, folder: Path, tasks=("navigation", "unresponsive", "manipulation"), source=HEADLINE) -> Path:
+    """A record of ``tasks`` in ``folder`` unlike ``source``: the same evaluations, another chosen run of every
     learned method and other figures in its report's interval table."""
     (folder / "report").mkdir(parents=True)
-    (folder / "eval").symlink_to(HEADLINE / "eval", target_is_directory=True)
-    choices = yaml.safe_load((HEADLINE / "choices.yaml").read_text())
+    (folder / "eval").symlink_to(source / "eval", target_is_directory=True)
+    choices = yaml.safe_load((source / "choices.yaml").read_text())
     choices = {name: choice for name, choice in choices.items() if name.startswith(tuple(f"{t}-" for t in tasks))}
     for choice in choices.values():
         if "chosen_seed" in choice:
@@ -88,7 +89,7 @@ def _other_record(tool, folder: Path, tasks=("navigation", "gate", "unresponsive
             choice["chosen_seed"] = seeds[(seeds.index(choice["chosen_seed"]) + 1) % len(seeds)]
     (folder / "choices.yaml").write_text(yaml.safe_dump(choices))
     report = folder / "report" / "results.md"
-    lines = (HEADLINE / "report" / "results.md").read_text().splitlines()
+    lines = (source / "report" / "results.md").read_text().splitlines()
     for i in range(*tool._table_body(lines, tool.INTERVAL_HEADER, report)):
         cells = tool._cells(lines[i])
         shifted = [re.sub(r"\d", lambda digit: str((int(digit.group()) + 1) % 10), cell) for cell in cells[2:]]
@@ -101,7 +102,8 @@ def test_write_puts_a_records_rows_in_the_docs_and_nothing_else(tool, records, t
     """Writing another record's rows makes the docs quote it; writing the headline's back restores every file to
     the byte."""
     docs = _docs_copy(tmp_path)
-    other = tool.load_records([_other_record(tool, tmp_path / "other")])
+    others = [_other_record(tool, tmp_path / "other"), _other_record(tool, tmp_path / "gate", ["gate"], GATE)]
+    other = tool.load_records(others)
     assert not set(tool.headline_rows(other)) & set(tool.headline_rows(records))
     assert all(tool.card_seeds(other)[file] != seed for file, seed in tool.card_seeds(records).items())
     tool.write(other, docs)
@@ -117,7 +119,7 @@ def test_write_puts_a_records_rows_in_the_docs_and_nothing_else(tool, records, t
 def test_a_record_of_one_task_gives_its_rows_beside_a_record_of_all(tool, records, tmp_path):
     """Listed after the record of all four tasks, a record of Gate alone gives Gate's rows, the first the others'."""
     docs = _docs_copy(tmp_path)
-    gate = _other_record(tool, tmp_path / "gate", tasks=["gate"])
+    gate = _other_record(tool, tmp_path / "gate", ["gate"], GATE)
     both = tool.load_records([HEADLINE, gate])
     assert [record.tasks for record in both] == [["navigation", "unresponsive", "manipulation"], ["gate"]]
     rows, own = tool.headline_rows(both), set(tool.headline_rows(records))
@@ -141,15 +143,16 @@ def test_a_folder_that_is_not_a_record_is_refused(tool, tmp_path):
         tool.Record(tmp_path)
 
 
-def test_the_headline_record_reprints_its_report_from_its_sources(tool, tmp_path):
-    """`dpr report` over the files and labels the record's results.md names gives its tables again: the record is
-    evidence on its own, with no campaign tool and no resume. (The record was written before dpr/Gate-v1, when the
+@pytest.mark.parametrize("record, tasks", [(HEADLINE, 4), (GATE, 1)], ids=["full-lr3e4", "gate-v2"])
+def test_the_headline_records_reprint_their_reports_from_their_sources(tool, tmp_path, record, tasks):
+    """`dpr report` over the files and labels a record's results.md names gives its tables again: the record is
+    evidence on its own, with no campaign tool and no resume. (full-lr3e4 was written before dpr/Gate-v1, when the
     report named its Gate-v0 rows "Gate".)"""
     from dpr.rl.report import write_report
 
-    text = (HEADLINE / "report" / "results.md").read_text()
+    text = (record / "report" / "results.md").read_text()
     sources = re.findall(r"`([^`]+\.json)` \(([^:]+):", text.splitlines()[-1])
-    assert len(sources) == 4 * (2 + 3 * 3)  # per task: the wave, the teacher, three runs of three methods
+    assert len(sources) == tasks * (2 + 3 * 3)  # per task: the wave, the teacher, three runs of three methods
     write_report([ROOT / path for path, _ in sources], tmp_path, labels=[label for _, label in sources], root=ROOT)
     rows = [line.replace("| Gate-v0 |", "| Gate |") for line in (tmp_path / "results.md").read_text().splitlines()]
     rows = [line for line in rows if line.startswith("|")]
