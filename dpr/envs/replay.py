@@ -60,12 +60,18 @@ def replay(make: Callable[[], gym.Env], episode: dict[str, Any] | None) -> gym.E
     """``make()`` (an env stack with a :class:`ReplayLog` in it), brought to where ``episode``'s env stood: reset
     as it was and stepped through the same actions. ``episode`` None: the env as made, never reset."""
     env = make()
+    return _replayed(env, episode, env.unwrapped, env.step)
+
+
+def _replayed(env, episode: dict[str, Any] | None, base, step: Callable[[Any], Any]):
+    """``env`` reset as ``episode``'s was (``base`` holds its generator) and stepped by ``step`` through its
+    actions; as it is when ``episode`` is None."""
     if episode is None:
         return env
-    _set_random_state(env.unwrapped, episode["random_state"])
+    _set_random_state(base, episode["random_state"])
     env.reset(seed=episode["seed"], options=episode["options"])
     for action in episode["actions"]:
-        env.step(action)
+        step(action)
     return env
 
 
@@ -99,10 +105,6 @@ class ParallelReplayLog:
 def replay_parallel(make: Callable[[], ParallelReplayLog], episode: dict[str, Any] | None) -> ParallelReplayLog:
     """``make()``, brought to where ``episode``'s env stood (as :func:`replay`, for a parallel env)."""
     env = make()
-    if episode is None:
-        return env
-    _set_random_state(env.swarm_env, episode["random_state"])
-    env.reset(seed=episode["seed"], options=episode["options"])
-    for actions in episode["actions"]:
-        env.step(dict(zip(env.possible_agents, actions, strict=True)))
-    return env
+    return _replayed(
+        env, episode, env.swarm_env, lambda actions: env.step(dict(zip(env.possible_agents, actions, strict=True)))
+    )
