@@ -288,9 +288,7 @@ def test_a_stopped_run_resumes_to_the_uninterrupted_model(cloned, tmp_path, caps
     reached = resume_state.load_snapshot(stopped).reached
     assert 0 < reached < yaml.safe_load(whole.config_path.read_text())["sb3_timesteps"]
 
-    config = PerRobotFinetuneConfig(
-        str(cloned.model_path), ENV, hyperparams=TINY_PPO, **{**settings, "n_robots": (4, 5)}
-    )
+    config = PerRobotFinetuneConfig(str(cloned.model_path), ENV, hyperparams=TINY_PPO, **settings)
     lines = []
     resumed = finetune_per_robot(config, stopped, show_progress=False, resume=True, log=lines.append)
     assert "resumed at swarm step" in lines[0]

@@ -386,6 +386,8 @@ def finetune_per_robot(
     file, a centralised model, another task, robot model or layout, values SB3 refuses) raises ValueError before
     anything is written. ``TrainResult.timesteps`` counts swarm steps. ``resume=True`` goes on from the snapshot of
     the stopped run in ``out``, made with the same ``config`` (a ParameterError otherwise)."""
+    from stable_baselines3.common.callbacks import CallbackList
+
     if resume:
         check_resumable(out, config)
     else:
@@ -459,7 +461,7 @@ def finetune_per_robot(
             validation(model, 0, "start")
         desc = f"finetune-decentralised {resolved.algo} {config.env_id}"
         periodic = _periodic(validation, run_dir, resolved, unit, snapshot and snapshot.extra["schedule"])
-        callbacks = _callback_list(
+        callbacks = CallbackList(
             [progress_bar(desc, resolved.timesteps, show_progress, unit, snapshot and snapshot.origin), periodic]
         )
         try:
@@ -516,9 +518,3 @@ def finetune_per_robot(
         interrupted,
         resolved.sizes,
     )
-
-
-def _callback_list(callbacks: list):
-    from stable_baselines3.common.callbacks import CallbackList
-
-    return CallbackList(callbacks)
