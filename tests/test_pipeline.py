@@ -66,6 +66,8 @@ METHODS = ["wave", "bc", "bc-ppo", "ppo"]
         ({"finetune_hyperparams": {"n_stepz": 8}}, "finetune_hyperparams: .*n_stepz"),
         ({"scratch_hyperparams": {"n_stepz": 8}}, "scratch_hyperparams: .*n_stepz"),
         ({"actor": "transformer"}, "actor: expected one of"),
+        ({"average_checkpoints": ["swimming"]}, "average_checkpoints: expected some of"),
+        ({"average_checkpoints": "gate"}, "average_checkpoints: expected a list of strings"),
         ({"scratch_algos": ["ppo", "dqn"]}, "DQN from scratch has none"),
     ],
 )
@@ -289,6 +291,41 @@ def test_bad_training_env_kwargs_are_refused(kwargs, message):
 def test_a_training_env_kwarg_of_a_task_not_run_is_passed_over():
     config = PipelineConfig(**{**PIPELINE, "training_env_kwargs": {"gate": {"gate_distance": "far"}}})
     assert config.tasks == ["navigation"]
+
+
+def test_a_task_named_in_average_checkpoints_keeps_the_mean_of_its_fine_tuned_weights(tmp_path, monkeypatch):
+    """Its fine-tuned model holds the mean of the policy's weights at the run's first three checkpoints (a quarter,
+    half and three quarters of the way) and at its end. Its clone, its run from scratch and the stages of tasks
+    not named keep their keys."""
+    import dpr.policies.sb3 as sb3
+
+    seen = {}
+    save_slim_copy = sb3.save_slim_copy
+
+    def remember_the_mean(source, target, average_with=()):
+        if average_with:  # the checkpoints still exist: the pipeline deletes the run's work folder afterwards
+            states = [load_model(path)[0].policy.state_dict() for path in (source, *average_with)]
+            seen["averaged"] = [path.name for path in average_with]
+            seen["mean"] = {name: sum(state[name] for state in states) / len(states) for name in states[0]}
+            seen["last"] = states[0]
+        return save_slim_copy(source, target, average_with)
+
+    monkeypatch.setattr(sb3, "save_slim_copy", remember_the_mean)
+    out = tmp_path / "run"
+    run_tiny({**PIPELINE, "average_checkpoints": ["navigation"]}, out)
+    assert seen["averaged"] == [f"model_{32 + steps}_steps.zip" for steps in (16, 32, 48)]  # after the warm-up
+    stored = load_model(out / "models" / "navigation-bc-ppo.zip")[0].policy.state_dict()
+    for name, mean in seen["mean"].items():
+        torch.testing.assert_close(stored[name], mean)
+    assert any(not torch.equal(stored[name], seen["last"][name]) for name in stored)
+
+    def keys(**settings):
+        stages = task_stages(PipelineConfig(**{**PIPELINE, "tasks": ["navigation", "gate"], **settings}), "navigation")
+        return {method: stage.key for (method, _), stage in stages.models.items()}
+
+    plain, averaged = keys(), keys(average_checkpoints=["navigation"])
+    assert {m for m in plain if plain[m] != averaged[m]} == {"bc-ppo"}
+    assert keys(average_checkpoints=["gate"]) == plain
 
 
 def test_pipeline_gives_every_learner_its_actor(pipeline, tmp_path):

@@ -114,6 +114,15 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         "config's, e.g. 'gate:gate_distance=[5, 200]'; the models stay the task's and are evaluated on it "
         f"(repeatable; preset: {training_kwargs})",
     )
+    preset_argument(
+        "--average-checkpoints",
+        "tasks whose fine-tuned models average the policy's weights at four evenly spaced points of fine-tuning "
+        "(a quarter, half, three quarters of the way and the end) instead of keeping the last ones",
+        type=str,
+        nargs="*",
+        choices=ENV_IDS,
+        show=lambda tasks: shown(tasks) or "none",
+    )
     preset_argument("--n-robots", "swarm size N")
     preset_argument("--episodes", "demonstration episodes per task")
     preset_argument("--demo-seed", "first demonstration seed", type=non_negative_int)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import functools
 import json
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -515,12 +515,18 @@ def _critic_of(policy) -> str:
     return getattr(policy, "critic", "mlp")
 
 
-def save_slim_copy(source: str | Path, target: str | Path) -> Path:
+def save_slim_copy(source: str | Path, target: str | Path, average_with: Sequence[str | Path] = ()) -> Path:
     """Copy the model file ``source`` to ``target`` without the optimizer's running moments, which nothing
-    reads back (fine-tuning and evaluation load the weights only): a PPO file shrinks to about a third. ``target``
-    appears only once it is complete."""
+    reads back (fine-tuning and evaluation load the weights only): a PPO file shrinks to about a third. With
+    ``average_with`` (model files of the same network, e.g. the checkpoints of ``source``'s run), the copy's weights
+    are the mean of theirs and ``source``'s: weight averaging along a run. ``target`` appears only once it is
+    complete."""
     model, info = load_model(source)
     policy = model.policy
+    if average_with:
+        states = [policy.state_dict(), *(load_model(other)[0].policy.state_dict() for other in average_with)]
+        mean = {name: sum(state[name] for state in states) / len(states) for name in states[0]}
+        policy.load_state_dict(mean)
     learning_rate = policy.optimizer.param_groups[0]["lr"]
     policy.optimizer = policy.optimizer_class(policy.parameters(), lr=learning_rate, **policy.optimizer_kwargs)
     target = Path(target)

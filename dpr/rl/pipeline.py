@@ -129,6 +129,8 @@ def _learner_stages(config: PipelineConfig, task: str, env: dict[str, Any], stag
             settings = {**rl, "algo": algo, "seed": seed, "physics_steps": config.finetune_steps}
             settings["critic_warmup"] = config.critic_warmup
             settings["hyperparams"] = config.actor_hyperparams() | config.finetune_hyperparams
+            if task in config.average_checkpoints:  # only then: the other tasks' stages keep their keys
+                settings["average_checkpoints"] = True
             stages.models[f"bc-{algo}", seed] = Stage(
                 "rl",
                 f"{task}: bc-{algo}, seed {seed}",

@@ -94,6 +94,9 @@ class PipelineConfig:
     # own; its models stay models of the task and are evaluated there (TrainConfig.training_env_kwargs). A task
     # this run does not run is passed over, so that a preset may name any task.
     training_env_kwargs: dict[str, dict] = field(default_factory=dict)
+    # tasks whose fine-tuned models are the mean of the policy's weights along fine-tuning (FINETUNE_AVERAGE) rather
+    # than its last weights; a task this run does not run is passed over
+    average_checkpoints: list[str] = field(default_factory=list)
 
     def __post_init__(self):
         check_types(self)
@@ -111,6 +114,10 @@ class PipelineConfig:
         if idle:
             raise ParameterError("env_ids", f"{idle} belong to tasks this run does not run ({self.tasks})")
         self._check_training_env_kwargs()
+        if any(task not in ENV_IDS for task in self.average_checkpoints):
+            raise ParameterError(
+                "average_checkpoints", f"expected some of {list(ENV_IDS)}, got {self.average_checkpoints!r}"
+            )
         if self.actor not in ACTORS:
             raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
         if self.actor != "mlp" and DQN in self.scratch_algos:

@@ -9,7 +9,7 @@ Outputs: ``teacher.yaml`` (the chosen hold and bin width, every candidate's medi
 from __future__ import annotations
 
 import shutil
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -157,7 +157,17 @@ def train_rl(
     result = train(config, run, show_progress=show_progress, resume=resume, log=_quiet)
     if result.interrupted:
         raise KeyboardInterrupt
-    _keep_model(result.model_path, out)
+    _keep_model(result.model_path, out, _averaged_checkpoints(run) if settings.get("average_checkpoints") else ())
+
+
+def _averaged_checkpoints(run: Path) -> list[Path]:
+    """The checkpoints a quarter, half and three quarters of the way through the run
+    (:data:`dpr.rl.train.CHECKPOINTS`): with its final weights, four evenly spaced points of fine-tuning to
+    average (the last checkpoint falls within the final rollout, so it is left out)."""
+    from dpr.rl.train import CHECKPOINTS
+
+    checkpoints = sorted((run / "checkpoints").glob("model_*_steps.zip"), key=lambda path: int(path.stem.split("_")[1]))
+    return checkpoints[: CHECKPOINTS - 1]
 
 
 def evaluate_policy(
@@ -196,11 +206,12 @@ def evaluate_policy(
     )
 
 
-def _keep_model(model: Path, out: Path) -> None:
-    """The run's model without its optimizer's state, and its config.yaml."""
+def _keep_model(model: Path, out: Path, average_with: Sequence[Path] = ()) -> None:
+    """The run's model without its optimizer's state (its weights averaged with ``average_with``'s), and its
+    config.yaml."""
     from dpr.policies.sb3 import save_slim_copy
 
-    save_slim_copy(model, out / MODEL)
+    save_slim_copy(model, out / MODEL, average_with)
     shutil.copyfile(model.parent / "config.yaml", out / "config.yaml")
 
 
