@@ -94,8 +94,8 @@ class PipelineConfig:
     # own; its models stay models of the task and are evaluated there (TrainConfig.training_env_kwargs). A task
     # this run does not run is passed over, so that a preset may name any task.
     training_env_kwargs: dict[str, dict] = field(default_factory=dict)
-    # tasks whose fine-tuned models are the mean of the policy's weights along fine-tuning (FINETUNE_AVERAGE) rather
-    # than its last weights; a task this run does not run is passed over
+    # tasks whose fine-tuned models are the mean of the policy's weights a quarter, half and three quarters of the way
+    # and at the end of fine-tuning, rather than the last weights; a task this run does not run is passed over
     average_checkpoints: list[str] = field(default_factory=list)
 
     def __post_init__(self):
