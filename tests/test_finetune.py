@@ -273,6 +273,28 @@ def test_cli_finetunes_a_ppo_clone_with_a2c(cloned, tmp_path, capsys):
     assert (info.algo, info.env_kwargs) == ("a2c", ENV_KWARGS)
 
 
+def test_cli_average_checkpoints_writes_the_mean_of_the_runs_weights(cloned, tmp_path, capsys):
+    """averaged_model.zip holds the mean of the policy's weights at the run's first three checkpoints (a quarter, half
+    and three quarters of the way) and at its end, beside model.zip, which keeps the last weights."""
+    out = tmp_path / "run"
+    argv = ["finetune", "--from", str(cloned.model_path), "--env", ENV, "--timesteps", "64", "--critic-warmup", "16"]
+    argv += ["--n-envs", "1", "--hyperparam", "n_steps=16", "--hyperparam", "batch_size=16", "--out", str(out)]
+    assert run([*argv, "--average-checkpoints"]) == 0
+    assert f"averaged model: {out / 'averaged_model.zip'}" in capsys.readouterr().out
+    checkpoints = sorted((out / "checkpoints").glob("*.zip"), key=lambda path: int(path.stem.split("_")[1]))
+    assert len(checkpoints) == 4
+    states = [load_model(path)[0].policy.state_dict() for path in (out / "model.zip", *checkpoints[:3])]
+    averaged = load_model(out / "averaged_model.zip")[0].policy.state_dict()
+    for name, value in averaged.items():
+        torch.testing.assert_close(value, sum(state[name] for state in states) / 4)
+    assert any(not torch.equal(averaged[name], states[0][name]) for name in averaged)
+    assert read_model_info(out / "averaged_model.zip") == read_model_info(out / "model.zip")
+    short = tmp_path / "short"
+    assert run([*argv[:5], "--timesteps", "3", "--n-envs", "1", "--out", str(short), "--average-checkpoints"]) == 2
+    assert "--average-checkpoints: the run must last at least 4 steps per env" in capsys.readouterr().err
+    assert not short.exists()
+
+
 def test_a_disk_model_runs_and_fine_tunes_on_the_paddle_model(cloned, tmp_path, capsys):
     """The two robot models make the same spaces: a policy learned on the fast disk model is evaluated on, and
     fine-tuned on, the paddle model when asked (and the swarm then moves by the paddle physics)."""

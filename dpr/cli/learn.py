@@ -273,6 +273,12 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
     )
     workers_argument(parser, "parallel envs, subprocesses when > 1", flag="--n-envs")
+    parser.add_argument(
+        "--average-checkpoints",
+        action="store_true",
+        help="also write averaged_model.zip: the mean of the policy's weights a quarter, half and three quarters of "
+        "the way and at the end (weight averaging, what `dpr pipeline`'s average_checkpoints keeps)",
+    )
     _run_arguments(
         parser,
         "learning_rate=1e-5. Unless set here: the network the model was built with (its policy and "
@@ -309,9 +315,9 @@ def cmd_finetune(args, parser) -> int:
     from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.hyperparams import FINETUNE_PRESET
-    from dpr.policies.sb3 import loaded_architecture, model_env_kwargs, read_model_info
+    from dpr.policies.sb3 import loaded_architecture, model_env_kwargs, read_model_info, save_slim_copy
     from dpr.rl.recipe import default_critic_warmup, finetune_defaults
-    from dpr.rl.train import TrainConfig, train
+    from dpr.rl.train import AVERAGED_MODEL, CHECKPOINTS, TrainConfig, averaged_checkpoints, train
 
     _check_resume(args, parser)
     check_seed(args, parser)
@@ -357,12 +363,20 @@ def cmd_finetune(args, parser) -> int:
         )
         if args.critic_warmup is None:  # a tenth of the run's steps: --timesteps, else the yaml's
             config = dataclasses.replace(config, critic_warmup=default_critic_warmup(config.resolve()[2]))
+        if args.average_checkpoints and config.resolve()[2] // config.n_envs < CHECKPOINTS:
+            raise ValueError(
+                f"--average-checkpoints: the run must last at least {CHECKPOINTS} steps per env (--timesteps / "
+                "--n-envs), so that it writes the checkpoints to average"
+            )
         line = _model_defaults_line(info, args.source, defaults, overrides)
         if line:
             print(line, file=sys.stderr)
         result = train(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, FINETUNE_FLAGS))
+    if args.average_checkpoints and not result.interrupted:
+        checkpoints = averaged_checkpoints(result.run_dir)
+        print(f"averaged model: {save_slim_copy(result.model_path, result.run_dir / AVERAGED_MODEL, checkpoints)}")
     return _training_done(result, args)
 
 

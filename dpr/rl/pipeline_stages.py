@@ -122,7 +122,7 @@ def train_rl(
     warm-up. Budgets are physics steps, turned into decisions here. A run stopped part-way goes on from its last
     snapshot in the work folder (:mod:`dpr.rl.resume`) to the model it would have made without the stop."""
     from dpr.policies.hyperparams import DEFAULT_PRESET, FINETUNE_PRESET
-    from dpr.rl.train import TrainConfig, resumable, train
+    from dpr.rl.train import TrainConfig, averaged_checkpoints, resumable, train
 
     teacher = read_teacher(inputs[TEACHER])
     kwargs = learner_kwargs(settings, teacher)
@@ -157,17 +157,7 @@ def train_rl(
     result = train(config, run, show_progress=show_progress, resume=resume, log=_quiet)
     if result.interrupted:
         raise KeyboardInterrupt
-    _keep_model(result.model_path, out, _averaged_checkpoints(run) if settings.get("average_checkpoints") else ())
-
-
-def _averaged_checkpoints(run: Path) -> list[Path]:
-    """The checkpoints a quarter, half and three quarters of the way through the run
-    (:data:`dpr.rl.train.CHECKPOINTS`): with its final weights, four evenly spaced points of fine-tuning to
-    average (the last checkpoint falls within the final rollout, so it is left out)."""
-    from dpr.rl.train import CHECKPOINTS
-
-    checkpoints = sorted((run / "checkpoints").glob("model_*_steps.zip"), key=lambda path: int(path.stem.split("_")[1]))
-    return checkpoints[: CHECKPOINTS - 1]
+    _keep_model(result.model_path, out, averaged_checkpoints(run) if settings.get("average_checkpoints") else ())
 
 
 def evaluate_policy(

@@ -53,7 +53,7 @@ INTERVALS_NOTE = (
 )
 
 
-RUN_FOLDER_STEMS = ("model", "best_model")  # what `dpr train`/`finetune` name every run's models
+RUN_FOLDER_STEMS = ("model", "best_model", "averaged_model")  # what `dpr train`/`finetune` name every run's models
 
 
 def task_name(env_id: str) -> str:

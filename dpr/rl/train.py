@@ -55,7 +55,8 @@ if TYPE_CHECKING:  # the anchor imports torch and the BC loss: only runs that an
 
 RUNS_DIR = Path("runs/train")
 EVALUATIONS = 5  # EvalCallback runs about this many times over a run
-CHECKPOINTS = 4
+CHECKPOINTS = 4  # evenly spaced: a quarter, half and three quarters of the way, and the end
+AVERAGED_MODEL = "averaged_model.zip"  # `dpr finetune --average-checkpoints`
 EVAL_SEED_OFFSET = 10_000  # EvalCallback's env is seeded with seed + this: its starts differ from training's
 # Kwargs the trainer owns: they come from TrainConfig fields, not from env_kwargs.
 RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "max_episode_steps")
@@ -172,6 +173,17 @@ def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
     from."""
     resume_state.check_resumable(out, asdict(config))
+
+
+def averaged_checkpoints(run_dir: str | Path) -> list[Path]:
+    """The checkpoints a quarter, half and three quarters of the way through the finished run in ``run_dir``: with
+    its final weights (``model.zip``), the four evenly spaced points of training whose mean weight averaging keeps.
+    The last checkpoint falls within the final rollout, so it is left out."""
+    checkpoints = Path(run_dir) / "checkpoints"
+    found = sorted(checkpoints.glob("model_*_steps.zip"), key=lambda path: int(path.stem.split("_")[1]))
+    if len(found) < CHECKPOINTS - 1:
+        raise ValueError(f"{checkpoints}: expected {CHECKPOINTS - 1} checkpoints to average, found {len(found)}")
+    return found[: CHECKPOINTS - 1]
 
 
 def resumable(out: str | Path, config: TrainConfig) -> bool:
