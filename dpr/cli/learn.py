@@ -361,9 +361,10 @@ def cmd_finetune(args, parser) -> int:
             anchor_weight=args.anchor_weight,
             anchor_decay=args.anchor_decay,
         )
-        if args.critic_warmup is None:  # a tenth of the run's steps: --timesteps, else the yaml's
-            config = dataclasses.replace(config, critic_warmup=default_critic_warmup(config.resolve()[2]))
-        if args.average_checkpoints and config.resolve()[2] // config.n_envs < CHECKPOINTS:
+        budget = config.resolve()[2]  # the run's steps: --timesteps, else the yaml's
+        if args.critic_warmup is None:  # a tenth of the run's steps
+            config = dataclasses.replace(config, critic_warmup=default_critic_warmup(budget))
+        if args.average_checkpoints and budget // config.n_envs < CHECKPOINTS:
             raise ValueError(
                 f"--average-checkpoints: the run must last at least {CHECKPOINTS} steps per env (--timesteps / "
                 "--n-envs), so that it writes the checkpoints to average"
