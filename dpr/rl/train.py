@@ -323,18 +323,23 @@ def _close_quietly(vec_env) -> None:
         pass
 
 
-def check_training_env_kwargs(env_id: str, env_kwargs: dict[str, Any], training_env_kwargs: dict[str, Any]) -> None:
+def check_training_env_kwargs(
+    env_id: str, env_kwargs: dict[str, Any], training_env_kwargs: dict[str, Any], task_env: gym.Env | None = None
+) -> None:
     """A :class:`ParameterError` about ``training_env_kwargs`` unless ``env_id`` made with them over ``env_kwargs``
     takes the observations and actions it takes with ``env_kwargs`` alone (a kwarg the env refuses: its own
-    ValueError or TypeError)."""
-    task_env = gym.make(env_id, **env_kwargs)
+    ValueError or TypeError). ``task_env``: the env already made with ``env_kwargs``, if the caller has one."""
+    made = task_env is None
+    if made:
+        task_env = gym.make(env_id, **env_kwargs)
     try:
         training_env = gym.make(env_id, **{**env_kwargs, **training_env_kwargs})
         spaces = (task_env.observation_space, task_env.action_space)
         same = spaces == (training_env.observation_space, training_env.action_space)
         training_env.close()
     finally:
-        task_env.close()
+        if made:
+            task_env.close()
     if not same:
         raise ParameterError(
             "training_env_kwargs",
@@ -395,7 +400,7 @@ def train(
     training_kwargs = config.training_kwargs(env_kwargs)
     try:
         if config.training_env_kwargs:
-            check_training_env_kwargs(config.env_id, env_kwargs, config.training_env_kwargs)
+            check_training_env_kwargs(config.env_id, env_kwargs, config.training_env_kwargs, task_env=probe)
         if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
             initial, source = load_model(config.init_from, parameter=INIT_PARAMETER)
             if source.per_robot is not None:
