@@ -317,7 +317,7 @@ def cmd_finetune(args, parser) -> int:
     from dpr.policies.hyperparams import FINETUNE_PRESET
     from dpr.policies.sb3 import loaded_architecture, model_env_kwargs, read_model_info, save_slim_copy
     from dpr.rl.recipe import default_critic_warmup, finetune_defaults
-    from dpr.rl.train import AVERAGED_MODEL, CHECKPOINTS, TrainConfig, averaged_checkpoints, train
+    from dpr.rl.train import AVERAGED_MODEL, CHECKPOINTS, TrainConfig, averaged_checkpoints, checkpoint_spacing, train
 
     _check_resume(args, parser)
     check_seed(args, parser)
@@ -364,7 +364,7 @@ def cmd_finetune(args, parser) -> int:
         budget = config.resolve()[2]  # the run's steps: --timesteps, else the yaml's
         if args.critic_warmup is None:  # a tenth of the run's steps
             config = dataclasses.replace(config, critic_warmup=default_critic_warmup(budget))
-        if args.average_checkpoints and budget // config.n_envs < CHECKPOINTS:
+        if args.average_checkpoints and not checkpoint_spacing(budget // config.n_envs):
             raise ValueError(
                 f"--average-checkpoints: the run must last at least {CHECKPOINTS} steps per env (--timesteps / "
                 "--n-envs), so that it writes the checkpoints to average"

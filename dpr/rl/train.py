@@ -175,6 +175,12 @@ def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
     resume_state.check_resumable(out, asdict(config))
 
 
+def checkpoint_spacing(steps_per_env: int) -> int:
+    """Steps per env between a run's :data:`CHECKPOINTS` evenly spaced checkpoints; 0 for a run too short to space
+    them (it then writes one at every step)."""
+    return steps_per_env // CHECKPOINTS
+
+
 def averaged_checkpoints(run_dir: str | Path) -> list[Path]:
     """The checkpoints a quarter, half and three quarters of the way through the finished run in ``run_dir``: with
     its final weights (``model.zip``), the four evenly spaced points of training whose mean weight averaging keeps.
@@ -306,7 +312,10 @@ def _callbacks(
         callback_on_new_best=StampBest(),
     )
     checkpoints = StampingCheckpoints(
-        save_freq=max(per_env // CHECKPOINTS, 1), save_path=str(run_dir / "checkpoints"), name_prefix="model", verbose=0
+        save_freq=max(checkpoint_spacing(per_env), 1),
+        save_path=str(run_dir / "checkpoints"),
+        name_prefix="model",
+        verbose=0,
     )
     desc = f"{config.command} {config.algo} {config.env_id}"
     bar = progress_bar(desc, timesteps, show_progress, origin=snapshot and snapshot.origin)
