@@ -313,12 +313,16 @@ class _Validation:
 
 
 def _periodic(
-    validation: _Validation, run_dir: Path, resolved: _Resolved, unit: StepUnit, resumed: dict[str, int] | None = None
+    validation: _Validation,
+    run_dir: Path,
+    resolved: _Resolved,
+    unit: StepUnit,
+    resumed: resume_state.Snapshot | None = None,
 ):
     """An SB3 callback that, at the start of each rollout (after an update), writes a checkpoint every
     ``timesteps / CHECKPOINTS`` swarm steps and evaluates every ``timesteps / EVALUATIONS``, counted from the end of
-    the warm-up; checkpoints are named by swarm steps, warm-up included. Its ``state()`` is its schedule, which
-    ``resumed`` gives back."""
+    the warm-up; checkpoints are named by swarm steps, warm-up included. Its ``state()`` is its schedule, which a
+    ``resumed`` run's snapshot gives back."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     every_eval = max(resolved.timesteps // EVALUATIONS, 1)
@@ -330,13 +334,16 @@ def _periodic(
             if resumed is None:
                 self.first = self.model.num_timesteps
                 self.next_eval, self.next_checkpoint = every_eval, every_checkpoint
-            else:
+            else:  # the run's learn() call started at the snapshot's origin
+                schedule = resumed.extra["schedule"]
                 self.first, self.next_eval, self.next_checkpoint = (
-                    resumed[name] for name in ("first", "next_eval", "next_checkpoint")
+                    resumed.origin,
+                    schedule["next_eval"],
+                    schedule["next_checkpoint"],
                 )
 
         def state(self) -> dict[str, int]:
-            return {"first": self.first, "next_eval": self.next_eval, "next_checkpoint": self.next_checkpoint}
+            return {"next_eval": self.next_eval, "next_checkpoint": self.next_checkpoint}
 
         def _on_rollout_start(self) -> None:
             done = unit.from_sb3(self.model.num_timesteps - self.first)
@@ -460,7 +467,7 @@ def finetune_per_robot(
         if snapshot is None:
             validation(model, 0, "start")
         desc = f"finetune-decentralised {resolved.algo} {config.env_id}"
-        periodic = _periodic(validation, run_dir, resolved, unit, snapshot and snapshot.extra["schedule"])
+        periodic = _periodic(validation, run_dir, resolved, unit, snapshot)
         callbacks = CallbackList(
             [progress_bar(desc, resolved.timesteps, show_progress, unit, snapshot and snapshot.origin), periodic]
         )
