@@ -2,6 +2,7 @@
 dpr.rl.finetune_per_robot), and the VecEnv of several swarms it trains on (SwarmsAsVecEnv)."""
 
 import json
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -291,7 +292,13 @@ def test_a_stopped_run_resumes_to_the_uninterrupted_model(cloned, tmp_path, caps
     config = PerRobotFinetuneConfig(str(cloned.model_path), ENV, hyperparams=TINY_PPO, **settings)
     lines = []
     resumed = finetune_per_robot(config, stopped, show_progress=False, resume=True, log=lines.append)
-    assert "resumed at swarm step" in lines[0]
+    at, after_warmup = map(
+        int, re.search(r"resumed at swarm step (\d+) \((\d+) of 160 after the warm-up\)", lines[0]).groups()
+    )
+    assert (
+        at == reached // sum(settings["n_robots"]) * len(settings["n_robots"])
+        and at - after_warmup == settings["critic_warmup"]
+    )
     assert _same_weights(resumed.model_path, whole.model_path)
     assert _same_weights(resumed.best_model_path, whole.best_model_path)
     evaluations = [json.loads((run / "eval" / "evaluations.json").read_text()) for run in (whole.run_dir, stopped)]

@@ -457,7 +457,13 @@ def finetune_per_robot(
             record["resumed"] = [*record.get("resumed", []), resumed]
         atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
         sizes = " + ".join(str(n) for n in resolved.sizes)
-        again = "" if snapshot is None else f", resumed at swarm step {unit.from_sb3(snapshot.reached)}"
+        again = ""
+        if snapshot is not None:  # counted as the checkpoints' names count (warm-up included) and as the bar does
+            after_warmup = unit.from_sb3(snapshot.reached - snapshot.origin)
+            again = (
+                f", resumed at swarm step {unit.from_sb3(snapshot.reached)} "
+                f"({after_warmup} of {resolved.timesteps} after the warm-up)"
+            )
         log(
             f"dpr finetune-decentralised: per-robot {resolved.algo} on {config.env_id} swarms of {sizes} robots "
             f"{resolved.env_kwargs}, from {config.init_from} ({resolved.critic_warmup} critic warm-up steps first), "
