@@ -61,11 +61,11 @@ from dpr.policies.sb3 import (
 from dpr.rl import resume as resume_state
 from dpr.rl.recipe import default_critic_warmup
 from dpr.rl.train import (
-    CHECKPOINTS,
     EVAL_SEED_OFFSET,
     EVALUATIONS,
     StepUnit,
     TrainResult,
+    checkpoint_spacing,
     progress_bar,
     tensorboard_available,
     warm_up_critic,
@@ -326,7 +326,7 @@ def _periodic(
     from stable_baselines3.common.callbacks import BaseCallback
 
     every_eval = max(resolved.timesteps // EVALUATIONS, 1)
-    every_checkpoint = max(resolved.timesteps // CHECKPOINTS, 1)
+    every_checkpoint = max(checkpoint_spacing(resolved.timesteps), 1)
     folder = run_dir / "checkpoints"
 
     class Periodic(BaseCallback):

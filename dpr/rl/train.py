@@ -175,10 +175,11 @@ def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
     resume_state.check_resumable(out, asdict(config))
 
 
-def checkpoint_spacing(steps_per_env: int) -> int:
-    """Steps per env between a run's :data:`CHECKPOINTS` evenly spaced checkpoints; 0 for a run too short to space
-    them (it then writes one at every step)."""
-    return steps_per_env // CHECKPOINTS
+def checkpoint_spacing(steps: int) -> int:
+    """Steps between a run's :data:`CHECKPOINTS` evenly spaced checkpoints over its ``steps`` (per env for SB3's
+    callbacks; swarm steps for a per-robot run); 0 for a run too short to space them (it then writes one at every
+    step)."""
+    return steps // CHECKPOINTS
 
 
 def averaged_checkpoints(run_dir: str | Path) -> list[Path]:
