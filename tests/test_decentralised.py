@@ -362,6 +362,34 @@ def test_decentralised_sweep_tool_refuses_a_policy_that_is_not_one(sweep_tool, t
     assert "--policies" in capsys.readouterr().err
 
 
+def test_decentralised_sweep_tool_runs_a_centralised_swarm_model_at_any_size(sweep_tool, tmp_path, capsys):
+    """A centralised model whose actor the robots share runs at every N, on both robot models, with its own env
+    kwargs; one made for a fixed N is refused, named, before any episode."""
+    import json
+
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from dpr.policies.hyperparams import load_hyperparams
+    from dpr.policies.sb3 import ModelInfo, build_model, save_model
+
+    canonical = Path(__file__).resolve().parents[1] / "models" / "navigation-bc-ppo.zip"
+    rows_file = tmp_path / "rows.json"
+    argv = ["--models", "paddle", "disk", "--sizes", "4", "7", "--seeds", "0", "--steps", "12", "--workers", "1"]
+    assert sweep_tool.main([*argv, "--policies", "centralised", str(canonical), "--json", str(rows_file)]) == 0
+    rows = json.loads(rows_file.read_text())
+    ran = {(row["robot_model"], row["n_robots"]) for row in rows if row["policy"] == canonical.name}
+    assert ran == {("paddle", 4), ("paddle", 7), ("disk", 4), ("disk", 7)}
+    capsys.readouterr()
+
+    env_id = "dpr/Navigation-v0"
+    env = gym.make(env_id, n_robots=5, **DISK)
+    mlp = build_model(load_hyperparams("ppo", env_id), DummyVecEnv([lambda: env]), 0, None)
+    fixed = save_model(mlp, tmp_path / "mlp.zip", ModelInfo("ppo", env_id, {"n_robots": 5, **DISK}))
+    with pytest.raises(SystemExit):
+        sweep_tool.main([*argv, "--policies", str(fixed)])
+    assert f"{fixed} is a centralised model for 5 robots only" in capsys.readouterr().err
+
+
 SHIPPED_PER_ROBOT = sorted((Path(__file__).resolve().parents[1] / "models").glob("decentralised*.zip"))
 
 

@@ -6,8 +6,11 @@ Policies, each run in the same centralised env (so the physics is the same):
   centre, knowing every robot's position);
 * ``decentralised``: ``DecentralisedWavePolicy.for_env`` (every robot decides from its own local observation: its
   distance to the goal and the shared clock), for each ``--n-phases`` and ``--sides``;
-* any per-robot model file given to ``--policies`` (``dpr bc-decentralised``, ``dpr finetune`` of one): one model
-  for every N, run through ``PerRobotPolicyAdapter``, on the robot model it was trained on only.
+* any per-robot model file given to ``--policies`` (``dpr bc-decentralised``, ``dpr finetune-decentralised``): one
+  model for every N, run through ``PerRobotPolicyAdapter``, on the robot model it was trained on only;
+* any centralised model file whose actor is shared by the robots (``SwarmPolicy``, as the canonical models in
+  models/): it reads the whole swarm but acts at any N, on either robot model, with the env kwargs it was trained
+  with (its observation, its ``action_repeat``) and as it is on ``--env`` when that is another task of its spaces.
 
 Prints a markdown table per robot model and N: median (min to max) over seeds, % of the centralised wave's median,
 and microseconds of wall time per robot-step (env + policy). ``--cache`` keeps every finished episode (paddle
@@ -36,21 +39,40 @@ import numpy as np
 from episode_cache import append_episode, load_episodes
 
 from dpr.cli import parse_seeds
+from dpr.envs import episode_steps
 from dpr.policies.decentralised import DEFAULT_N_PHASES, DecentralisedWavePolicy
 from dpr.policies.wave import START_SIDES, WavePolicy
 from dpr.rollout import roll_out
+from dpr.sim.models import ROBOT_MODELS
 
 CENTRALISED = "centralised"
 DECENTRALISED = "decentralised"
 DEFAULT_SIZES = {"paddle": [9, 25, 49], "disk": [9, 100, 400]}
 
 
-def model_file_robot_model(path: str) -> str:
-    """The robot model a per-robot model file was trained on (ValueError naming the file for anything else)."""
+def model_file_robot_models(path: str, env_id: str) -> tuple[str, ...]:
+    """The robot models the model file at ``path`` runs on here: a per-robot model on the one it was trained on, a
+    centralised ``SwarmPolicy`` model on both (checked against ``env_id`` now, so that a task of other spaces is
+    refused before any episode). A ValueError naming the file for anything else."""
     from dpr.policies.per_robot_spec import RobotModelSpec
-    from dpr.policies.sb3 import read_model_info
+    from dpr.policies.registry import make_policy
+    from dpr.policies.sb3 import has_swarm_actor, model_env_kwargs, read_model_info
 
-    return RobotModelSpec.from_info(read_model_info(path, "--policies"), path).robot_model
+    info = read_model_info(path, "--policies")
+    if info.per_robot is not None:
+        return (RobotModelSpec.from_info(info, path, "--policies").robot_model,)
+    if not has_swarm_actor(path):
+        raise ValueError(
+            f"--policies: {path} is a centralised model for {info.env_kwargs.get('n_robots', 'its')} robots only; a "
+            "sweep over N runs per-robot models and centralised models whose actor is shared by the robots "
+            "(SwarmPolicy), which act at any N"
+        )
+    env = gym.make(env_id, **model_env_kwargs(path, env_id, transfer=True))
+    try:
+        make_policy(path, env, transfer=True)  # a task whose spaces the model does not fit: refused here, named
+    finally:
+        env.close()
+    return tuple(ROBOT_MODELS)
 
 
 def run_episode(
@@ -59,15 +81,20 @@ def run_episode(
     """One episode: its projected displacement and the wall time of its steps (env + policy)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
     from dpr.policies.registry import make_policy
+    from dpr.policies.sb3 import model_env_kwargs, read_model_info
 
-    env = gym.make(env_id, n_robots=n_robots, robot_model=robot_model, max_episode_steps=steps)
+    kwargs = {"n_robots": n_robots, "robot_model": robot_model}
+    if policy not in (CENTRALISED, DECENTRALISED) and read_model_info(policy).per_robot is None:
+        kwargs = model_env_kwargs(policy, env_id, kwargs, transfer=True)  # a centralised model's own observation
+    # ``steps`` physics steps for every policy, also one that decides every ``action_repeat`` of them
+    env = gym.make(env_id, max_episode_steps=episode_steps(kwargs, steps), **kwargs)
     try:
         if policy == CENTRALISED:
             actor = WavePolicy.from_env(env)
         elif policy == DECENTRALISED:
             actor = DecentralisedWavePolicy.for_env(env, n_phases=n_phases, **({"start_side": side} if side else {}))
         else:
-            actor = make_policy(policy, env)
+            actor = make_policy(policy, env, transfer=True)
         started = time.perf_counter()
         result = roll_out(env, actor, seed)
         seconds = time.perf_counter() - started
@@ -108,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         "--policies",
         nargs="+",
         default=[CENTRALISED, DECENTRALISED],
-        help="centralised, decentralised, and per-robot model files (.zip)",
+        help="centralised, decentralised, and model files (.zip) that act at any N: per-robot models, and "
+        "centralised ones with the swarm actor",
     )
     parser.add_argument("--n-phases", type=int, nargs="+", default=[DEFAULT_N_PHASES], help="of the decentralised wave")
     parser.add_argument("--sides", nargs="+", choices=START_SIDES, help="wave directions (default: the model's)")
@@ -125,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             if not policy.endswith(".zip") or not Path(policy).is_file():
                 parser.error(f"--policies: {policy!r} is neither centralised, decentralised nor a model file")
             try:
-                files[policy] = model_file_robot_model(policy)
+                files[policy] = model_file_robot_models(policy, args.env)
             except ValueError as error:
                 parser.error(str(error))
 
@@ -150,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         for model, n in grid
         for policy, n_phases, side in variants
-        if files.get(policy, model) == model  # a model file runs on the robot model it was trained on
+        if model in files.get(policy, (model,))  # a per-robot model file runs on its own robot model only
         for seed in args.seeds
     }
     records = load_episodes(args.cache)
