@@ -8,6 +8,7 @@ LeRobot's ``*.parquet`` globs and ``ls`` both pass them by.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import secrets
@@ -157,3 +158,13 @@ def atomic_link(source: str | os.PathLike, path: str | os.PathLike, *, sync_fold
     if sync_folder:
         fsync_dir(path.parent)
     return path
+
+
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of the file at ``path`` (hex), read in blocks: what records and model cards
+    compare a file against to know it is the one written."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

@@ -1,6 +1,6 @@
 """The one episode loop: a policy acts in an env from ``reset(seed=seed)`` until the episode ends.
 
-Evaluation (:mod:`dpr.rl.evaluation`), dataset collection (:mod:`dpr.datasets.collect`), replay
+Evaluation (:mod:`dpr.evaluation.scoring`), dataset collection (:mod:`dpr.datasets.collect`), replay
 (:mod:`dpr.datasets.replay`) and the viewer's live rollouts (:mod:`dpr.viz.episodes`) all run episodes through
 :func:`roll_out` and differ only in what they record, through two hooks: ``on_reset(observation, info)`` once
 after the reset, and ``on_step(step)`` after every step with the :class:`Step` (what the policy saw, what it

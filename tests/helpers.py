@@ -224,8 +224,8 @@ THREE_SEEDS = {**PIPELINE, "train_seeds": [0, 1, 2], "validation_seeds": [200, 2
 def run_tiny(settings: dict, out: Path, **kwargs):
     """Run (or resume) a tiny pipeline of ``settings`` into ``out`` in this process (``kwargs`` to run_pipeline);
     returns its report folder and log lines."""
-    from dpr.rl.pipeline import run_pipeline
-    from dpr.rl.pipeline_config import PipelineConfig
+    from dpr.pipeline.campaign import run_pipeline
+    from dpr.pipeline.config import PipelineConfig
 
     lines: list[str] = []
     report = run_pipeline(PipelineConfig(**settings), out, show_progress=False, log=lines.append, **kwargs)

@@ -10,9 +10,9 @@ from dpr.checks import ParameterError
 from dpr.datasets.collect import CollectSpec
 from dpr.envs import MAX_EPISODE_STEPS, episode_steps
 from dpr.envs.particle_env import seconds_per_step, steps_per_second
+from dpr.evaluation.scoring import evaluate
 from dpr.metrics import MetricTracker
-from dpr.rl.evaluation import evaluate
-from dpr.rl.pipeline_config import (
+from dpr.pipeline.config import (
     PER_PHASE,
     PIPELINE_ENV_KWARGS,
     PipelineConfig,

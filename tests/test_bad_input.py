@@ -302,7 +302,7 @@ def test_physics_blow_up_obs_is_a_fresh_array():
 
 def test_evaluate_refuses_repeated_seeds():
     """A repeated seed would count its episode twice in every statistic."""
-    from dpr.rl.evaluation import evaluate
+    from dpr.evaluation.scoring import evaluate
 
     with pytest.raises(ValueError, match=r"seeds: each seed must appear once; repeated: \[3\]"):
         evaluate(["dpr/Navigation-v0"], "wave", seeds=[1, 3, 3], steps=5)
@@ -314,9 +314,9 @@ def test_a_corrupt_model_file_is_one_clear_error(tmp_path):
 
     from stable_baselines3.common.vec_env import DummyVecEnv
 
+    from dpr.evaluation.scoring import evaluate
     from dpr.policies.hyperparams import load_hyperparams
     from dpr.policies.sb3 import ModelInfo, build_model, save_model
-    from dpr.rl.evaluation import evaluate
 
     kwargs = {"n_robots": 4, "robot_model": "disk"}
     env = gym.make("dpr/Navigation-v0", **kwargs)

@@ -14,12 +14,12 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.frames import FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
+from dpr.evaluation.scoring import evaluate
 from dpr.imitation import behaviour_clone
 from dpr.imitation.bc import measure
 from dpr.imitation.loss import check_features
 from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
 from dpr.policies.swarm_policy import SwarmActorCriticPolicy
-from dpr.rl.evaluation import evaluate
 
 ENV = "dpr/Navigation-v0"
 # Full-batch steps (two 64-frame training episodes) learn this tiny set; small noisy batches barely move it.

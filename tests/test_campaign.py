@@ -15,8 +15,8 @@ import pytest
 import yaml
 from helpers import PIPELINE, run_cli, run_tiny, tree_hash
 
-from dpr.rl.pipeline import run_pipeline
-from dpr.rl.pipeline_config import PRESETS, load_config, preset_path, read_settings
+from dpr.pipeline.campaign import run_pipeline
+from dpr.pipeline.config import PRESETS, load_config, preset_path, read_settings
 
 DPR = [sys.executable, "-m", "dpr.cli"]
 ENV = {**os.environ, "SDL_VIDEODRIVER": "dummy", "RAY_AUTH_MODE": "disabled"}
@@ -78,7 +78,7 @@ KILLERS = {
     "training": "from stable_baselines3 import PPO; original = PPO.train; calls = []\n"
     "def patched(self):\n    calls.append(1)\n    if len(calls) == 3: kill()\n    original(self)\nPPO.train = patched",
     # in the second episode of an evaluation, the first one done
-    "evaluation": "import dpr.rl.evaluation as m; original = m.run_episode; calls = []\n"
+    "evaluation": "import dpr.evaluation.scoring as m; original = m.run_episode; calls = []\n"
     "def patched(*a, **k):\n    calls.append(1)\n    if len(calls) == 2: kill()\n    return original(*a, **k)\n"
     "m.run_episode = patched",
 }
@@ -88,8 +88,8 @@ from pathlib import Path
 def kill():
     os.kill(os.getpid(), signal.SIGKILL)
 {killer}
-from dpr.rl.pipeline import run_pipeline
-from dpr.rl.pipeline_config import load_config
+from dpr.pipeline.campaign import run_pipeline
+from dpr.pipeline.config import load_config
 run_pipeline(load_config(preset="tiny", tasks=["navigation"]), Path(sys.argv[1]), show_progress=False)
 """
 
@@ -117,7 +117,7 @@ def test_a_run_killed_during_demonstrations_training_and_evaluation_resumes_to_t
 def test_two_tasks_run_into_one_folder_at_the_same_time(tmp_path, monkeypatch):
     """A Gate run joins the folder, and ends, while a Navigation run builds its stages: the Navigation run, which
     ends last, reports both tasks (a report of the tasks it started with would drop Gate's rows)."""
-    import dpr.rl.pipeline as module
+    import dpr.pipeline.campaign as module
 
     out = tmp_path / "run"
     build_stages = module.run_stages

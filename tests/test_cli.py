@@ -14,7 +14,7 @@ from helpers import run_cli as run
 import dpr
 from dpr.cli import COMMANDS, PARAMETER_FLAGS, build_parser, flag_message
 from dpr.cli.common import flag_for
-from dpr.rl.pipeline_config import PipelineConfig
+from dpr.pipeline.config import PipelineConfig
 
 SMALL = ["--robot-model", "disk", "--n-robots", "4", "--steps", "20", "--workers", "1"]
 

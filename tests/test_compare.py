@@ -1,4 +1,4 @@
-"""dpr.rl.compare and `dpr compare`: two recipes' validation IQMs, task by task, and the adoption rule."""
+"""dpr.evaluation.compare and `dpr compare`: two recipes' validation IQMs, task by task, and the adoption rule."""
 
 import json
 import shutil
@@ -9,8 +9,8 @@ import pytest
 from helpers import run_cli
 
 from dpr.checks import ParameterError
-from dpr.rl.compare import compare, validation_runs
-from dpr.rl.statistics import iqm
+from dpr.evaluation.compare import compare, validation_runs
+from dpr.evaluation.statistics import iqm
 
 RECORDS = Path(__file__).resolve().parents[1] / "docs" / "results"
 HEADLINE = RECORDS / "full-lr3e4"  # the headline record: three runs of each method on the validation seeds

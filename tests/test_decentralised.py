@@ -412,7 +412,7 @@ def test_a_per_robot_model_runs_any_task_without_an_object(env_id):
     from pathlib import Path
 
     from dpr.checks import ParameterError
-    from dpr.rl.evaluation import run_episode
+    from dpr.evaluation.scoring import run_episode
 
     model = str(Path(__file__).resolve().parents[1] / "models" / "decentralised-disk-bc.zip")
     result = run_episode(env_id, model, seed=0, steps=20)

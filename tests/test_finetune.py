@@ -17,6 +17,7 @@ from helpers import run_cli as run
 
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.envs import ENV_IDS
+from dpr.evaluation.scoring import evaluate
 from dpr.imitation import behaviour_clone
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import make_policy
@@ -33,7 +34,6 @@ from dpr.policies.sb3 import (
     read_model_info,
 )
 from dpr.policies.swarm_policy import SwarmActorCriticPolicy
-from dpr.rl.evaluation import evaluate
 from dpr.rl.recipe import FINETUNE_AT_REPEAT, default_critic_warmup, finetune_defaults, physics_discount
 from dpr.rl.train import TrainConfig, train, warm_up_critic
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "dpr"
-LEARNING = ("dpr.policies", "dpr.imitation", "dpr.rl")  # lowest first
+LEARNING = ("dpr.policies", "dpr.imitation", "dpr.rl", "dpr.evaluation", "dpr.pipeline")  # lowest first
 
 
 def _modules() -> dict[str, Path]:

@@ -13,9 +13,9 @@ from helpers import run_cli as run
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
-from dpr.rl.model_card import load_model_card, load_per_robot_models
-from dpr.rl.pipeline import run_pipeline
-from dpr.rl.pipeline_config import PipelineConfig
+from dpr.evaluation.model_card import load_model_card, load_per_robot_models
+from dpr.pipeline.campaign import run_pipeline
+from dpr.pipeline.config import PipelineConfig
 from dpr.rl.train import TrainConfig, train
 
 REPO_CARD = Path(__file__).resolve().parents[1] / "models" / "card.yaml"

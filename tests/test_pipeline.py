@@ -13,9 +13,9 @@ from helpers import PIPELINE, QUIET, built_stages, run_tiny
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
+from dpr.pipeline.campaign import run_pipeline, task_stages
+from dpr.pipeline.config import PipelineConfig, learner_env_kwargs
 from dpr.policies.sb3 import load_model, read_model_info
-from dpr.rl.pipeline import run_pipeline, task_stages
-from dpr.rl.pipeline_config import PipelineConfig, learner_env_kwargs
 
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 
@@ -372,7 +372,7 @@ def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path, bin_w
     action_repeat 0 every learner decides once per teacher phase, fine-tuning discounting 0.99 per physics step.
     The teacher is scored on the test seeds beside the wave, which stays the paper's."""
     from dpr.datasets.lerobot import LeRobotReader
-    from dpr.rl.pipeline_config import PER_PHASE, Teacher
+    from dpr.pipeline.config import PER_PHASE, Teacher
 
     holds = [5, 10]
     settings = {**PIPELINE, "teacher_holds": holds, "action_repeat": PER_PHASE, "steps": 60, "scratch_algos": []}
@@ -407,8 +407,8 @@ def test_pipeline_chooses_each_tasks_teacher_on_validation_seeds(tmp_path, bin_w
 def test_a_teachers_name_says_its_hold_and_bins():
     """The teacher's policy name is what `dpr evaluate --policy` takes; the wave's Markov twin keeps the plain
     name, and file stems name the bins only when they are not the wave's."""
+    from dpr.pipeline.config import Teacher
     from dpr.policies.registry import parse_scripted_name
-    from dpr.rl.pipeline_config import Teacher
 
     assert Teacher().policy == "wave-markov" and Teacher().stem == "hold10"
     assert Teacher(8).policy == "wave-markov:hold_steps=8" and Teacher(8).stem == "hold8"

@@ -8,8 +8,8 @@ import pytest
 from helpers import run_cli as run
 from PIL import Image
 
-from dpr.rl.evaluation import evaluation_json, run_episode, subsample_trajectory
-from dpr.rl.report import load_evaluation, policy_label, results_table, trajectory_figure, write_report
+from dpr.evaluation.report import load_evaluation, policy_label, results_table, trajectory_figure, write_report
+from dpr.evaluation.scoring import evaluation_json, run_episode, subsample_trajectory
 
 SWARM = ["--robot-model", "disk", "--n-robots", "4"]
 STEPS = 25  # not a multiple of the subsampling step: the last position must still be stored

@@ -148,7 +148,7 @@ def test_the_headline_records_reprint_their_reports_from_their_sources(tool, tmp
     """`dpr report` over the files and labels a record's results.md names gives its tables again: the record is
     evidence on its own, with no campaign tool and no resume. (full-lr3e4 was written before dpr/Gate-v1, when the
     report named its Gate-v0 rows "Gate".)"""
-    from dpr.rl.report import write_report
+    from dpr.evaluation.report import write_report
 
     text = (record / "report" / "results.md").read_text()
     sources = re.findall(r"`([^`]+\.json)` \(([^:]+):", text.splitlines()[-1])

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 import dpr.datasets.collect as collect_module
-import dpr.rl.evaluation as evaluation_module
+import dpr.evaluation.scoring as evaluation_module
 from dpr.datasets.collect import CollectSpec, rollout
 from dpr.datasets.mcap import read_mcap
 from dpr.envs import AGENT_POSITION, PHYSICS_ERROR
+from dpr.evaluation.scoring import run_episode
 from dpr.metrics import episode_metrics
 from dpr.policies import registry
-from dpr.rl.evaluation import run_episode
 from dpr.rollout import ReplayPolicy, RolloutResult, Step, roll_out
 from dpr.viz import rollout_episode
 

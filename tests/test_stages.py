@@ -4,9 +4,9 @@ import json
 import time
 from pathlib import Path
 
-from dpr.rl.pipeline import task_stages
-from dpr.rl.pipeline_config import load_config
-from dpr.rl.stages import Stage, StageStore, chain_lengths, closure, run_stages
+from dpr.pipeline.campaign import task_stages
+from dpr.pipeline.config import load_config
+from dpr.pipeline.stages import Stage, StageStore, chain_lengths, closure, run_stages
 
 
 def test_a_clone_holds_up_a_longer_chain_than_a_run_from_scratch():
@@ -43,7 +43,7 @@ LONG_STAGES = """
 import sys, time
 from pathlib import Path
 from dpr import interrupts
-from dpr.rl.stages import Stage, StageStore, run_stages
+from dpr.pipeline.stages import Stage, StageStore, run_stages
 
 def wait_for_ctrl_c(settings, inputs, out, work, show_progress):
     marks = Path(settings["marks"])

@@ -6,8 +6,8 @@ import pytest
 from PIL import Image
 from test_report import _episode, _write
 
-from dpr.rl.report import load_evaluation, method_scores, results_table, write_report
-from dpr.rl.statistics import interval_rows, interval_table, probability_of_improvement
+from dpr.evaluation.report import load_evaluation, method_scores, results_table, write_report
+from dpr.evaluation.statistics import interval_rows, interval_table, probability_of_improvement
 
 NAV = "dpr/Navigation-v0"
 SEEDS = range(100, 120)
@@ -69,7 +69,7 @@ def test_report_writes_the_interval_section_and_figures(tmp_path):
 def test_the_estimates_are_rliables_statistics():
     from rliable import metrics
 
-    from dpr.rl.statistics import iqm
+    from dpr.evaluation.statistics import iqm
 
     rng = np.random.default_rng(3)
     for n in (1, 4, 7, 50, 150):

@@ -235,8 +235,8 @@ def evaluate(
     import dpr  # noqa: F401  (registers the env ids)
     from dpr.datasets.lerobot import LeRobotReader
     from dpr.envs import episode_steps
+    from dpr.evaluation.scoring import episode_result, format_table, save_evaluation
     from dpr.imitation.bc import dataset_env
-    from dpr.rl.evaluation import episode_result, format_table, save_evaluation
     from dpr.rollout import roll_out
 
     if json_path.exists():

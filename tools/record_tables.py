@@ -30,9 +30,9 @@ from pathlib import Path
 import yaml
 
 from dpr.envs import ENV_IDS
+from dpr.evaluation.report import load_evaluation, results_table, task_name
+from dpr.pipeline.config import PipelineConfig
 from dpr.policies.wave import BIN_WIDTH
-from dpr.rl.pipeline_config import PipelineConfig
-from dpr.rl.report import load_evaluation, results_table, task_name
 
 ROOT = Path(__file__).resolve().parents[1]
 # the records the full preset's headline comes from, each task's rows from the last one that ran it

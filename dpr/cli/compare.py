@@ -1,4 +1,4 @@
-"""`dpr compare`: two recipes' validation IQMs, task by task, and the adoption rule (dpr.rl.compare)."""
+"""`dpr compare`: two recipes' validation IQMs, task by task, and the adoption rule (dpr.evaluation.compare)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ COMPARE_FLAGS = {"current": "CURRENT", "candidate": "CANDIDATE"}
 
 
 def compare_arguments(parser: argparse.ArgumentParser) -> None:
-    from dpr.rl.compare import compare
+    from dpr.evaluation.compare import compare
 
     parser.add_argument(
         "current", metavar="CURRENT", type=Path, help="run folder of the recipe in force (e.g. docs/results/full-lr3e4)"
@@ -41,7 +41,7 @@ def compare_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_compare(args, parser) -> int:
-    from dpr.rl.compare import compare, format_comparison
+    from dpr.evaluation.compare import compare, format_comparison
 
     try:
         rows, mean = compare(args.current, args.candidate, args.tasks, args.method)

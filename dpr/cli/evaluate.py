@@ -30,8 +30,8 @@ DEFAULT_SEEDS = "0-4"
 
 
 def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.evaluation.scoring import evaluate
     from dpr.policies.registry import WAVE
-    from dpr.rl.evaluation import evaluate
 
     parser.add_argument(
         "--policy",
@@ -75,7 +75,7 @@ def cmd_evaluate(args, parser) -> int:
     from tqdm import tqdm
 
     from dpr.envs import ENV_IDS
-    from dpr.rl.evaluation import evaluate, format_table, save_evaluation
+    from dpr.evaluation.scoring import evaluate, format_table, save_evaluation
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     check_output(args.json, parser, "--json")
@@ -154,7 +154,7 @@ def report_arguments(parser: argparse.ArgumentParser) -> None:
 def cmd_report(args, parser) -> int:
     import warnings
 
-    from dpr.rl.report import write_report
+    from dpr.evaluation.report import write_report
 
     if args.label is not None and len(args.label) != len(args.evaluations):
         parser.error(f"--label: give one name per file ({len(args.evaluations)} file(s), {len(args.label)} label(s))")

@@ -1,5 +1,5 @@
 """`dpr pipeline`: per task, demonstrations -> BC -> fine-tuning, beside RL from scratch, evaluated against the
-wave (dpr.rl.pipeline)."""
+wave (dpr.pipeline.campaign)."""
 
 from __future__ import annotations
 
@@ -61,9 +61,9 @@ def task_env_kwarg(text: str) -> tuple[str, str, object]:
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
     from dpr.envs import EARLIER_ENV_IDS
+    from dpr.pipeline.config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS, preset_path, read_settings
+    from dpr.pipeline.stages import BACKENDS
     from dpr.policies.sb3 import FINETUNE_ALGOS
-    from dpr.rl.pipeline_config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS, preset_path, read_settings
-    from dpr.rl.stages import BACKENDS
 
     presets = {name: read_settings(preset_path(name)) for name in PRESETS}
 
@@ -246,10 +246,10 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def pipeline_config(args):
-    """The :class:`dpr.rl.pipeline_config.PipelineConfig` the parsed flags say: the config file or preset, and every
+    """The :class:`dpr.pipeline.config.PipelineConfig` the parsed flags say: the config file or preset, and every
     flag given over it (checked: a ParameterError names the setting)."""
     from dpr.envs import ENV_IDS, TASKS
-    from dpr.rl.pipeline_config import PipelineConfig, load_config, preset_path, read_settings
+    from dpr.pipeline.config import PipelineConfig, load_config, preset_path, read_settings
 
     overrides = {
         field.name: getattr(args, field.name)
@@ -278,8 +278,8 @@ def pipeline_config(args):
 def cmd_pipeline(args, parser) -> int:
     from pathlib import Path
 
-    from dpr.rl.model_card import load_model_card
-    from dpr.rl.pipeline import run_pipeline
+    from dpr.evaluation.model_card import load_model_card
+    from dpr.pipeline.campaign import run_pipeline
 
     try:
         config = pipeline_config(args)

@@ -1,1 +1,1 @@
-"""Learning and evaluation: scoring policies with the paper's metrics (SB3 training comes here too)."""
+"""Training: SB3 learners from scratch or from a clone, per-robot fine-tuning, resumable runs and their budgets."""

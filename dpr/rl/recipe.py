@@ -1,4 +1,4 @@
-"""The fine-tuning recipe that the pipeline (:mod:`dpr.rl.pipeline`) and the single commands (``dpr finetune``)
+"""The fine-tuning recipe that the pipeline (:mod:`dpr.pipeline.campaign`) and the single commands (``dpr finetune``)
 share, so that a fine-tuning run by hand is the pipeline's without restating it.
 
 - The network: a fine-tuning run loads the clone's weights, so it must build the network the clone was built with.

@@ -1,7 +1,7 @@
-"""What each kind of pipeline stage does (:mod:`dpr.rl.stages` builders): choose a teacher, record demonstrations,
+"""What each kind of pipeline stage does (:mod:`dpr.pipeline.stages` builders): choose a teacher, record demonstrations,
 clone them, train with RL (fine-tuning a clone, or from scratch), evaluate a policy. Each reads only its settings
 and the output folders of the stages it needs, and writes only into its own output and work folders; the stage
-graph itself is :mod:`dpr.rl.pipeline`'s.
+graph itself is :mod:`dpr.pipeline.campaign`'s.
 
 Outputs: ``teacher.yaml`` (the chosen hold and bin width, every candidate's median), ``dataset/`` (LeRobot v3.0),
 ``model.zip`` (no optimizer state) with the run's ``config.yaml``, ``evaluation.json`` (``dpr evaluate --json``)."""
@@ -17,7 +17,7 @@ import yaml
 
 from dpr.atomic import atomic_write_text
 from dpr.envs import episode_steps
-from dpr.rl.pipeline_config import TEACHER, Teacher, learner_env_kwargs
+from dpr.pipeline.config import TEACHER, Teacher, learner_env_kwargs
 from dpr.rl.recipe import physics_discount
 
 MODEL = "model.zip"
@@ -60,7 +60,7 @@ def median_score(evaluation: Path) -> float:
     loader: a damaged file is an error naming it)."""
     import numpy as np
 
-    from dpr.rl.report import load_evaluation
+    from dpr.evaluation.report import load_evaluation
 
     return float(np.median([episode["projected_displacement"] for episode in load_evaluation(evaluation)["episodes"]]))
 
@@ -168,7 +168,7 @@ def evaluate_policy(
     policy on the pipeline's env. The file names the policy as ``settings["label"]``, the same wherever it ran."""
     from tqdm import tqdm
 
-    from dpr.rl.evaluation import evaluate, policy_env_kwargs, save_evaluation
+    from dpr.evaluation.scoring import evaluate, policy_env_kwargs, save_evaluation
 
     env_kwargs = settings.get("env_kwargs")
     if "model" in inputs:

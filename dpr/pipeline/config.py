@@ -1,6 +1,6 @@
 """The pipeline's settings: :class:`PipelineConfig`, checked before any work; the shipped presets
-(``dpr/rl/presets/<name>.yaml``) and settings files (:func:`load_config`); and the names and constants every stage
-of :mod:`dpr.rl.pipeline` shares."""
+(``dpr/pipeline/presets/<name>.yaml``) and settings files (:func:`load_config`); and the names and constants every stage
+of :mod:`dpr.pipeline.campaign` shares."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ class Teacher:
 class PipelineConfig:
     """The settings of one pipeline run: its tasks, budgets, seed sets and recipe (``dpr pipeline --config``). The
     defaults are the ``small`` preset's (``make run``); :data:`PRESETS` names the shipped ones, read from
-    ``dpr/rl/presets/<name>.yaml``."""
+    ``dpr/pipeline/presets/<name>.yaml``."""
 
     tasks: list[str] = field(default_factory=lambda: ["navigation"])
     n_robots: int = 9

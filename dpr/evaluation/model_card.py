@@ -34,10 +34,10 @@ from pathlib import Path
 
 import yaml
 
+from dpr.atomic import file_sha256
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, TASKS
 from dpr.policies.sb3 import ModelInfo, load_model
-from dpr.rl.stages import file_sha256
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")

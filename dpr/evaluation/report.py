@@ -25,11 +25,8 @@ import numpy as np
 from dpr.atomic import atomic_write_text
 from dpr.checks import ParameterError
 from dpr.envs.tasks import EARLIER_ENV_IDS
-from dpr.metrics import summarize
-from dpr.policies.registry import WAVE
-from dpr.policies.sb3 import is_model_path
-from dpr.rl.figures import new_figure, policy_colours
-from dpr.rl.statistics import (
+from dpr.evaluation.figures import new_figure, policy_colours
+from dpr.evaluation.statistics import (
     BOOTSTRAP_REPS,
     CONFIDENCE,
     MethodScores,
@@ -39,6 +36,9 @@ from dpr.rl.statistics import (
     profile_figure,
     scores_of_runs,
 )
+from dpr.metrics import summarize
+from dpr.policies.registry import WAVE
+from dpr.policies.sb3 import is_model_path
 
 TASK_ORDER = ("Navigation", "Gate", "Unresponsive", "Manipulation")
 WAVE_POLICY = WAVE  # the baseline every row is a percentage of
@@ -450,7 +450,7 @@ def write_report(
     bootstrap_reps: int = BOOTSTRAP_REPS,
     root: str | Path | None = None,
 ) -> list[Path]:
-    """Write ``out_dir``/results.md (the table, the interval estimates of :mod:`dpr.rl.statistics` and the
+    """Write ``out_dir``/results.md (the table, the interval estimates of :mod:`dpr.evaluation.statistics` and the
     sources), bars.png, trajectories.png, intervals.png and profile.png from `dpr evaluate --json` files;
     ``labels``: one display name per file (files that share a label are training runs of one method).
     Checks everything first and writes nothing when a file is bad or an output already exists

@@ -1,7 +1,7 @@
 """The whole learning pipeline as stages: demonstrations -> behaviour cloning -> fine-tuning, beside RL from
 scratch, all evaluated against the wave policy, then a results table and figures (``dpr pipeline``).
 
-Per task, and per training seed ``s`` of ``train_seeds`` (each item a stage of :mod:`dpr.rl.pipeline_stages`):
+Per task, and per training seed ``s`` of ``train_seeds`` (each item a stage of :mod:`dpr.pipeline.stage_builders`):
 
 1. the teacher: among every teacher hold and bin width, the Markov wave (:class:`dpr.policies.wave.MarkovWavePolicy`)
    with the highest median on the teacher seeds, each candidate run as its learners will run;
@@ -12,11 +12,12 @@ Per task, and per training seed ``s`` of ``train_seeds`` (each item a stage of :
    (demonstrations + warm-up + fine-tuning), so the comparison is fair;
 6. every run evaluated on the validation seeds, which make every choice (a method's canonical model is its *median*
    run there, not the best), and on the test seeds, which no choice saw; the wave (and the chosen teacher) too;
-7. ``report/``: the table, interval estimates over test seeds x training runs, and figures (:mod:`dpr.rl.report`).
+7. ``report/``: the table, interval estimates over test seeds x training runs, and figures
+   (:mod:`dpr.evaluation.report`).
 
-Every stage is stored in the run folder by a key of what it depends on (:mod:`dpr.rl.stages`), so that a stopped run
-resumes, two runs of different tasks share one folder, and a candidate recipe started from a record's settings
-(``reuse``) takes the record's stages that it shares, training only what differs. The run folder:
+Every stage is stored in the run folder by a key of what it depends on (:mod:`dpr.pipeline.stages`), so that a
+stopped run resumes, two runs of different tasks share one folder, and a candidate recipe started from a record's
+settings (``reuse``) takes the record's stages that it shares, training only what differs. The run folder:
 
 - ``pipeline.yaml``: the settings (tasks accumulate: every other setting must match to share the folder);
 - ``stages/<kind>/<key>/``: every stage's output, with its ``stage.json``; ``work/``: stages in progress;
@@ -25,7 +26,7 @@ resumes, two runs of different tasks share one folder, and a candidate recipe st
   models and evaluations under readable names, the canonical model as ``models/<task>-<method>.zip``;
 - ``report/``: results.md and figures (a report is never overwritten: a newer one goes beside it).
 
-:data:`dpr.rl.pipeline_config.PRESETS` names whole configurations: ``tiny`` (the tests), ``small`` (``make run``)
+:data:`dpr.pipeline.config.PRESETS` names whole configurations: ``tiny`` (the tests), ``small`` (``make run``)
 and ``full`` (the headline).
 """
 
@@ -42,13 +43,13 @@ from typing import Any
 
 import yaml
 
-from dpr.atomic import atomic_write_text
+from dpr.atomic import atomic_write_text, file_sha256
 from dpr.checks import ParameterError
+from dpr.evaluation.model_card import ShippedModel
 from dpr.locks import FolderLock
-from dpr.rl import pipeline_stages as build
-from dpr.rl.model_card import ShippedModel
-from dpr.rl.pipeline_config import BASELINE, BC_ALGO, PIPELINE_ENV_KWARGS, TEACHER, PipelineConfig
-from dpr.rl.run_folder import (
+from dpr.pipeline import stage_builders as build
+from dpr.pipeline.config import BASELINE, BC_ALGO, PIPELINE_ENV_KWARGS, TEACHER, PipelineConfig
+from dpr.pipeline.run_folder import (
     evaluation_path,
     evaluation_splits,
     load_choices,
@@ -57,7 +58,7 @@ from dpr.rl.run_folder import (
     save_choices,
     tested_runs,
 )
-from dpr.rl.stages import Stage, StageStore, backend_session, file_sha256, run_stages
+from dpr.pipeline.stages import Stage, StageStore, backend_session, run_stages
 
 STORE = "stages"
 SETTINGS_LOCK = ".dpr-settings.lock"  # held while pipeline.yaml or choices.yaml is read and written
@@ -360,7 +361,7 @@ def _write_report(
 ) -> Path:
     """The report of every task of the folder whose test evaluations all exist (a task another run is still making
     joins it when that run ends), with the shipped models' rows; an existing report is kept."""
-    from dpr.rl.report import REPORT_FILES, write_report
+    from dpr.evaluation.report import REPORT_FILES, write_report
 
     sources: list[tuple[Path, str]] = []
     for task in config.tasks:

@@ -19,7 +19,7 @@ from typing import Any
 import yaml
 
 from dpr.atomic import atomic_write_text
-from dpr.rl.pipeline_config import BASELINE, TEACHER, PipelineConfig
+from dpr.pipeline.config import BASELINE, TEACHER, PipelineConfig
 from dpr.runs import attempt_paths, fresh_path
 
 __all__ = [
@@ -82,7 +82,7 @@ def report_folder(out: Path, sources: Sequence[Path], log: Callable[[str], None]
     ``sources`` and none is newer than it, else a new folder beside it (reports are never overwritten; the older one
     is kept). A report folder without results.md (written last) was stopped part-way; it is kept, and the report
     goes beside it."""
-    from dpr.rl.report import REPORT_FILES
+    from dpr.evaluation.report import REPORT_FILES
 
     attempts = attempt_paths(out / "report")
     written = [folder for folder in attempts if (folder / REPORT_FILES[0]).exists()]  # results.md comes last

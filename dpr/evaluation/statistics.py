@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dpr.evaluation.figures import new_figure, policy_colours
 from dpr.policies.registry import WAVE
-from dpr.rl.figures import new_figure, policy_colours
 
 CONFIDENCE = 0.95
 BOOTSTRAP_REPS = 2000

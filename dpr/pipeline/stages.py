@@ -37,7 +37,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from dpr.atomic import atomic_write_text
+from dpr.atomic import atomic_write_text, file_sha256
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.locks import FolderLock, LockHeld
 
@@ -95,15 +95,6 @@ def closure(targets: Iterable[Stage]) -> list[Stage]:
     for stage in targets:
         visit(stage)
     return list(ordered.values())
-
-
-def file_sha256(path: Path) -> str:
-    """The SHA-256 of the file at ``path`` (hex), read in blocks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _files(folder: Path) -> list[Path]:

@@ -20,8 +20,8 @@ import numpy as np
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
-from dpr.rl.report import load_evaluation
-from dpr.rl.statistics import iqm
+from dpr.evaluation.report import load_evaluation
+from dpr.evaluation.statistics import iqm
 
 DEFAULT_METHOD = "bc-ppo"
 RUN_FILE = re.compile(r"(?P<task>[a-z]+)-(?P<method>[a-z0-9-]+)-seed(?P<seed>\d+)\.json")
