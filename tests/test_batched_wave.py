@@ -6,7 +6,7 @@ import pytest
 import torch
 
 import dpr  # noqa: F401
-from dpr.policies.batched_wave import BatchedMarkovWavePolicy, BatchedWavePolicy, bin_ranks
+from dpr.policies.batched import BatchedMarkovWavePolicy, BatchedWavePolicy, bin_ranks
 from dpr.policies.wave import MarkovWavePolicy, WavePolicy
 
 

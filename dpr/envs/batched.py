@@ -303,7 +303,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
 
     # -- Gymnasium's vector API ---------------------------------------------------------------------------------
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is not None:
             seeds = seed if isinstance(seed, list) else [seed + env for env in range(self.num_envs)]
             if len(seeds) != self.num_envs:

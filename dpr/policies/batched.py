@@ -106,3 +106,65 @@ class BatchedMarkovWavePolicy:
         target = torch.where(last.any(dim=1), (nearest + 1) % (rank.max(dim=1).values + 1), 0)
         expand = rank == target[:, None]
         return torch.where(repeat[:, None], last, expand).float()
+
+
+class BatchedRandomPolicy:
+    """Uniformly random 0/1 per robot, from a torch generator seeded once (the batched stream is its own: it does
+    not repeat the single env's ``action_space.sample()`` draws)."""
+
+    def __init__(self, num_envs: int, n_robots: int, seed: int = 0, device: str | torch.device = "cpu"):
+        self.shape = (num_envs, n_robots)
+        self.generator = torch.Generator(device=device).manual_seed(int(seed))
+        self.device = device
+
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Nothing to reset per env."""
+
+    def __call__(self, observation: torch.Tensor) -> torch.Tensor:
+        return torch.randint(0, 2, self.shape, generator=self.generator, device=self.device).float()
+
+
+class BatchedModelPolicy:
+    """A centralised model file (``dpr train``, ``dpr bc``, ``dpr finetune``) acting for K envs at once: its SB3
+    policy's deterministic action on the batch of observations, on their device."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Nothing to reset: the policy is a function of the observation."""
+
+    def __call__(self, observation: torch.Tensor) -> torch.Tensor:
+        policy = self.model.policy
+        if next(policy.parameters()).device != observation.device:
+            policy.to(observation.device)
+        with torch.no_grad():
+            return policy._predict(observation, deterministic=True).float()
+
+
+def make_batched_policy(name: str, venv, seed: int = 0):
+    """The policy called ``name`` (:func:`dpr.policies.registry.make_policy`'s names) for the batched vector env
+    ``venv``: the waves and ``random`` in batch, or a centralised model file trained for ``venv``'s spaces (on either
+    engine). A per-robot model and the decentralised wave are refused by name: they do not run in batch yet."""
+    from dpr.policies.registry import DECENTRALISED_WAVE, RANDOM, WAVE, WAVE_MARKOV, parse_scripted_name
+    from dpr.policies.sb3 import is_model_path, load_model, read_model_info
+
+    env = venv.template
+    if is_model_path(name):
+        if read_model_info(name).per_robot is not None:
+            raise ValueError(f"policy {name!r} is a per-robot model, which the batched engine does not run yet")
+        model, _ = load_model(name, env)
+        return BatchedModelPolicy(model)
+    base, settings = parse_scripted_name(name)
+    if base == WAVE:
+        return BatchedWavePolicy.for_robot_model(venv.num_envs, env.n_robots, env.robot_model, venv.device, **settings)
+    if base == WAVE_MARKOV:
+        MarkovWavePolicy.from_env(env)  # its check: the env must observe the last action
+        defaults = {**MODEL_DEFAULTS[env.robot_model], **settings}
+        return BatchedMarkovWavePolicy(env.n_robots, **defaults)
+    if base == RANDOM:
+        return BatchedRandomPolicy(venv.num_envs, env.n_robots, seed, venv.device)
+    raise ValueError(
+        f"policy {base!r} does not run on the batched engine yet (choose {WAVE}, {WAVE_MARKOV}, "
+        f"{RANDOM} or a model file); {DECENTRALISED_WAVE} runs on the pymunk engine"
+    )
