@@ -223,6 +223,27 @@ def workers_argument(parser: argparse.ArgumentParser, what: str, flag: str = "--
     )
 
 
+ENGINES = ("pymunk", "batched")  # dpr.sim (the reference, one swarm per call) and dpr.sim.batched (K swarms per call)
+
+
+def engine_arguments(parser: argparse.ArgumentParser) -> None:
+    """--engine and --device: the pymunk reference engine, or the batched disk engine on a torch device."""
+    parser.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default=ENGINES[0],
+        help="pymunk: the reference engine, one swarm per env (default); batched: the disk model for every episode "
+        "at once in torch (dpr.sim.batched; robot model disk, which it takes by default)",
+    )
+    parser.add_argument("--device", default="cpu", help="torch device of the batched engine: cpu or cuda (default cpu)")
+
+
+def apply_engine_defaults(args) -> None:
+    """The batched engine's robot model, disk, where --robot-model was not given (a model file's own applies)."""
+    if args.engine == "batched" and args.robot_model is None and not args.policy.endswith(".zip"):
+        args.robot_model = "disk"
+
+
 def json_argument(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument("--json", help=f"also write {what} to this new JSON file")
 

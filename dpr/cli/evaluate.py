@@ -11,9 +11,11 @@ from dpr.cli.common import (
     ENV_ID_LIST,
     EXAMPLE_ENV_ID,
     Command,
+    apply_engine_defaults,
     check_output,
     check_rerun_output,
     defaults,
+    engine_arguments,
     env_kwarg_argument,
     flag_message,
     json_argument,
@@ -66,33 +68,28 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         "its env kwargs apply, and the task must have its observation and action spaces",
     )
     workers_argument(parser, "episodes run in this many processes")
+    engine_arguments(parser)
     env_kwarg_argument(parser, "object_start=paper")
     json_argument(parser, "episodes and summary")
     rerun_argument(parser, "also save every evaluated episode (replayed with full state) to this new rerun file")
 
 
 def cmd_evaluate(args, parser) -> int:
-    from tqdm import tqdm
-
     from dpr.envs import ENV_IDS
-    from dpr.evaluation.scoring import evaluate, format_table, save_evaluation
+    from dpr.evaluation.scoring import format_table, save_evaluation
 
     env_ids = list(ENV_IDS.values()) if args.env == [ALL_ENVS] else args.env
     check_output(args.json, parser, "--json")
     check_rerun_output(args, parser)
+    apply_engine_defaults(args)
     env_kwargs = markov_env_kwargs(args, policy_env_kwargs(args, env_ids, parser), parser, "evaluate")
     try:
-        with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
-            results = evaluate(
-                env_ids,
-                args.policy,
-                args.seeds,
-                steps=args.steps,
-                env_kwargs=env_kwargs,
-                workers=args.workers,
-                progress=lambda r: bar.update(1),
-                transfer=args.transfer,
-            )
+        if args.engine == "batched":
+            from dpr.evaluation.batched import evaluate_batched
+
+            results = evaluate_batched(env_ids, args.policy, args.seeds, args.steps, env_kwargs, args.device)
+        else:
+            results = _evaluate_on_pymunk(args, env_ids, env_kwargs)
     except ValueError as error:
         parser.error(flag_message(error))
     print(format_table(results))
@@ -102,6 +99,24 @@ def cmd_evaluate(args, parser) -> int:
     if args.rerun:
         _log_evaluation_to_rerun(args, env_ids, env_kwargs)
     return 0
+
+
+def _evaluate_on_pymunk(args, env_ids: list[str], env_kwargs: dict):
+    from tqdm import tqdm
+
+    from dpr.evaluation.scoring import evaluate
+
+    with tqdm(total=len(env_ids) * len(args.seeds), desc=f"evaluate {args.policy}", unit="episode") as bar:
+        return evaluate(
+            env_ids,
+            args.policy,
+            args.seeds,
+            steps=args.steps,
+            env_kwargs=env_kwargs,
+            workers=args.workers,
+            progress=lambda r: bar.update(1),
+            transfer=args.transfer,
+        )
 
 
 def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None:

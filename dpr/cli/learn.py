@@ -13,6 +13,7 @@ from dpr.cli.common import (
     check_seed,
     default_argument,
     defaults,
+    engine_arguments,
     env_kwarg,
     env_kwarg_argument,
     flag_message,
@@ -27,6 +28,7 @@ from dpr.sim.models import ROBOT_MODELS
 
 # --from names the model file a fine-tuning run starts from: TrainConfig.init_from, and the model file that
 # dpr.policies.sb3.read_model_info reads ("policy" by default).
+BATCHED_ENVS = 256  # dpr train --engine batched: envs stepped in one call, by default
 FINETUNE_FLAGS = {"init_from": "--from", "policy": "--from", "anchor_datasets": "--anchor"}
 
 
@@ -150,7 +152,7 @@ def _training_done(result, args, n_robots: int | None = None) -> int:
 
 # -- train -------------------------------------------------------------------------------------------------------
 def train_arguments(parser: argparse.ArgumentParser) -> None:
-    from dpr.policies.hyperparams import DEFAULT_PRESET, PAPER_PRESET
+    from dpr.policies.hyperparams import BATCHED_PRESET, DEFAULT_PRESET, PAPER_PRESET
     from dpr.policies.sb3 import ALGOS
     from dpr.rl.train import TrainConfig
 
@@ -165,13 +167,20 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
         "(DQN: train_freq x n-envs) as SB3 makes them: a larger budget is rounded up, a smaller one runs shorter "
         "rollouts, no more steps than asked; the log and config.yaml say how many",
     )
-    default_argument(parser, "--n-envs", config["n_envs"], "parallel envs, subprocesses when > 1")
+    parser.add_argument(
+        "--n-envs",
+        type=positive_int,
+        help=f"parallel envs, subprocesses when > 1 (default {config['n_envs']}); with --engine batched, envs "
+        f"stepped in one call (default {BATCHED_ENVS})",
+    )
     parser.add_argument(
         "--preset",
-        choices=(DEFAULT_PRESET, PAPER_PRESET),
-        default=config["preset"],
-        help=f"{DEFAULT_PRESET}: laptop-sized entry of the env id; {PAPER_PRESET}: Shen et al.'s (10M steps)",
+        choices=(DEFAULT_PRESET, PAPER_PRESET, BATCHED_PRESET),
+        help=f"{DEFAULT_PRESET}: laptop-sized entry of the env id; {PAPER_PRESET}: Shen et al.'s (10M steps); "
+        f"{BATCHED_PRESET}: the entry for thousands of envs at once (default: {BATCHED_PRESET} with --engine "
+        f"batched, else {config['preset']})",
     )
+    engine_arguments(parser)
     parser.add_argument(
         "--steps-per-episode",
         type=positive_int,
@@ -195,11 +204,17 @@ def _check_resume(args, parser) -> None:
 
 
 def cmd_train(args, parser) -> int:
+    from dpr.policies.hyperparams import BATCHED_PRESET
     from dpr.rl.train import TrainConfig, train
 
     _check_resume(args, parser)
     check_seed(args, parser)
     check_rerun_output(args, parser)
+    batched = args.engine == "batched"
+    if args.preset is None:
+        args.preset = BATCHED_PRESET if batched else defaults(TrainConfig)["preset"]
+    if args.n_envs is None:
+        args.n_envs = BATCHED_ENVS if batched else defaults(TrainConfig)["n_envs"]
     try:
         config = TrainConfig(
             args.algo,
@@ -210,6 +225,8 @@ def cmd_train(args, parser) -> int:
             seed=args.seed,
             n_envs=args.n_envs,
             preset=args.preset,
+            engine=args.engine,
+            device=args.device,
             steps_per_episode=args.steps_per_episode,
             env_kwargs=dict(args.env_kwarg or []),
             training_env_kwargs=dict(args.training_env_kwarg or []),

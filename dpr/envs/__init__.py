@@ -29,6 +29,7 @@ from dpr.envs.tasks import (
     ENV_IDS,
     TASK_CLASSES,
     TASKS,
+    VECTOR_ENTRY_POINTS,
     load_env_packages,
     load_listed_env_packages,
     register_task,
@@ -41,6 +42,7 @@ for _env_id, _task in TASKS.items():
         register(
             id=_env_id,
             entry_point=f"{_cls.__module__}:{_cls.__name__}",
+            vector_entry_point=VECTOR_ENTRY_POINTS[_task],
             max_episode_steps=MAX_EPISODE_STEPS,
             kwargs=EARLIER_ENV_IDS.get(_env_id, (_task, {}))[1],
         )

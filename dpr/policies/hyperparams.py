@@ -33,7 +33,9 @@ HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
 DEFAULT_PRESET = "default"
 PAPER_PRESET = "paper"
 FINETUNE_PRESET = "finetune"  # the env id's entry with the yaml's `finetune` entry on top (dpr finetune)
-PRESETS = (DEFAULT_PRESET, PAPER_PRESET, FINETUNE_PRESET)
+BATCHED_PRESET = "batched"  # the env id's entry with the `batched` entry on top (dpr train --engine batched)
+PRESETS = (DEFAULT_PRESET, PAPER_PRESET, FINETUNE_PRESET, BATCHED_PRESET)
+ON_TOP = (FINETUNE_PRESET, BATCHED_PRESET)  # presets whose entry goes over the env id's
 LINEAR_PREFIX = "lin_"
 ACTIVATIONS = ("tanh", "relu")
 POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor", "robot_net", "critic")
@@ -126,7 +128,7 @@ def load_hyperparams(
     algo: str, env_id: str, preset: str = DEFAULT_PRESET, overrides: dict[str, Any] | None = None
 ) -> Hyperparams:
     """The hyperparameters of ``algo`` on ``env_id`` for ``preset`` ("default": the env id's entry; "paper";
-    "finetune": the env id's entry updated with the ``finetune`` entry),
+    "finetune" or "batched": the env id's entry updated with that entry),
     with ``overrides`` (yaml-style values, e.g. ``{"n_steps": 64, "learning_rate": "lin_1e-3"}``) applied.
     Unknown algo, preset, env id or key: a ValueError listing the choices."""
     path = hyperparams_file(algo)
@@ -137,7 +139,7 @@ def load_hyperparams(
     entries = read_entries(algo)
     # a user's task (dpr.envs.register_task) takes the entry of the built-in task it names
     key = PAPER_PRESET if preset == PAPER_PRESET else HYPERPARAMS_OF.get(env_id, env_id)
-    keys = [key, FINETUNE_PRESET] if preset == FINETUNE_PRESET else [key]
+    keys = [key, preset] if preset in ON_TOP else [key]
     for name in keys:
         if name not in entries:
             raise ValueError(f"{path} has no entry {name!r}; it has {sorted(entries)}")

@@ -27,7 +27,7 @@ import gymnasium as gym
 import yaml
 
 from dpr import runs
-from dpr.checks import ParameterError, check_int
+from dpr.checks import ParameterError, check_choice, check_int
 from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
@@ -35,6 +35,7 @@ from dpr.policies.sb3 import (
     ALGOS,
     FINETUNE_ALGOS,
     INIT_PARAMETER,
+    PPO,
     ModelInfo,
     actor_parameters,
     build_model,
@@ -57,6 +58,7 @@ RUNS_DIR = Path("runs/train")
 EVALUATIONS = 5  # EvalCallback runs about this many times over a run
 CHECKPOINTS = 4  # evenly spaced: a quarter, half and three quarters of the way, and the end
 AVERAGED_MODEL = "averaged_model.zip"  # `dpr finetune --average-checkpoints`
+ENGINES = ("pymunk", "batched")  # the reference engine, and the disk model for many envs at once in torch
 EVAL_SEED_OFFSET = 10_000  # EvalCallback's env is seeded with seed + this: its starts differ from training's
 # Kwargs the trainer owns: they come from TrainConfig fields, not from env_kwargs.
 RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "max_episode_steps")
@@ -87,6 +89,8 @@ class TrainConfig:
     anchor_datasets: list[str] = field(default_factory=list)  # demonstrations the updates are anchored to
     anchor_weight: float = 1.0  # the anchor's loss scale at the first update ...
     anchor_decay: float = 0.99  # ... times this per update
+    engine: str = "pymunk"  # or "batched": PPO on n_envs envs of the batched disk engine (dpr.rl.batched_train)
+    device: str = "cpu"  # the batched engine's torch device
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -114,10 +118,24 @@ class TrainConfig:
             raise ValueError(f"anchor_weight must be a number > 0.0, got {self.anchor_weight!r}")
         if not _is_number(self.anchor_decay) or not 0 < self.anchor_decay <= 1:
             raise ValueError(f"anchor_decay must be a number in (0.0, 1.0], got {self.anchor_decay!r}")
+        self._check_engine()
         for name in ("env_kwargs", "training_env_kwargs"):
             reserved = sorted(set(RESERVED_ENV_KWARGS) & set(getattr(self, name)))
             if reserved:
                 raise ValueError(f"{name} must not set {reserved}: use n_robots, robot_model and steps_per_episode")
+
+    def _check_engine(self) -> None:
+        check_choice("engine", self.engine, ENGINES)
+        if self.engine == ENGINES[0]:
+            return
+        if self.algo != PPO:
+            raise ParameterError("algo", f"the batched engine trains {PPO} only, got {self.algo!r}")
+        if self.robot_model != "disk":
+            raise ParameterError(
+                "robot_model", f"the batched engine simulates the disk model only, got {self.robot_model!r}"
+            )
+        if self.init_from is not None or self.anchor_datasets:
+            raise ParameterError("engine", "the batched engine trains from scratch: fine-tune on the pymunk engine")
 
     @property
     def command(self) -> str:
@@ -402,6 +420,12 @@ def train(
     (:mod:`dpr.rl.resume`; not when anchored to demonstrations). ``resume=True`` goes on from the snapshot of the
     stopped run in ``out``, made with the same ``config`` (a ParameterError otherwise), to the model the run would
     have made had it never stopped."""
+    if config.engine == ENGINES[1]:
+        if resume:
+            raise ParameterError("resume", "a run on the batched engine does not resume yet: start it again")
+        from dpr.rl.batched_train import train_batched
+
+        return train_batched(config, out, show_progress=show_progress, log=log)
     hyper, env_kwargs, timesteps = config.resolve()
     hyper, budget = fit_budget(hyper, config.n_envs, timesteps, config.critic_warmup, config.command)
     if resume:
