@@ -427,7 +427,7 @@ class BatchedDiskWorld:
             self.object_velocity = self.object_velocity - self._object_friction / self.object_mass
             self.object_angular_velocity = self.object_angular_velocity - self._object_spin_friction / self._object_moment
 
-        # 4. iterations: contacts, then rods, then ground friction
+        # 4. iterations in chipmunk's order: contacts, then the joints as they were added: ground friction, then rods
         for _ in range(self.iterations):
             # robot-robot contacts
             v, w = self.velocity, self.angular_velocity
@@ -484,6 +484,9 @@ class BatchedDiskWorld:
                 if has_walls:
                     self._apply_ball_walls(ball_wall_normal, bw_tangent, bw_dn, bw_dt, bw_db)
 
+            # ground friction: each body's own pivot and gear, solved exactly
+            self._ground_friction()
+
             # rods: hold their length, pushing or pulling with at most their force limit
             v = self.velocity
             normal_speed = _dot(self._gather(v) - v[:, :, None], normal)
@@ -492,9 +495,6 @@ class BatchedDiskWorld:
             d_rod = new_rod - self._rod_impulse
             self._rod_impulse = new_rod
             self.velocity = self.velocity - (normal * d_rod[..., None]).sum(2) * inv_mass
-
-            # ground friction: each body's own pivot and gear, solved exactly
-            self._ground_friction()
 
     def _apply_pairs(self, normal, tangent, d_normal, d_tangent, radius, other_radius, d_bias=None) -> None:
         """Robot-robot impulses (slot values are the impulse on the neighbour; the robot gets the opposite)."""
