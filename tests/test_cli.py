@@ -194,10 +194,12 @@ def test_help_says_the_recipe_the_single_commands_default_to(capsys):
 
 
 def test_defaults_come_from_the_library():
+    from dpr.cli.learn import BATCHED_ENVS, resolve_engine_defaults
     from dpr.envs import MAX_EPISODE_STEPS
     from dpr.rl.train import TrainConfig
 
     args = build_parser().parse_args(["train", "--algo", "ppo", "--env", "dpr/Navigation-v0"])
+    resolve_engine_defaults(args)
     assert args.steps_per_episode is None is TrainConfig.steps_per_episode  # a whole episode of the env kwargs
     assert TrainConfig("ppo", "dpr/Navigation-v0").steps_per_episode == MAX_EPISODE_STEPS
     assert (args.n_robots, args.robot_model, args.n_envs) == (
@@ -205,6 +207,9 @@ def test_defaults_come_from_the_library():
         TrainConfig.robot_model,
         TrainConfig.n_envs,
     )
+    batched = build_parser().parse_args(["train", "--algo", "ppo", "--env", "dpr/Navigation-v0", "--engine", "batched"])
+    resolve_engine_defaults(batched)
+    assert (batched.n_envs, batched.preset) == (BATCHED_ENVS, "batched")
 
 
 @pytest.mark.parametrize("flag", ["--out", "--json"])

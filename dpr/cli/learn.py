@@ -203,18 +203,26 @@ def _check_resume(args, parser) -> None:
         parser.error("--resume: name the stopped run's folder with --out")
 
 
-def cmd_train(args, parser) -> int:
+def resolve_engine_defaults(args) -> None:
+    """--preset and --n-envs where not given: TrainConfig's on the pymunk engine, the batched entry and
+    :data:`BATCHED_ENVS` envs on the batched one."""
     from dpr.policies.hyperparams import BATCHED_PRESET
-    from dpr.rl.train import TrainConfig, train
+    from dpr.rl.train import TrainConfig
 
-    _check_resume(args, parser)
-    check_seed(args, parser)
-    check_rerun_output(args, parser)
     batched = args.engine == "batched"
     if args.preset is None:
         args.preset = BATCHED_PRESET if batched else defaults(TrainConfig)["preset"]
     if args.n_envs is None:
         args.n_envs = BATCHED_ENVS if batched else defaults(TrainConfig)["n_envs"]
+
+
+def cmd_train(args, parser) -> int:
+    from dpr.rl.train import TrainConfig, train
+
+    _check_resume(args, parser)
+    check_seed(args, parser)
+    check_rerun_output(args, parser)
+    resolve_engine_defaults(args)
     try:
         config = TrainConfig(
             args.algo,
