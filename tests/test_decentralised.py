@@ -68,7 +68,7 @@ def test_mask_with_fewer_robots_than_neighbour_slots():
     k = 8
     for n in (1, 2, 3, 5):  # N - 1 < k
         state, magnet_range = disk_state(n, seed=n, steps=5)
-        rows = local_observations(state, n, magnet_range, k)
+        rows = local_observations(state, n, magnet_range, LocalObservation(k))
         layout = LocalObservation(k)
         positions = state[: 6 * n].reshape(n, 6)[:, 0:2].astype(np.float64) * 1000.0
         distance = np.linalg.norm(positions[:, None] - positions[None], axis=2)
@@ -86,7 +86,7 @@ def test_mask_with_fewer_robots_than_neighbour_slots():
 def test_a_robot_does_not_see_a_robot_beyond_its_neighbours():
     n, k = 25, 4
     state, magnet_range = disk_state(n, seed=1, steps=10)
-    rows = local_observations(state, n, magnet_range, k)
+    rows = local_observations(state, n, magnet_range, LocalObservation(k))
     positions = state[: 6 * n].reshape(n, 6)[:, 0:2] * 1000.0
     distance = np.linalg.norm(positions - positions[0], axis=1)
     far = int(np.argmax(distance))
@@ -94,14 +94,14 @@ def test_a_robot_does_not_see_a_robot_beyond_its_neighbours():
     moved = state.copy()
     moved[6 * far : 6 * far + 6] += np.float32([0.01, -0.02, 0.3, 0.3, 1.0, 0.0])  # moves 22 units, new velocity
     moved[6 * far + 5] = 1.0 - state[6 * far + 5]  # and flips its expansion
-    after = local_observations(moved, n, magnet_range, k)
+    after = local_observations(moved, n, magnet_range, LocalObservation(k))
     np.testing.assert_array_equal(after[0], rows[0])
     assert not np.array_equal(after[far], rows[far])
     # a robot that is one of robot 0's neighbours changes robot 0's row
     nearest = int(np.argsort(distance)[1])
     moved = state.copy()
     moved[6 * nearest + 5] = 1.0 - state[6 * nearest + 5]
-    assert not np.array_equal(local_observations(moved, n, magnet_range, k)[0], rows[0])
+    assert not np.array_equal(local_observations(moved, n, magnet_range, LocalObservation(k))[0], rows[0])
 
 
 def test_max_neighbours_below_one_is_refused():

@@ -17,6 +17,7 @@ with warnings.catch_warnings():
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, TASK_CLASSES, parallel_env
 from dpr.envs.parallel import (
     MAX_NEIGHBOURS,
+    LocalObservation,
     ParticleParallelEnv,
     local_observation_size,
     local_observations,
@@ -126,7 +127,7 @@ def test_local_observation_layout_on_a_hand_made_state():
     robots[:, 2] = np.arange(5) + 10  # a per-robot tag in vx
     robots[:, 5] = [0.0, 1.0, 0.5, 0.0, 0.25]
     state = np.concatenate([robots.ravel(), np.float32([0.1, 0.2, 0.3, 0.4])])  # + object features
-    rows = local_observations(state, 5, neighbour_range=100.0, max_neighbours=2, has_object=True)
+    rows = local_observations(state, 5, neighbour_range=100.0, layout=LocalObservation(2, has_object=True))
     assert rows.shape == (5, local_observation_size(2, True)) == (5, 6 + 14 + 3 + 4)
     k = 2
     own, slots = rows[:, :6], rows[:, 6 : 6 + 6 * k].reshape(5, k, 6)
@@ -161,7 +162,9 @@ def test_local_observations_in_the_env_follow_the_global_state():
         obs, *_ = env.step({agent: action[i] for i, agent in enumerate(env.agents)})
     state = env.state()
     dead = env.swarm_env.world.dead  # Unresponsive: each robot's row ends with its own dead flag
-    expected = local_observations(state, 9, env.swarm_env.swarm_class.magnet_range, MAX_NEIGHBOURS, dead=dead)
+    expected = local_observations(
+        state, 9, env.swarm_env.swarm_class.magnet_range, LocalObservation(MAX_NEIGHBOURS), dead=dead
+    )
     for i, agent in enumerate(env.possible_agents):
         np.testing.assert_array_equal(obs[agent], expected[i])
         np.testing.assert_array_equal(obs[agent][:6], state[6 * i : 6 * i + 6])

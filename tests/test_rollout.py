@@ -14,7 +14,7 @@ from dpr.evaluation.scoring import run_episode
 from dpr.metrics import episode_metrics
 from dpr.policies import registry
 from dpr.rollout import ReplayPolicy, RolloutResult, Step, roll_out
-from dpr.viz import rollout_episode
+from dpr.viz import ViewRollout, rollout_episode
 
 SMALL = {"n_robots": 4, "robot_model": "disk"}
 STEPS = 30
@@ -164,7 +164,7 @@ def _three_ways(env_id: str, seed: int, tmp_path) -> tuple:
     evaluated = run_episode(env_id, "wave", seed, steps=STEPS, env_kwargs=SMALL)
     spec = CollectSpec(env_id, policy="wave", steps=STEPS, **SMALL)
     collected = rollout(spec, seed, tmp_path / f"{seed}.mcap")
-    viewed = rollout_episode(env_id, "wave", seed, steps=STEPS, **SMALL)
+    viewed = rollout_episode(ViewRollout(env_id, "wave", seed, steps=STEPS, **SMALL))
     return evaluated, collected, viewed, read_mcap(tmp_path / f"{seed}.mcap")
 
 

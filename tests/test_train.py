@@ -275,10 +275,10 @@ def test_a_model_runs_on_another_task_with_its_spaces_as_a_transfer(runs, tmp_pa
 def test_the_viewer_shows_a_model_on_another_task_as_a_transfer(runs, tmp_path, capsys):
     """dpr view --transfer rolls a Navigation model out on Gate-v1 (its walls in the episode); without the flag, or
     on a dataset, it is refused before anything is written."""
-    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.episodes import ViewRollout, rollout_episode
 
     path = str(runs["ppo"].model_path)
-    episode = rollout_episode("dpr/Gate-v1", path, 0, steps=8, transfer=True, **SMALL_ENV)
+    episode = rollout_episode(ViewRollout("dpr/Gate-v1", path, 0, steps=8, transfer=True, **SMALL_ENV))
     assert len(episode.walls) == 2 and episode.n_states == 9
     argv = ["view", "--env", "dpr/Gate-v1", "--policies", f"wave,{path}", "--steps", "8"]
     argv += ["--n-robots", "4", "--robot-model", "disk"]

@@ -18,7 +18,7 @@ from dpr.datasets.lerobot import LeRobotReader
 from dpr.datasets.mcap import read_mcap
 from dpr.envs.particle_env import LENGTH_SCALE
 from dpr.metrics import episode_metrics
-from dpr.viz import episode_from_dataset, episode_from_mcap, rollout_episode, running_metrics
+from dpr.viz import ViewRollout, episode_from_dataset, episode_from_mcap, rollout_episode, running_metrics
 
 STEPS = 50
 SMALL = ["--robot-model", "disk", "--n-robots", "4"]
@@ -152,7 +152,7 @@ def test_view_policies_side_by_side_on_gate(tmp_path):
         assert len(entities[f"/{policy}/scene/walls"]["LineStrips2D:strips"][0]) == 2  # Gate's two walls
     wave, random = (np.array(entities[f"/{p}/scene/robots"]["Points2D:positions"]) for p in ("wave", "random"))
     np.testing.assert_array_equal(wave[0], random[0])  # the same start
-    expected = rollout_episode("dpr/Gate-v0", "wave", 3, n_robots=4, robot_model="disk", steps=steps)
+    expected = rollout_episode(ViewRollout("dpr/Gate-v0", "wave", 3, n_robots=4, robot_model="disk", steps=steps))
     np.testing.assert_allclose(wave[20], expected.positions[20], rtol=1e-6)  # float32 in the .rrd
 
 
@@ -257,7 +257,9 @@ def test_view_manipulation_logs_the_object(tmp_path):
     outlines = entities["/wave/scene/object"]
     assert_timelines(outlines, 0, 8)
     expected = rollout_episode(
-        "dpr/Manipulation-v0", "wave", 0, n_robots=4, robot_model="disk", steps=8, env_kwargs={"object_type": "box"}
+        ViewRollout(
+            "dpr/Manipulation-v0", "wave", 0, n_robots=4, robot_model="disk", steps=8, env_kwargs={"object_type": "box"}
+        )
     )
     square = np.array(outlines["LineStrips2D:strips"][5][0])  # one closed 5-point outline per step
     assert square.shape == (5, 2)
@@ -481,11 +483,11 @@ def test_the_viewer_draws_gate_v1s_walls_where_they_stand():
     import gymnasium as gym
     import numpy as np
 
-    from dpr.viz import rollout_episode
+    from dpr.viz import ViewRollout, rollout_episode
 
     walls = {}
     for env_id in ("dpr/Gate-v0", "dpr/Gate-v1"):
-        episode = rollout_episode(env_id, "wave", 300, n_robots=9, robot_model="disk", steps=5)
+        episode = rollout_episode(ViewRollout(env_id, "wave", 300, n_robots=9, robot_model="disk", steps=5))
         env = gym.make(env_id, robot_model="disk").unwrapped
         env.reset(seed=300)
         assert [np.asarray(w)[:4].tolist() for w in episode.walls] == [w.tolist() for w in env.world.walls]

@@ -125,7 +125,7 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
     from tqdm import tqdm
 
     from dpr.envs.particle_env import split_swarm_kwargs
-    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.episodes import ViewRollout, rollout_episode
     from dpr.viz.rerun_log import save_rrd
 
     swarm, extra = split_swarm_kwargs(env_kwargs)
@@ -135,14 +135,10 @@ def _log_evaluation_to_rerun(args, env_ids: list[str], env_kwargs: dict) -> None
             task = env_id.split("/")[-1].removesuffix("-v0").lower()
             episodes.append(
                 rollout_episode(
-                    env_id,
-                    args.policy,
-                    seed,
-                    steps=args.steps,
-                    env_kwargs=extra,
+                    ViewRollout(
+                        env_id, args.policy, seed, steps=args.steps, env_kwargs=extra, transfer=args.transfer, **swarm
+                    ),
                     name=f"{task}_seed{seed}",
-                    transfer=args.transfer,
-                    **swarm,
                 )
             )
     save_rrd(episodes, args.rerun, title=f"dpr evaluate {args.policy}")

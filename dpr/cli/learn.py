@@ -110,7 +110,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: 
     from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.sb3 import read_model_info
-    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.episodes import ViewRollout, rollout_episode
     from dpr.viz.rerun_log import save_rrd
 
     def step_count(model: Path) -> int:
@@ -127,7 +127,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: 
     decisions = info.max_episode_steps or episode_steps(info.env_kwargs)
     steps = decisions * info.env_kwargs.get("action_repeat", 1)
     episodes = [
-        rollout_episode(env_id, str(model), seed, steps=steps, env_kwargs=extra, name=name, **swarm)
+        rollout_episode(ViewRollout(env_id, str(model), seed, steps=steps, env_kwargs=extra, **swarm), name=name)
         for name, model in tqdm(models, desc="log to rerun", unit="model")
     ]
     save_rrd(episodes, path, title=f"dpr train {result.run_dir.name} (seed {seed})")

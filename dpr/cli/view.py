@@ -43,9 +43,9 @@ def episode_index(text: str) -> int:
 
 def view_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.policies.registry import WAVE
-    from dpr.viz.episodes import rollout_episode
+    from dpr.viz.episodes import ViewRollout
 
-    rollout = defaults(rollout_episode)
+    rollout = defaults(ViewRollout)
     parser.add_argument("source", nargs="?", help="dataset folder or .mcap file (omit with --env)")
     parser.add_argument(
         "--episode",
@@ -108,7 +108,7 @@ def _roll_out_policies(args, parser) -> list:
     from tqdm import tqdm
 
     from dpr.policies.registry import WAVE
-    from dpr.viz import check_view_policy, rollout_episode
+    from dpr.viz import ViewRollout, check_view_policy, rollout_episode
 
     if args.episode is not None:
         parser.error("--episode picks episodes of a dataset; with --env, policies are rolled out live")
@@ -126,15 +126,17 @@ def _roll_out_policies(args, parser) -> list:
         with tqdm(total=args.steps, desc=f"roll out {name}", unit="step", leave=False) as bar:
             episodes.append(
                 rollout_episode(
-                    args.env,
-                    name,
-                    args.seed,
-                    n_robots=args.n_robots,
-                    robot_model=args.robot_model,
-                    steps=args.steps,
-                    env_kwargs=env_kwargs,
+                    ViewRollout(
+                        args.env,
+                        name,
+                        args.seed,
+                        n_robots=args.n_robots,
+                        robot_model=args.robot_model,
+                        steps=args.steps,
+                        env_kwargs=env_kwargs,
+                        transfer=args.transfer,
+                    ),
                     on_step=lambda done: bar.update(min(done, bar.total) - bar.n),
-                    transfer=args.transfer,
                 )
             )
             if bar.n < bar.total:  # the episode ended early (goal reached, physics blow-up): that is its whole length

@@ -10,6 +10,7 @@ rows here, so that a per-robot policy sees the same thing in either env.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -211,17 +212,14 @@ def local_observations(
     state: np.ndarray,
     n_robots: int,
     neighbour_range: float,
-    max_neighbours: int = MAX_NEIGHBOURS,
-    has_object: bool = False,
+    layout: LocalObservation = LocalObservation(),
     *,
-    clock_period: int | None = None,
     step: int = 0,
     dead: np.ndarray | None = None,
-    distance_period: float | None = None,
 ) -> np.ndarray:
-    """Every robot's local observation, one row each, from a global ``state`` vector (layout in
-    :class:`LocalObservation`; the dead flag is included when ``dead`` is given)."""
-    layout = LocalObservation(max_neighbours, has_object, clock_period, dead is not None, distance_period)
+    """Every robot's local observation, one row each, from a global ``state`` vector, in ``layout``; the dead flag
+    is included when ``dead`` is given, whatever ``layout.dead_flag`` says."""
+    layout = dataclasses.replace(layout, dead_flag=dead is not None)
     return layout.observe(state, n_robots, neighbour_range, step, dead)
 
 

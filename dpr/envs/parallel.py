@@ -70,6 +70,21 @@ def _check_count(name: str, value: Any) -> int:
     return check_int(name, int(value) if isinstance(value, np.integer) else value, 1)
 
 
+def _refuse_whole_swarm_kwargs(env_kwargs: Mapping[str, Any]) -> None:
+    """A ValueError for super-agent env kwargs that have no per-agent meaning."""
+    action_type = env_kwargs.get("action_type", "multibinary")
+    if action_type == "discrete":
+        raise ValueError(
+            "action_type='discrete' (one Discrete(2^N) choice for the whole swarm) has no per-agent meaning; "
+            f"use one of {PER_AGENT_ACTION_TYPES} with parallel_env"
+        )
+    obs_type = env_kwargs.get("obs_type", "state")
+    if obs_type != "state":
+        raise ValueError(f"parallel_env supports obs_type='state' only, got {obs_type!r}")
+    if env_kwargs.get("obs_last_action"):
+        raise ValueError("parallel_env does not support obs_last_action (each agent sees local observations)")
+
+
 class ParticleParallelEnv(ParallelEnv):
     """A particle-robot task with one PettingZoo agent per robot, over one super-agent env.
 
@@ -143,17 +158,7 @@ class ParticleParallelEnv(ParallelEnv):
     ):
         if task not in TASK_CLASSES:
             raise ValueError(f"task must be one of {tuple(TASK_CLASSES)}, got {task!r}")
-        action_type = env_kwargs.get("action_type", "multibinary")
-        if action_type == "discrete":
-            raise ValueError(
-                "action_type='discrete' (one Discrete(2^N) choice for the whole swarm) has no per-agent meaning; "
-                f"use one of {PER_AGENT_ACTION_TYPES} with parallel_env"
-            )
-        obs_type = env_kwargs.get("obs_type", "state")
-        if obs_type != "state":
-            raise ValueError(f"parallel_env supports obs_type='state' only, got {obs_type!r}")
-        if env_kwargs.get("obs_last_action"):
-            raise ValueError("parallel_env does not support obs_last_action (each agent sees local observations)")
+        _refuse_whole_swarm_kwargs(env_kwargs)
         self.max_episode_steps = _check_count("max_episode_steps", max_episode_steps)
         self.local_obs = _check_flag("local_obs", local_obs)
         self.shared_reward = _check_flag("shared_reward", shared_reward)
@@ -186,10 +191,12 @@ class ParticleParallelEnv(ParallelEnv):
 
         self.local_layout = LocalObservation.for_env(base, self.max_neighbours, self.clock_period, distance_period)
         self.distance_period = self.local_layout.distance_period  # checked, as a float
-        if self.local_obs:
-            observation_space = self.local_layout.space()
-        else:
-            observation_space = base.observation_space
+        self._make_spaces()
+
+    def _make_spaces(self) -> None:
+        """Each agent's observation and action space, and the global state's."""
+        base = self._env
+        observation_space = self.local_layout.space() if self.local_obs else base.observation_space
         if base.action_type == "multibinary":
             action_space: spaces.Space = spaces.Discrete(2)
         else:
@@ -359,212 +366,214 @@ def _pending_actions(vec_env, row: str) -> np.ndarray:
     return actions
 
 
-@functools.cache
-def _agents_as_vec_env_class() -> type:
+def _on_vec_env(methods: type, name: str) -> type:
+    """Class ``name`` of this module: ``methods`` (its docstring and methods) on SB3's ``VecEnv``. Built on first use
+    since SB3 imports torch; pickle finds it through the module's ``__getattr__``."""
     from stable_baselines3.common.vec_env import VecEnv
 
-    class AgentsAsVecEnv(VecEnv):
-        """The agents of a PettingZoo ParallelEnv as the ``num_envs`` envs of an SB3 ``VecEnv``: one
-        policy with shared parameters acts for every agent (parameter sharing, as in decentralised swarms).
+    namespace = {"__doc__": methods.__doc__, "__module__": __name__, "__qualname__": name}
+    return type(name, (methods, VecEnv), namespace)
 
-        Needs homogeneous agents (one observation space and one action space for all) that all act at
-        every step and end together, as :class:`ParticleParallelEnv`'s do. Observations are stacked into
-        ``(num_envs, *obs_shape)``; rewards and dones are per agent. When the episode ends, each agent's info
-        holds ``terminal_observation`` and ``TimeLimit.truncated``, and the returned observations are those
-        of the next episode (SB3's auto-reset convention). ``seed(s)`` makes the next reset use seed ``s``.
-        All envs of the vector are one env: ``get_attr``/``env_method`` act on it once and repeat the
-        result per index; ``render()`` returns its frame. Dead robots' transitions are not filtered out
-        (their infos say ``dead``).
-        """
 
-        def __init__(self, parallel_env: ParallelEnv):
-            agents = list(parallel_env.possible_agents)
-            if not agents:
-                raise ValueError("AgentsAsVecEnv needs a ParallelEnv with at least one possible agent")
-            observation_space = parallel_env.observation_space(agents[0])
-            action_space = parallel_env.action_space(agents[0])
-            for agent in agents[1:]:
-                if (
-                    parallel_env.observation_space(agent) != observation_space
-                    or parallel_env.action_space(agent) != action_space
-                ):
-                    raise ValueError(
-                        f"AgentsAsVecEnv needs one observation space and one action space for all agents; "
-                        f"{agent!r} differs from {agents[0]!r}"
-                    )
-            self.parallel_env = parallel_env
-            self.agents = agents
-            self._actions: np.ndarray | None = None
-            super().__init__(len(agents), observation_space, action_space)
-
-        def reset(self) -> np.ndarray:
-            observations, infos = self.parallel_env.reset(seed=self._seeds[0], options=self._options[0] or None)
-            self._reset_seeds()
-            self._reset_options()
-            self.reset_infos = [infos[agent] for agent in self.agents]
-            return self._stack(observations)
-
-        def step_async(self, actions: np.ndarray) -> None:
-            self._actions = np.asarray(actions)
-
-        def step_wait(self):
-            actions = _pending_actions(self, "agent")
-            observations, rewards, terminations, truncations, infos = self.parallel_env.step(
-                dict(zip(self.agents, actions))
-            )
-            if observations.keys() != set(self.agents):
-                raise RuntimeError("AgentsAsVecEnv needs every agent to act at every step and all to end together")
-            stacked = self._stack(observations)
-            reward = np.array([rewards[a] for a in self.agents], dtype=np.float32)
-            done = np.array([terminations[a] or truncations[a] for a in self.agents], dtype=bool)
-            info_list = [dict(infos[a]) for a in self.agents]  # own copies: SB3 adds keys
-            if done.any():
-                if not done.all():
-                    raise RuntimeError("AgentsAsVecEnv needs all agents to end their episode together")
-                for i, agent in enumerate(self.agents):
-                    info_list[i]["terminal_observation"] = stacked[i]
-                    info_list[i]["TimeLimit.truncated"] = bool(truncations[agent] and not terminations[agent])
-                observations, reset_infos = self.parallel_env.reset()
-                self.reset_infos = [reset_infos[agent] for agent in self.agents]
-                stacked = self._stack(observations)
-            return stacked, reward, done, info_list
-
-        def close(self) -> None:
-            self.parallel_env.close()
-
-        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-            value = getattr(self.parallel_env, attr_name)
-            return [value for _ in self._get_indices(indices)]
-
-        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-            setattr(self.parallel_env, attr_name, value)
-
-        def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
-            result = getattr(self.parallel_env, method_name)(*method_args, **method_kwargs)
-            return [result for _ in self._get_indices(indices)]
-
-        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-            return [False for _ in self._get_indices(indices)]
-
-        def get_images(self):
-            return [self.parallel_env.render()]
-
-        def _stack(self, observations: dict) -> np.ndarray:
-            return np.stack([observations[agent] for agent in self.agents])
-
-    AgentsAsVecEnv.__module__ = __name__
-    AgentsAsVecEnv.__qualname__ = "AgentsAsVecEnv"  # pickle finds it through the module's __getattr__
-    return AgentsAsVecEnv
+@functools.cache
+def _agents_as_vec_env_class() -> type:
+    return _on_vec_env(_AgentsAsVecEnv, "AgentsAsVecEnv")
 
 
 @functools.cache
 def _swarms_as_vec_env_class() -> type:
-    from stable_baselines3.common.vec_env import VecEnv
+    return _on_vec_env(_SwarmsAsVecEnv, "SwarmsAsVecEnv")
 
-    AgentsAsVecEnv = _agents_as_vec_env_class()
 
-    class SwarmsAsVecEnv(VecEnv):
-        """The agents of several PettingZoo ParallelEnvs (swarms, of any sizes) as one SB3 ``VecEnv``: swarm k's
-        robots are the envs ``offsets[k] .. offsets[k] + N_k - 1``, each swarm an :class:`AgentsAsVecEnv`.
+# AgentsAsVecEnv's docstring and methods; SB3's VecEnv joins them as a base on first use (_on_vec_env)
+class _AgentsAsVecEnv:
+    """The agents of a PettingZoo ParallelEnv as the ``num_envs`` envs of an SB3 ``VecEnv``: one
+    policy with shared parameters acts for every agent (parameter sharing, as in decentralised swarms).
 
-        One step of the vector steps every swarm once; each swarm ends and resets on its own. Every swarm must
-        have the same observation and action space (a per-robot layout whose size does not depend on N), so one
-        policy with shared parameters learns from swarms of several sizes in every rollout, which one
-        ``AgentsAsVecEnv`` (a fixed ``num_envs``) cannot give. ``seed(s)`` gives swarm k the seed
-        ``s + offsets[k]`` at its next reset. ``get_attr``/``env_method`` act once per swarm and repeat the
-        result for each of its robots' indices.
-        """
+    Needs homogeneous agents (one observation space and one action space for all) that all act at
+    every step and end together, as :class:`ParticleParallelEnv`'s do. Observations are stacked into
+    ``(num_envs, *obs_shape)``; rewards and dones are per agent. When the episode ends, each agent's info
+    holds ``terminal_observation`` and ``TimeLimit.truncated``, and the returned observations are those
+    of the next episode (SB3's auto-reset convention). ``seed(s)`` makes the next reset use seed ``s``.
+    All envs of the vector are one env: ``get_attr``/``env_method`` act on it once and repeat the
+    result per index; ``render()`` returns its frame. Dead robots' transitions are not filtered out
+    (their infos say ``dead``).
+    """
 
-        def __init__(self, parallel_envs):
-            parallel_envs = list(parallel_envs)
-            if not parallel_envs:
-                raise ValueError("SwarmsAsVecEnv needs at least one ParallelEnv")
-            self.swarms = [AgentsAsVecEnv(env) for env in parallel_envs]
-            first = self.swarms[0]
-            for k, swarm in enumerate(self.swarms[1:], start=1):
-                if swarm.observation_space != first.observation_space or swarm.action_space != first.action_space:
-                    raise ValueError(
-                        f"SwarmsAsVecEnv needs one observation space and one action space for all swarms; swarm {k} "
-                        f"has {swarm.observation_space}, {swarm.action_space}, swarm 0 "
-                        f"{first.observation_space}, {first.action_space}"
-                    )
-            self.offsets = [0]
-            for swarm in self.swarms[:-1]:
-                self.offsets.append(self.offsets[-1] + swarm.num_envs)
-            self._actions: np.ndarray | None = None
-            super().__init__(sum(s.num_envs for s in self.swarms), first.observation_space, first.action_space)
+    def __init__(self, parallel_env: ParallelEnv):
+        agents = list(parallel_env.possible_agents)
+        if not agents:
+            raise ValueError("AgentsAsVecEnv needs a ParallelEnv with at least one possible agent")
+        observation_space = parallel_env.observation_space(agents[0])
+        action_space = parallel_env.action_space(agents[0])
+        for agent in agents[1:]:
+            if (
+                parallel_env.observation_space(agent) != observation_space
+                or parallel_env.action_space(agent) != action_space
+            ):
+                raise ValueError(
+                    f"AgentsAsVecEnv needs one observation space and one action space for all agents; "
+                    f"{agent!r} differs from {agents[0]!r}"
+                )
+        self.parallel_env = parallel_env
+        self.agents = agents
+        self._actions: np.ndarray | None = None
+        super().__init__(len(agents), observation_space, action_space)
 
-        @property
-        def parallel_envs(self) -> list:
-            """The swarms' PettingZoo envs, in order."""
-            return [swarm.parallel_env for swarm in self.swarms]
+    def reset(self) -> np.ndarray:
+        observations, infos = self.parallel_env.reset(seed=self._seeds[0], options=self._options[0] or None)
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [infos[agent] for agent in self.agents]
+        return self._stack(observations)
 
-        def reset(self) -> np.ndarray:
-            observations, self.reset_infos = [], []
-            for swarm, offset in zip(self.swarms, self.offsets):
-                if self._seeds[offset] is not None:
-                    swarm.seed(self._seeds[offset])
-                if self._options[offset]:
-                    swarm.set_options(self._options[offset])
-                observations.append(swarm.reset())
-                self.reset_infos.extend(swarm.reset_infos)
-            self._reset_seeds()
-            self._reset_options()
-            return np.concatenate(observations)
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
 
-        def step_async(self, actions: np.ndarray) -> None:
-            self._actions = np.asarray(actions)
+    def step_wait(self):
+        actions = _pending_actions(self, "agent")
+        observations, rewards, terminations, truncations, infos = self.parallel_env.step(
+            dict(zip(self.agents, actions))
+        )
+        if observations.keys() != set(self.agents):
+            raise RuntimeError("AgentsAsVecEnv needs every agent to act at every step and all to end together")
+        stacked = self._stack(observations)
+        reward = np.array([rewards[a] for a in self.agents], dtype=np.float32)
+        done = np.array([terminations[a] or truncations[a] for a in self.agents], dtype=bool)
+        info_list = [dict(infos[a]) for a in self.agents]  # own copies: SB3 adds keys
+        if done.any():
+            if not done.all():
+                raise RuntimeError("AgentsAsVecEnv needs all agents to end their episode together")
+            for i, agent in enumerate(self.agents):
+                info_list[i]["terminal_observation"] = stacked[i]
+                info_list[i]["TimeLimit.truncated"] = bool(truncations[agent] and not terminations[agent])
+            observations, reset_infos = self.parallel_env.reset()
+            self.reset_infos = [reset_infos[agent] for agent in self.agents]
+            stacked = self._stack(observations)
+        return stacked, reward, done, info_list
 
-        def step_wait(self):
-            actions = _pending_actions(self, "robot")
-            results = [
-                swarm.step(actions[offset : offset + swarm.num_envs])
-                for swarm, offset in zip(self.swarms, self.offsets)
-            ]
-            self.reset_infos = [info for swarm in self.swarms for info in swarm.reset_infos]
-            return (
-                np.concatenate([r[0] for r in results]),
-                np.concatenate([r[1] for r in results]),
-                np.concatenate([r[2] for r in results]),
-                [info for r in results for info in r[3]],
-            )
+    def close(self) -> None:
+        self.parallel_env.close()
 
-        def close(self) -> None:
-            for swarm in self.swarms:
-                swarm.close()
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        value = getattr(self.parallel_env, attr_name)
+        return [value for _ in self._get_indices(indices)]
 
-        def _by_swarm(self, indices) -> list[tuple[int, int]]:
-            """(swarm, index within it) of each vector index."""
-            located = []
-            for index in self._get_indices(indices):
-                if not 0 <= index < self.num_envs:
-                    raise IndexError(f"env index {index} out of range(0, {self.num_envs})")
-                k = max(k for k, offset in enumerate(self.offsets) if offset <= index)
-                located.append((k, index - self.offsets[k]))
-            return located
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self.parallel_env, attr_name, value)
 
-        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-            values = {k: swarm.get_attr(attr_name, 0)[0] for k, swarm in enumerate(self.swarms)}
-            return [values[k] for k, _ in self._by_swarm(indices)]
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        result = getattr(self.parallel_env, method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._get_indices(indices)]
 
-        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-            for k in sorted({k for k, _ in self._by_swarm(indices)}):
-                self.swarms[k].set_attr(attr_name, value)
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
 
-        def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
-            located = self._by_swarm(indices)
-            results = {
-                k: self.swarms[k].env_method(method_name, *method_args, indices=0, **method_kwargs)[0]
-                for k in sorted({k for k, _ in located})
-            }
-            return [results[k] for k, _ in located]
+    def get_images(self):
+        return [self.parallel_env.render()]
 
-        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-            return [False for _ in self._get_indices(indices)]
+    def _stack(self, observations: dict) -> np.ndarray:
+        return np.stack([observations[agent] for agent in self.agents])
 
-        def get_images(self):
-            return [image for swarm in self.swarms for image in swarm.get_images()]
 
-    SwarmsAsVecEnv.__module__ = __name__
-    SwarmsAsVecEnv.__qualname__ = "SwarmsAsVecEnv"
-    return SwarmsAsVecEnv
+# SwarmsAsVecEnv's docstring and methods; SB3's VecEnv joins them as a base on first use (_on_vec_env)
+class _SwarmsAsVecEnv:
+    """The agents of several PettingZoo ParallelEnvs (swarms, of any sizes) as one SB3 ``VecEnv``: swarm k's
+    robots are the envs ``offsets[k] .. offsets[k] + N_k - 1``, each swarm an :class:`AgentsAsVecEnv`.
+
+    One step of the vector steps every swarm once; each swarm ends and resets on its own. Every swarm must
+    have the same observation and action space (a per-robot layout whose size does not depend on N), so one
+    policy with shared parameters learns from swarms of several sizes in every rollout, which one
+    ``AgentsAsVecEnv`` (a fixed ``num_envs``) cannot give. ``seed(s)`` gives swarm k the seed
+    ``s + offsets[k]`` at its next reset. ``get_attr``/``env_method`` act once per swarm and repeat the
+    result for each of its robots' indices.
+    """
+
+    def __init__(self, parallel_envs):
+        parallel_envs = list(parallel_envs)
+        if not parallel_envs:
+            raise ValueError("SwarmsAsVecEnv needs at least one ParallelEnv")
+        self.swarms = [_agents_as_vec_env_class()(env) for env in parallel_envs]
+        first = self.swarms[0]
+        for k, swarm in enumerate(self.swarms[1:], start=1):
+            if swarm.observation_space != first.observation_space or swarm.action_space != first.action_space:
+                raise ValueError(
+                    f"SwarmsAsVecEnv needs one observation space and one action space for all swarms; swarm {k} "
+                    f"has {swarm.observation_space}, {swarm.action_space}, swarm 0 "
+                    f"{first.observation_space}, {first.action_space}"
+                )
+        self.offsets = [0]
+        for swarm in self.swarms[:-1]:
+            self.offsets.append(self.offsets[-1] + swarm.num_envs)
+        self._actions: np.ndarray | None = None
+        super().__init__(sum(s.num_envs for s in self.swarms), first.observation_space, first.action_space)
+
+    @property
+    def parallel_envs(self) -> list:
+        """The swarms' PettingZoo envs, in order."""
+        return [swarm.parallel_env for swarm in self.swarms]
+
+    def reset(self) -> np.ndarray:
+        observations, self.reset_infos = [], []
+        for swarm, offset in zip(self.swarms, self.offsets):
+            if self._seeds[offset] is not None:
+                swarm.seed(self._seeds[offset])
+            if self._options[offset]:
+                swarm.set_options(self._options[offset])
+            observations.append(swarm.reset())
+            self.reset_infos.extend(swarm.reset_infos)
+        self._reset_seeds()
+        self._reset_options()
+        return np.concatenate(observations)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self):
+        actions = _pending_actions(self, "robot")
+        results = [
+            swarm.step(actions[offset : offset + swarm.num_envs]) for swarm, offset in zip(self.swarms, self.offsets)
+        ]
+        self.reset_infos = [info for swarm in self.swarms for info in swarm.reset_infos]
+        return (
+            np.concatenate([r[0] for r in results]),
+            np.concatenate([r[1] for r in results]),
+            np.concatenate([r[2] for r in results]),
+            [info for r in results for info in r[3]],
+        )
+
+    def close(self) -> None:
+        for swarm in self.swarms:
+            swarm.close()
+
+    def _by_swarm(self, indices) -> list[tuple[int, int]]:
+        """(swarm, index within it) of each vector index."""
+        located = []
+        for index in self._get_indices(indices):
+            if not 0 <= index < self.num_envs:
+                raise IndexError(f"env index {index} out of range(0, {self.num_envs})")
+            k = max(k for k, offset in enumerate(self.offsets) if offset <= index)
+            located.append((k, index - self.offsets[k]))
+        return located
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        values = {k: swarm.get_attr(attr_name, 0)[0] for k, swarm in enumerate(self.swarms)}
+        return [values[k] for k, _ in self._by_swarm(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        for k in sorted({k for k, _ in self._by_swarm(indices)}):
+            self.swarms[k].set_attr(attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        located = self._by_swarm(indices)
+        results = {
+            k: self.swarms[k].env_method(method_name, *method_args, indices=0, **method_kwargs)[0]
+            for k in sorted({k for k, _ in located})
+        }
+        return [results[k] for k, _ in located]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        return [image for swarm in self.swarms for image in swarm.get_images()]

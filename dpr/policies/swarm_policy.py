@@ -196,7 +196,7 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
         observation_space: gym.spaces.Box,
         action_space: gym.spaces.MultiBinary,
         lr_schedule,
-        *args,
+        *,  # SB3 gives every argument after the learning-rate schedule by name (policy_kwargs, a saved model's data)
         has_object: bool = False,
         landmarks: int = 0,
         robot_net: list[int] | None = None,
@@ -212,7 +212,7 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
         self.layout = SwarmLayout(observation_space.shape[0], action_space.n, has_object, landmarks)
         self.robot_net = list(robot_net or [64, 64])
         self.critic = critic
-        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pymunk
@@ -16,6 +17,60 @@ from dpr.sim.swarm import Swarm
 _PADDLE_ANGLES = 2 * math.pi * np.arange(C.N_PADDLES) / C.N_PADDLES
 _CONTRACTED_PADDLE_ANGLES = _PADDLE_ANGLES - math.pi / 2  # paddle1 angle, relative to its body, when contracted
 _TIP_OFFSET = C.PADDLE_LENGTH / 2  # paddle1 turns about its centre, pinned to the rim
+
+
+class _Paddle(NamedTuple):
+    """One of a robot's paddles: its two bodies, their shapes, and its joints (motors included) in the order the
+    space adds them."""
+
+    paddle1: pymunk.Body
+    paddle2: pymunk.Body
+    shapes: list[pymunk.Shape]  # paddle1's, paddle2's
+    joints: list[pymunk.Constraint]  # pin1, limit1, motor1, pin2, limit2, motor2
+    motor1: pymunk.SimpleMotor
+    motor2: pymunk.SimpleMotor
+
+
+def _central_body(centre: np.ndarray, group: pymunk.ShapeFilter) -> tuple[pymunk.Body, pymunk.Circle]:
+    body = pymunk.Body(C.BODY_MASS, pymunk.moment_for_circle(C.BODY_MASS, 0, C.BODY_RADIUS))
+    body.position = tuple(centre)
+    disk = pymunk.Circle(body, C.BODY_RADIUS)
+    disk.elasticity, disk.friction, disk.filter = C.BODY_ELASTICITY, C.BODY_FRICTION, group
+    return body, disk
+
+
+def _paddle(body: pymunk.Body, centre: np.ndarray, theta: float, group: pymunk.ShapeFilter) -> _Paddle:
+    """The contracted paddle at rim angle ``theta`` of the robot whose central body is ``body``."""
+    radial = np.array([math.cos(theta), math.sin(theta)])
+    tangent = np.array([math.sin(theta), -math.cos(theta)])  # direction of angle theta - pi/2
+    rim = C.BODY_RADIUS * radial
+
+    p1 = pymunk.Body(C.PADDLE_MASS, pymunk.moment_for_box(C.PADDLE_MASS, (C.PADDLE_LENGTH, C.PADDLE_WIDTH)))
+    p1.position = tuple(centre + rim)
+    p1.angle = theta - math.pi / 2
+    s1 = pymunk.Poly.create_box(p1, (C.PADDLE_LENGTH, C.PADDLE_WIDTH))
+
+    m2 = C.PADDLE_MASS / 2
+    p2 = pymunk.Body(m2, pymunk.moment_for_box(m2, (C.PADDLE_LENGTH / 2, C.PADDLE_WIDTH)))
+    p2.position = tuple(centre + rim + _TIP_OFFSET * tangent)
+    p2.angle = theta + math.pi / 2  # parallel to the rim, as its rotary joint holds it
+    s2 = pymunk.Poly.create_box(p2, (C.PADDLE_LENGTH / 2, C.PADDLE_WIDTH))
+    for s in (s1, s2):
+        s.elasticity, s.friction, s.filter = C.PADDLE_ELASTICITY, C.PADDLE_FRICTION, group
+
+    # paddle1 on the rim: a zero-length pin, limited to [tangent, perpendicular], motor-driven
+    pin1 = pymunk.PinJoint(body, p1, tuple(rim), (0, 0))
+    limit1 = pymunk.RotaryLimitJoint(body, p1, theta - math.pi / 2, theta)
+    motor1 = pymunk.SimpleMotor(body, p1, 0.0)
+    # paddle2 on paddle1's tip, kept parallel to the rim
+    pin2 = pymunk.PinJoint(p1, p2, (_TIP_OFFSET, 0), (0, 0))
+    limit2 = pymunk.RotaryLimitJoint(body, p2, theta + math.pi / 2, theta + math.pi / 2)
+    motor2 = pymunk.SimpleMotor(p1, p2, 0.0)
+    for m in (motor1, motor2):
+        m.max_force = C.MOTOR_MAX_FORCE
+    for j in (pin1, limit1, pin2, limit2):
+        j.collide_bodies = False
+    return _Paddle(p1, p2, [s1, s2], [pin1, limit1, motor1, pin2, limit2, motor2], motor1, motor2)
 
 
 class PaddleSwarm(Swarm):
@@ -44,48 +99,17 @@ class PaddleSwarm(Swarm):
         shapes, joints = [], []
         for r, centre in enumerate(np.asarray(centres, dtype=float)):
             group = pymunk.ShapeFilter(group=r + 1)
-            body = pymunk.Body(C.BODY_MASS, pymunk.moment_for_circle(C.BODY_MASS, 0, C.BODY_RADIUS))
-            body.position = tuple(centre)
-            disk = pymunk.Circle(body, C.BODY_RADIUS)
-            disk.elasticity, disk.friction, disk.filter = C.BODY_ELASTICITY, C.BODY_FRICTION, group
+            body, disk = _central_body(centre, group)
             bodies.append(body)
             shapes.append(disk)
             for theta in _PADDLE_ANGLES:
-                radial = np.array([math.cos(theta), math.sin(theta)])
-                tangent = np.array([math.sin(theta), -math.cos(theta)])  # direction of angle theta - pi/2
-                rim = C.BODY_RADIUS * radial
-
-                p1 = pymunk.Body(C.PADDLE_MASS, pymunk.moment_for_box(C.PADDLE_MASS, (C.PADDLE_LENGTH, C.PADDLE_WIDTH)))
-                p1.position = tuple(centre + rim)
-                p1.angle = theta - math.pi / 2
-                s1 = pymunk.Poly.create_box(p1, (C.PADDLE_LENGTH, C.PADDLE_WIDTH))
-
-                m2 = C.PADDLE_MASS / 2
-                p2 = pymunk.Body(m2, pymunk.moment_for_box(m2, (C.PADDLE_LENGTH / 2, C.PADDLE_WIDTH)))
-                p2.position = tuple(centre + rim + _TIP_OFFSET * tangent)
-                p2.angle = theta + math.pi / 2  # parallel to the rim, as its rotary joint holds it
-                s2 = pymunk.Poly.create_box(p2, (C.PADDLE_LENGTH / 2, C.PADDLE_WIDTH))
-                for s in (s1, s2):
-                    s.elasticity, s.friction, s.filter = C.PADDLE_ELASTICITY, C.PADDLE_FRICTION, group
-
-                # paddle1 on the rim: a zero-length pin, limited to [tangent, perpendicular], motor-driven
-                pin1 = pymunk.PinJoint(body, p1, tuple(rim), (0, 0))
-                limit1 = pymunk.RotaryLimitJoint(body, p1, theta - math.pi / 2, theta)
-                motor1 = pymunk.SimpleMotor(body, p1, 0.0)
-                # paddle2 on paddle1's tip, kept parallel to the rim
-                pin2 = pymunk.PinJoint(p1, p2, (_TIP_OFFSET, 0), (0, 0))
-                limit2 = pymunk.RotaryLimitJoint(body, p2, theta + math.pi / 2, theta + math.pi / 2)
-                motor2 = pymunk.SimpleMotor(p1, p2, 0.0)
-                for m in (motor1, motor2):
-                    m.max_force = C.MOTOR_MAX_FORCE
-                for j in (pin1, limit1, pin2, limit2):
-                    j.collide_bodies = False
-                paddles1.append(p1)
-                paddles2.append(p2)
-                shapes += [s1, s2]
-                joints += [pin1, limit1, motor1, pin2, limit2, motor2]
-                motors1.append(motor1)
-                motors2.append(motor2)
+                paddle = _paddle(body, centre, theta, group)
+                paddles1.append(paddle.paddle1)
+                paddles2.append(paddle.paddle2)
+                shapes += paddle.shapes
+                joints += paddle.joints
+                motors1.append(paddle.motor1)
+                motors2.append(paddle.motor2)
         space.add(*bodies, *paddles1, *paddles2, *shapes, *joints)
         for body in bodies:
             add_ground_friction(space, body)

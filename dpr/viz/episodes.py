@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -94,9 +94,9 @@ class EpisodeLog:
         }
         if self.object_poses is not None:
             expected["object_poses"] = (self.object_poses.shape, (states, 3))
-        for field, (got, want) in expected.items():
+        for array, (got, want) in expected.items():
             if got != want:
-                raise ValueError(f"EpisodeLog {self.name!r}: {field} has shape {got}, expected {want}")
+                raise ValueError(f"EpisodeLog {self.name!r}: {array} has shape {got}, expected {want}")
         if states == 0:
             raise ValueError(f"EpisodeLog {self.name!r}: no states")
         if self.magnets is not None and len(self.magnets) != states:
@@ -245,31 +245,10 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
     where = f"{reader.root} episode {index}"
     kwargs = {key: value for key, value in dict(meta[F.ENV_KWARGS]).items() if key not in _RENDER_KWARGS}
     repeat = _dataset_repeat(reader, kwargs, where)
-    env = _make_env(meta[F.ENV_ID], kwargs, where)
-    try:
-        env.reset(seed=int(meta[F.SEED]))
-        base = env.unwrapped
-        world = base.world
-        scene = {
-            "n": base.n_robots,
-            "model": base.robot_model,
-            "has_object": base.has_object,
-            "state_width": base.memory_offset,  # the state without the last action
-            "goal": np.array(base.goal, dtype=np.float64),
-            "walls": [_closed(wall) for wall in world.walls],
-            "alive": ~world.dead,
-            "object": world.object_spec,
-        }
-    finally:
-        env.close()
+    scene = _dataset_scene(meta, kwargs, where)
     data = reader.episode(index, columns=[F.OBSERVATION, F.REWARD])
-    state = np.asarray(data[F.OBSERVATION], dtype=np.float64)
+    state = _dataset_states(data, scene, where)
     n = scene["n"]
-    width = scene["state_width"]
-    if state.ndim != 2 or state.shape[1] not in (width, width + n + 1):  # + the last action, with obs_last_action
-        raise ViewError(f"{where}: observation.state has shape {state.shape}, expected [T, {width}] for {n} robots")
-    if len(state) == 0:
-        raise ViewError(f"{where}: the episode has no frames")
     robots = state[:, : ROBOT_FEATURES * n].reshape(len(state), n, ROBOT_FEATURES)
     goal = scene["goal"]
     positions = robots[..., 0:2] / LENGTH_SCALE + goal  # the observation is in the goal frame, scaled by 1/1000
@@ -299,6 +278,40 @@ def episode_from_dataset(reader, episode: int, name: str | None = None) -> Episo
         magnets=None,
         action_repeat=repeat,
     )
+
+
+def _dataset_scene(meta: Mapping[str, Any], kwargs: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """What the observations do not hold (walls, goal, dead robots, the object's shape), rebuilt by resetting the
+    episode's env with its seed."""
+    env = _make_env(meta[F.ENV_ID], kwargs, where)
+    try:
+        env.reset(seed=int(meta[F.SEED]))
+        base = env.unwrapped
+        world = base.world
+        return {
+            "n": base.n_robots,
+            "model": base.robot_model,
+            "has_object": base.has_object,
+            "state_width": base.memory_offset,  # the state without the last action
+            "goal": np.array(base.goal, dtype=np.float64),
+            "walls": [_closed(wall) for wall in world.walls],
+            "alive": ~world.dead,
+            "object": world.object_spec,
+        }
+    finally:
+        env.close()
+
+
+def _dataset_states(data: Mapping[str, Any], scene: Mapping[str, Any], where: str) -> np.ndarray:
+    """The episode's ``[T, D]`` observations, refused unless they are states of ``scene``'s swarm."""
+    state = np.asarray(data[F.OBSERVATION], dtype=np.float64)
+    n = scene["n"]
+    width = scene["state_width"]
+    if state.ndim != 2 or state.shape[1] not in (width, width + n + 1):  # + the last action, with obs_last_action
+        raise ViewError(f"{where}: observation.state has shape {state.shape}, expected [T, {width}] for {n} robots")
+    if len(state) == 0:
+        raise ViewError(f"{where}: the episode has no frames")
+    return state
 
 
 def _dataset_repeat(reader, kwargs: Mapping[str, Any], where: str) -> int:
@@ -336,44 +349,57 @@ def check_view_policy(policy: str) -> str:
         raise ViewParameterError("policy", str(error)) from error
 
 
+@dataclass(frozen=True)
+class ViewRollout:
+    """One live rollout for the viewer: ``policy`` (a scripted policy's name or a model file) on ``env_id`` from
+    ``reset(seed=seed)``, for at most ``steps`` physics steps. ``env_kwargs``: further ``gym.make`` kwargs (the
+    swarm size, robot model and episode length are fields of their own). ``transfer`` runs a model file on a task
+    other than its own, as ``dpr evaluate --transfer`` does. Bad values are a :class:`ViewParameterError` naming
+    the field."""
+
+    env_id: str
+    policy: str
+    seed: int
+    n_robots: int = 9
+    robot_model: str = "paddle"
+    steps: int = MAX_EPISODE_STEPS
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    transfer: bool = False
+
+    def __post_init__(self) -> None:
+        check_view_policy(self.policy)
+        reserved = sorted({"n_robots", "robot_model", "max_episode_steps", *_RENDER_KWARGS} & set(self.env_kwargs))
+        if reserved:
+            raise ViewParameterError(
+                "env_kwargs", f"must not set {reserved}: the swarm size, robot model and episode length are set apart"
+            )
+        object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))  # (frozen) a copy the caller cannot change
+
+    def make_kwargs(self) -> dict[str, Any]:
+        """The ``gym.make`` kwargs of the rollout: a model runs with the env kwargs it was trained with."""
+        kwargs = {"n_robots": self.n_robots, "robot_model": self.robot_model, **self.env_kwargs}
+        if self.policy.endswith(SB3_SUFFIX):
+            from dpr.policies.sb3 import model_env_kwargs
+
+            try:
+                kwargs = model_env_kwargs(self.policy, self.env_id, kwargs, transfer=self.transfer)
+            except ValueError as error:
+                raise ViewParameterError("policy", str(error)) from error
+        return {**kwargs, "max_episode_steps": episode_steps(kwargs, self.steps)}
+
+
 def rollout_episode(
-    env_id: str,
-    policy: str,
-    seed: int,
-    *,
-    n_robots: int = 9,
-    robot_model: str = "paddle",
-    steps: int = MAX_EPISODE_STEPS,
-    env_kwargs: Mapping[str, Any] | None = None,
-    name: str | None = None,
-    on_step: Callable[[int], None] | None = None,
-    transfer: bool = False,
+    rollout: ViewRollout, *, name: str | None = None, on_step: Callable[[int], None] | None = None
 ) -> EpisodeLog:
-    """Roll ``policy`` out for at most ``steps`` physics steps from ``reset(seed=seed)``
-    (:func:`dpr.rollout.roll_out`) and record the state after every env step, at the physics step it belongs to
-    (a model deciding every ``action_repeat`` = k steps: states at physics steps 0, k, 2k, ..., the last one at
-    ``steps`` rounded up to a decision). Stops early when the episode ends; a physics blow-up ends the record at
-    the last sane state. ``on_step(p)`` is called after each env step with the physics steps done so far, ``p``
-    (for a progress bar over ``steps``; the last may pass it by less than a decision). ``transfer`` runs a model
-    file on a task other than its own, as ``dpr evaluate --transfer`` does. Bad arguments are a
-    :class:`ViewParameterError` naming the parameter."""
+    """Roll ``rollout`` out (:func:`dpr.rollout.roll_out`) and record the state after every env step, at the
+    physics step it belongs to (a model deciding every ``action_repeat`` = k steps: states at physics steps 0, k,
+    2k, ..., the last one at ``rollout.steps`` rounded up to a decision). Stops early when the episode ends; a
+    physics blow-up ends the record at the last sane state. ``on_step(p)`` is called after each env step with the
+    physics steps done so far, ``p`` (for a progress bar over ``rollout.steps``; the last may pass it by less than
+    a decision). Bad env kwargs for a model are a :class:`ViewParameterError` naming ``policy``."""
     from dpr.policies.registry import make_policy
 
-    check_view_policy(policy)
-    reserved = sorted({"n_robots", "robot_model", "max_episode_steps", *_RENDER_KWARGS} & set(env_kwargs or {}))
-    if reserved:
-        raise ViewParameterError(
-            "env_kwargs", f"must not set {reserved}: the swarm size, robot model and episode length are set apart"
-        )
-    kwargs = {"n_robots": n_robots, "robot_model": robot_model, **dict(env_kwargs or {})}
-    if policy.endswith(SB3_SUFFIX):  # a model runs with the env kwargs it was trained with
-        from dpr.policies.sb3 import model_env_kwargs
-
-        try:
-            kwargs = model_env_kwargs(policy, env_id, kwargs, transfer=transfer)
-        except ValueError as error:
-            raise ViewParameterError("policy", str(error)) from error
-    env = _make_env(env_id, {**kwargs, "max_episode_steps": episode_steps(kwargs, steps)})
+    env = _make_env(rollout.env_id, rollout.make_kwargs())
     base = env.unwrapped
     repeat = base.action_repeat
     recorder: list[_Recorder] = []
@@ -386,8 +412,8 @@ def rollout_episode(
     try:
         result = roll_out(
             env,
-            make_policy(policy, env, transfer),
-            seed,
+            make_policy(rollout.policy, env, rollout.transfer),
+            rollout.seed,
             on_reset=lambda observation, info: recorder.append(_Recorder(base.world)),
             on_step=record_step,
         )
@@ -399,9 +425,9 @@ def rollout_episode(
         env.close()
     arrays = recorder[0].arrays()
     return EpisodeLog(
-        name=name or entity_name(policy),
-        title=_title(policy, env_id, seed),
-        robot_radii=model_radii(robot_model),
+        name=name or entity_name(rollout.policy),
+        title=_title(rollout.policy, rollout.env_id, rollout.seed),
+        robot_radii=model_radii(rollout.robot_model),
         positions=arrays["positions"],
         expansions=arrays["expansions"],
         alive=alive,
