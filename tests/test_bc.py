@@ -30,7 +30,7 @@ FAST = {"batch_size": 128, "lr": 3e-3}
 def dataset(tmp_path_factory):
     """Three 64-step wave episodes of 4 disk robots."""
     root = tmp_path_factory.mktemp("bc") / "wave4"
-    collect(root, CollectSpec(ENV, robot_model="disk", n_robots=4, steps=64), episodes=3, workers=1)
+    collect(root, CollectSpec(ENV, robot_model="disk", n_robots=4, steps=64), episodes=3)
     return root
 
 

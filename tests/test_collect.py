@@ -80,7 +80,7 @@ def snapshot(root: Path) -> dict[str, tuple[bytes, int] | None]:
 def small_dataset(tmp_path_factory) -> Path:
     """Two wave-policy episodes (seeds 0, 1) of the small spec; tests must leave it unchanged."""
     root = tmp_path_factory.mktemp("small") / "ds"
-    summary = collect(root, small_spec(), episodes=2, workers=1)
+    summary = collect(root, small_spec(), episodes=2)
     assert summary.episodes_added == 2 and not summary.interrupted
     return root
 
@@ -176,7 +176,7 @@ def test_replay_finds_the_first_tampered_frame(small_dataset, monkeypatch):
 def test_a_data_file_from_another_episode_is_refused(small_dataset, tmp_path):
     """An episode whose data file was replaced by another episode's is refused when read, not replayed."""
     other = tmp_path / "other"
-    collect(other, small_spec(), episodes=1, seed=5, workers=1)
+    collect(other, small_spec(), episodes=1, seed=5)
     tampered = tmp_path / "tampered"
     shutil.copytree(small_dataset, tampered)
     data_file = "data/chunk-000/file-001.parquet"
@@ -241,13 +241,13 @@ def test_cli_replay_reports_a_mismatch(small_dataset, monkeypatch, capsys):
 def test_resume_adds_only_missing_seeds_and_keeps_saved_files(tmp_path):
     root = tmp_path / "ds"
     spec = small_spec(steps=30)
-    first = collect(root, spec, episodes=2, workers=1)
+    first = collect(root, spec, episodes=2)
     assert (first.episodes_before, first.episodes_added, first.episodes_total) == (0, 2, 2)
     names = [*parquet_files(root, "data"), *parquet_files(root, "meta/episodes")]
     saved = {name: (root / name).read_bytes() for name in names}
     assert len(saved) == 4
 
-    second = collect(root, spec, episodes=4, workers=1)
+    second = collect(root, spec, episodes=4)
     assert (second.episodes_before, second.episodes_added, second.episodes_total) == (2, 2, 4)
     assert second.frames_total == 120
     reader = LeRobotReader(root)
@@ -257,7 +257,7 @@ def test_resume_adds_only_missing_seeds_and_keeps_saved_files(tmp_path):
     assert all(c.equal for c in replay_dataset(root))
 
     before = snapshot(root)
-    third = collect(root, spec, episodes=4, workers=1)  # nothing left to do
+    third = collect(root, spec, episodes=4)  # nothing left to do
     assert third.episodes_added == 0 and third.episodes_total == 4
     assert snapshot(root) == before
 
@@ -265,8 +265,8 @@ def test_resume_adds_only_missing_seeds_and_keeps_saved_files(tmp_path):
 def test_resume_with_another_first_seed_skips_recorded_seeds(tmp_path):
     root = tmp_path / "ds"
     spec = small_spec(steps=30)
-    collect(root, spec, episodes=2, seed=0, workers=1)
-    summary = collect(root, spec, episodes=3, seed=1, workers=1)  # seeds 1, 2, 3: 1 is already there
+    collect(root, spec, episodes=2, seed=0)
+    summary = collect(root, spec, episodes=3, seed=1)  # seeds 1, 2, 3: 1 is already there
     assert summary.episodes_added == 2
     assert [int(e["seed"]) for e in LeRobotReader(root).episodes] == [0, 1, 2, 3]
 
@@ -291,10 +291,8 @@ def test_another_spec_is_refused_before_any_work(small_dataset, change, monkeypa
 
     monkeypatch.setattr(collect_module, "_rollout_job", no_rollouts)
     before = snapshot(small_dataset)
-    change = dict(change)
-    mcap = change.pop("mcap", False)
     with pytest.raises(DatasetError, match="does not match"):
-        collect(small_dataset, small_spec(**change), episodes=3, workers=1, mcap=mcap)
+        collect(small_dataset, small_spec(**change), episodes=3)
     assert snapshot(small_dataset) == before
 
 
@@ -321,22 +319,22 @@ def test_a_refused_resume_deletes_nothing(small_dataset, tmp_path, change, messa
     (root / "meta/.info.json.1.dpr-tmp").write_bytes(b"{")
     before = tree_hash(root)
     with pytest.raises(DatasetError, match="does not match") as refused:
-        collect(root, small_spec(**change), episodes=3, workers=1)
+        collect(root, small_spec(**change), episodes=3)
     assert message in str(refused.value) and "meta/info.json" in str(refused.value)
     assert tree_hash(root) == before
-    summary = collect(root, small_spec(), episodes=3, workers=1)  # the same settings resume and clean up
+    summary = collect(root, small_spec(), episodes=3)  # the same settings resume and clean up
     assert (summary.episodes_before, summary.episodes_total) == (2, 3)
     assert not list(root.rglob("*.dpr-tmp"))
 
 
 def test_collect_compact_packs_the_dataset_and_resumes(small_dataset, tmp_path):
     root = tmp_path / "ds"
-    summary = collect(root, small_spec(), episodes=3, workers=1, compact=True)
+    summary = collect(root, small_spec(), episodes=3, compact=True)
     assert summary.episodes_total == 3
     assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
     assert parquet_files(root, "meta/episodes") == ["meta/episodes/chunk-000/file-000.parquet"]
     assert not (root / "meta/.dpr-writer.lock").exists()
-    summary = collect(root, small_spec(), episodes=4, workers=1, compact=True)  # resumes: seed 3 only
+    summary = collect(root, small_spec(), episodes=4, compact=True)  # resumes: seed 3 only
     assert (summary.episodes_added, summary.episodes_total) == (1, 4)
     assert parquet_files(root, "data") == ["data/chunk-000/file-000.parquet"]
     reader, recorded = LeRobotReader(root), LeRobotReader(small_dataset)
@@ -359,10 +357,10 @@ def test_cli_collect_compact(tmp_path):
 
 def test_mcap_log_per_episode_matches_the_dataset(tmp_path):
     root = tmp_path / "ds"
-    collect(root, small_spec(), episodes=1, workers=1, mcap=True)
+    collect(root, small_spec(mcap=True), episodes=1)
     stale = root / "mcap" / ".seed-000001.mcap.123.abcd1234.dpr-tmp"  # a log a killed run had in flight
     stale.write_bytes(b"partial")
-    collect(root, small_spec(), episodes=2, workers=1, mcap=True)
+    collect(root, small_spec(mcap=True), episodes=2)
     assert not stale.exists()
     assert sorted(p.name for p in (root / "mcap").iterdir()) == ["seed-000000.mcap", "seed-000001.mcap"]
 
@@ -386,7 +384,7 @@ def test_mcap_log_per_episode_matches_the_dataset(tmp_path):
 
 def test_pixels_record_the_rendered_frames(tmp_path):
     root = tmp_path / "ds"
-    collect(root, small_spec(steps=30, pixels=True, image_size=32), episodes=1, seed=3, workers=1)
+    collect(root, small_spec(steps=30, pixels=True, image_size=32), episodes=1, seed=3)
     reader = LeRobotReader(root)
     assert reader.features["observation.image"]["dtype"] == "image"
     assert reader.features["observation.image"]["shape"] == [32, 32, 3]

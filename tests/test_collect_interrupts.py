@@ -220,7 +220,7 @@ def test_ctrl_c_while_saving_commits_that_episode_whole(tmp_path, monkeypatch, s
     monkeypatch.setattr(LeRobotWriter, "save_episode", interrupted_save)
     root = tmp_path / "ds"
     try:
-        summary = collect(root, small_spec(steps=30), episodes=3, workers=1)
+        summary = collect(root, small_spec(steps=30), episodes=3)
     except KeyboardInterrupt:
         pytest.fail("collect() let Ctrl-C escape instead of stopping after the saved episodes")
     assert summary.interrupted

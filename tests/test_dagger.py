@@ -49,7 +49,7 @@ def spec(**overrides) -> CollectSpec:
 def demos(tmp_path_factory):
     """Three Markov-wave episodes (seeds 0-2) of 4 disk robots with the last action in the observation."""
     root = tmp_path_factory.mktemp("dagger") / "demos"
-    collect(root, spec(), episodes=3, workers=1)
+    collect(root, spec(), episodes=3)
     return root
 
 
@@ -57,7 +57,7 @@ def demos(tmp_path_factory):
 def labelled(tmp_path_factory):
     """Two episodes (seeds 10, 11) driven by the random policy, labelled by the Markov wave."""
     root = tmp_path_factory.mktemp("dagger") / "labelled"
-    collect(root, spec(policy="random", label_policy="wave-markov"), episodes=2, seed=10, workers=1)
+    collect(root, spec(policy="random", label_policy="wave-markov"), episodes=2, seed=10)
     return root
 
 
@@ -71,7 +71,7 @@ def others(tmp_path_factory):
         "steps20": spec(steps=20),
     }
     for name, variant in variants.items():
-        collect(base / name, variant, episodes=2, workers=1)
+        collect(base / name, variant, episodes=2)
     return {name: base / name for name in variants}
 
 
@@ -140,16 +140,16 @@ def test_label_policy_is_in_the_metadata_only_when_set(labelled, demos):
 def test_resuming_with_another_label_policy_is_refused(tmp_path):
     labelled_spec = spec(policy="random", label_policy="wave-markov", steps=10)
     root = tmp_path / "labelled"
-    collect(root, labelled_spec, episodes=1, workers=1)
+    collect(root, labelled_spec, episodes=1)
     for other in ("wave", None):
         with pytest.raises(DatasetError, match="does not match.*label_policy"):
-            collect(root, dataclasses.replace(labelled_spec, label_policy=other), episodes=2, workers=1)
+            collect(root, dataclasses.replace(labelled_spec, label_policy=other), episodes=2)
     assert LeRobotReader(root).num_episodes == 1
-    assert collect(root, labelled_spec, episodes=2, workers=1).episodes_added == 1  # the same spec resumes
+    assert collect(root, labelled_spec, episodes=2).episodes_added == 1  # the same spec resumes
     plain = tmp_path / "plain"
-    collect(plain, dataclasses.replace(labelled_spec, label_policy=None), episodes=1, workers=1)
+    collect(plain, dataclasses.replace(labelled_spec, label_policy=None), episodes=1)
     with pytest.raises(DatasetError, match="does not match.*label_policy"):
-        collect(plain, labelled_spec, episodes=2, workers=1)
+        collect(plain, labelled_spec, episodes=2)
     with pytest.raises(ValueError, match="policy must be one of"):
         spec(label_policy="expert")
 

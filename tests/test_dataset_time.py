@@ -35,7 +35,7 @@ METRICS = {"projected_displacement": 0.0, "net_displacement": 0.0, "total_distan
 
 def record(root: Path, repeat: int, steps: int = 6, episodes: int = 1, **kwargs) -> Path:
     spec = CollectSpec(**SMALL, steps=steps, env_kwargs={"action_repeat": repeat}, **kwargs)
-    collect(root, spec, episodes=episodes, workers=1)
+    collect(root, spec, episodes=episodes)
     return root
 
 
@@ -80,7 +80,7 @@ def test_a_dataset_of_the_old_fps_is_named_by_verify_and_refused_on_resume(tmp_p
     root = old_layout(record(tmp_path / "old", 2, steps=3))
     before = tree_hash(root)
     with pytest.raises(DatasetError) as refused:
-        collect(root, CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 2}), episodes=2, workers=1)
+        collect(root, CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 2}), episodes=2)
     message = str(refused.value)
     assert str(root) in message and "action_repeat=2" in message and "fps 10" in message
     assert "dataset revision 1" in message and "into a new folder" in message and "cannot be resumed" in message
@@ -106,7 +106,7 @@ def test_a_dataset_of_one_decision_per_step_stays_valid_as_recorded_before(tmp_p
     shutil.copytree(record(tmp_path / "src", 1, steps=3), root)
     info = json.loads((root / "meta" / "info.json").read_text())
     assert info["fps"] == 10 and "dataset_revision" not in info["dpr"]
-    summary = collect(root, CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 1}), episodes=2, workers=1)
+    summary = collect(root, CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 1}), episodes=2)
     assert summary.episodes_total == 2
 
 
@@ -116,8 +116,8 @@ def test_mcap_logs_are_stamped_with_simulated_time(tmp_path):
 
     from dpr.datasets.mcap import TOPIC_STATE, read_mcap
 
-    spec = CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 6})
-    collect(tmp_path / "ds", spec, episodes=1, workers=1, mcap=True)
+    spec = CollectSpec(**SMALL, steps=3, env_kwargs={"action_repeat": 6}, mcap=True)
+    collect(tmp_path / "ds", spec, episodes=1)
     path = tmp_path / "ds" / "mcap" / "seed-000000.mcap"
     episode = read_mcap(path)
     assert episode.action_repeat == 6 and episode.metadata["env_kwargs"]["action_repeat"] == 6
@@ -136,17 +136,17 @@ def test_an_mcap_writer_of_another_repeat_than_the_env_is_refused(tmp_path):
     from dpr.datasets.mcap import McapEpisodeWriter, McapError, log_env_step
 
     env = gym.make(NAV, n_robots=4, robot_model="disk", action_repeat=6)
-    _, info = env.reset(seed=0)
+    env.reset(seed=0)
     with pytest.raises(McapError, match="make the writer with action_repeat=6"):
         with McapEpisodeWriter(tmp_path / "x.mcap", metadata={}) as writer:
-            log_env_step(writer, env, 0, None, None, None, None, info)
+            log_env_step(writer, env, 0)
     assert not (tmp_path / "x.mcap").exists()
 
 
 def test_an_mcap_log_written_before_it_recorded_its_repeat_reads_with_the_env_kwargs_one(tmp_path, monkeypatch):
     """Such a file logged 0.1 s per env step; its episode's env_kwargs say how long each was."""
     import dpr.datasets.mcap.writer as writer_module
-    from dpr.datasets.mcap import McapEpisodeWriter, read_mcap
+    from dpr.datasets.mcap import McapEpisodeWriter, StepOutcome, SwarmState, read_mcap
 
     encode = writer_module._encode_metadata
 
@@ -157,8 +157,9 @@ def test_an_mcap_log_written_before_it_recorded_its_repeat_reads_with_the_env_kw
     path = tmp_path / "old.mcap"
     with McapEpisodeWriter(path, metadata={"env_kwargs": {"action_repeat": 5}}) as writer:
         writer.write_scene(goal=[0.0, 0.0])
-        writer.write_step(0, **STATE)
-        writer.write_step(1, **STATE, action=[1.0], reward=0.0, terminated=False, truncated=False, metrics=METRICS)
+        writer.write_step(0, SwarmState(**STATE))
+        outcome = StepOutcome(action=[1.0], reward=0.0, terminated=False, truncated=False, metrics=METRICS)
+        writer.write_step(1, SwarmState(**STATE), outcome)
     episode = read_mcap(path)
     assert episode.action_repeat == 5 and "action_repeat" not in episode.metadata
     np.testing.assert_allclose(episode.times, [0.0, 0.5])

@@ -153,7 +153,7 @@ def test_the_environment_state_is_deterministic():
 def test_datasets_record_the_environment_state_at_every_frame(tmp_path, env_id, pixels):
     root = tmp_path / "ds"
     recorded_spec = spec(env_id, pixels=pixels, image_size=16)
-    collect(root, recorded_spec, episodes=2, seed=7, workers=1)
+    collect(root, recorded_spec, episodes=2, seed=7)
     reader = LeRobotReader(root)
     names = NAMES[env_id]
     assert reader.features[F.ENVIRONMENT_STATE] == {"dtype": "float32", "shape": [len(names)], "names": names}
@@ -205,7 +205,7 @@ def tamper_environment_state(monkeypatch, frame: int, column: int) -> None:
 
 def test_replay_compares_the_environment_state(tmp_path, monkeypatch):
     root = tmp_path / "ds"
-    collect(root, spec(), episodes=1, workers=1)
+    collect(root, spec(), episodes=1)
     tamper_environment_state(monkeypatch, 4, 1)
     (check,) = replay_dataset(root)
     assert not check.equal and check.first_mismatch == 4
@@ -228,7 +228,7 @@ def record_old_layout(root: Path, recorded_spec: CollectSpec, episodes: int, mon
             "rollout",
             lambda *args: dataclasses.replace(record(*args), environment_states=None),
         )
-        collect(root, recorded_spec, episodes=episodes, workers=1)
+        collect(root, recorded_spec, episodes=episodes)
     assert F.ENVIRONMENT_STATE not in json.loads((root / "meta/info.json").read_text())["features"]
     return root
 
@@ -256,7 +256,7 @@ def test_a_dataset_without_the_environment_state_reads_and_is_not_resumed_with_i
     with monkeypatch.context() as patch:
         patch.setattr(collect_module, "_rollout_job", no_rollouts)
         with pytest.raises(DatasetError) as refused:
-            collect(root, old_spec, episodes=3, workers=1)
+            collect(root, old_spec, episodes=3)
     message = str(refused.value)
     assert str(root) in message and f"'{F.ENVIRONMENT_STATE}'" in message and "new folder" in message
     assert "--out" in message and "dpr bc still learns from it" in message
@@ -267,13 +267,13 @@ def test_a_dataset_without_the_environment_state_reads_and_is_not_resumed_with_i
     assert tree_hash(root) == before
 
     # a rerun that adds no episode (every seed recorded) opens it as it is: dpr collect --verify still passes
-    summary = collect(root, old_spec, episodes=2, workers=1)
+    summary = collect(root, old_spec, episodes=2)
     assert (summary.episodes_added, summary.episodes_total) == (0, 2)
     assert run_cli([*argv, "--episodes", "2", "--out", str(root), "--verify"]) == 0
     assert "verified" in capsys.readouterr().out
     assert F.ENVIRONMENT_STATE not in LeRobotReader(root).features
     # what the message tells to do: a new folder records it
-    fresh = collect(tmp_path / "new", old_spec, episodes=3, workers=1)
+    fresh = collect(tmp_path / "new", old_spec, episodes=3)
     assert fresh.episodes_total == 3 and F.ENVIRONMENT_STATE in LeRobotReader(tmp_path / "new").features
 
 
@@ -287,7 +287,7 @@ def test_an_unresponsive_dataset_recorded_before_the_dead_flags_replays_equal(tm
     with monkeypatch.context() as patch:
         patch.setattr(UnresponsiveEnv, "environment_state_names", ParticleSwarmEnv.environment_state_names)
         patch.setattr(UnresponsiveEnv, "environment_state", ParticleSwarmEnv.environment_state)
-        collect(root, spec("dpr/Unresponsive-v0", steps=8), episodes=1, workers=1)
+        collect(root, spec("dpr/Unresponsive-v0", steps=8), episodes=1)
     assert LeRobotReader(root).features[F.ENVIRONMENT_STATE]["names"] == SWARM
     (check,) = replay_dataset(root)
     assert check.equal and check.max_abs_difference[F.ENVIRONMENT_STATE] == 0.0

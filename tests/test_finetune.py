@@ -50,7 +50,7 @@ def cloned(tmp_path_factory):
     """A PPO actor-critic cloned (one epoch) from three 40-step Markov-wave episodes of 4 disk robots."""
     root = tmp_path_factory.mktemp("finetune")
     spec = CollectSpec(ENV, policy="wave-markov", steps=STEPS, env_kwargs=MEMORY, **SMALL_ENV)
-    collect(root / "demos", spec, episodes=3, workers=1)
+    collect(root / "demos", spec, episodes=3)
     return behaviour_clone(root / "demos", ENV, epochs=1, batch_size=128, out=root / "bc", log=lambda line: None)
 
 
@@ -375,7 +375,6 @@ def test_anchor_refuses_bad_settings_before_writing(cloned, tmp_path):
         other,
         CollectSpec(ENV, policy="wave-markov", steps=10, env_kwargs=MEMORY, n_robots=5, robot_model="disk"),
         episodes=1,
-        workers=1,
     )
     with pytest.raises(ValueError, match=rf"(?s)^anchor_datasets: {re.escape(str(other))} does not fit.*shape \[5\]"):
         train(finetune_config(cloned.model_path, anchor_datasets=[str(other)]), tmp_path / "run", **QUIET)
@@ -434,7 +433,7 @@ def swarm_clone(tmp_path_factory):
     every 10 physics steps."""
     root = tmp_path_factory.mktemp("recipe")
     spec = CollectSpec(ENV, policy="wave-markov", steps=12, env_kwargs=AT_REPEAT, **SMALL_ENV)
-    collect(root / "demos", spec, episodes=3, workers=1)
+    collect(root / "demos", spec, episodes=3)
     argv = ["bc", "--dataset", str(root / "demos"), "--env", ENV, "--epochs", "1", "--out", str(root / "bc")]
     assert run(argv) == 0
     return root / "bc" / "model.zip"

@@ -10,7 +10,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
+from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset, FrameKeys
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 
 LENGTHS = (5, 3, 7, 1, 4)  # a length-1 episode: its whole stack is its first frame
@@ -337,9 +337,12 @@ def test_dataloader_returns_every_frame_once(many_root, num_workers):
 @pytest.mark.parametrize(
     ("kwargs", "words"),
     [
-        ({"observation_key": "observation.nope"}, ["observation_key", "observation.nope", "observation.state"]),
-        ({"action_key": "act"}, ["action_key", "'act'", "next.reward"]),
-        ({"observation_key": "observation.image"}, ["observation.image", "not a feature"]),
+        (
+            {"keys": FrameKeys(observation="observation.nope")},
+            ["observation_key", "observation.nope", "observation.state"],
+        ),
+        ({"keys": FrameKeys(action="act")}, ["action_key", "'act'", "next.reward"]),
+        ({"keys": FrameKeys(observation="observation.image")}, ["observation.image", "not a feature"]),
         ({"with_image": True}, ["image_key", "observation.image"]),
         ({"frame_stack": 0}, ["frame_stack"]),
         ({"frame_stack": 1.5}, ["frame_stack"]),
@@ -361,18 +364,18 @@ def test_bad_arguments_name_the_argument(root, kwargs, words):
 
 def test_missing_key_is_a_dataset_error(root):
     with pytest.raises(DatasetError, match="available features"):
-        FrameDataset(root, observation_key="state")
+        FrameDataset(root, keys=FrameKeys(observation="state"))
     # Any numeric 1-D feature may serve (here bool and float32 [1] columns), as a caller's choice.
-    ds = FrameDataset(root, observation_key="next.done", action_key="timestamp")
+    ds = FrameDataset(root, keys=FrameKeys(observation="next.done", action="timestamp"))
     assert ds[1]["observation"].tolist() == [0.0] and ds[1]["action"].tolist() == [pytest.approx(0.1)]
 
 
 def test_image_key_must_be_an_image(tmp_path):
     path = write_dataset(tmp_path / "ds", lengths=(2,), image=True)
     with pytest.raises(DatasetError, match="numeric 1-D"):
-        FrameDataset(path, observation_key="observation.image")
+        FrameDataset(path, keys=FrameKeys(observation="observation.image"))
     with pytest.raises(DatasetError, match="'image' feature"):
-        FrameDataset(path, with_image=True, image_key="observation.state")
+        FrameDataset(path, with_image=True, keys=FrameKeys(image="observation.state"))
 
 
 def test_bad_indices_and_sampler_arguments(root, tmp_path):

@@ -273,7 +273,7 @@ def manipulation_dataset(tmp_path_factory):
         steps=30,
         env_kwargs={"obs_last_action": True},
     )
-    collect(root, spec, episodes=2, workers=1)
+    collect(root, spec, episodes=2)
     return root
 
 

@@ -48,7 +48,7 @@ class Pristine:
 def dataset(tmp_path_factory) -> Pristine:
     """Two 5-frame episodes with 16-pixel images, compacted."""
     root = tmp_path_factory.mktemp("flips") / "ds"
-    collect(root, SPEC, episodes=2, workers=1, compact=True)
+    collect(root, SPEC, episodes=2, compact=True)
     files = sorted(str(path.relative_to(root)) for path in root.rglob("*") if path.is_file())
     assert files == [
         "data/chunk-000/file-000.parquet",
@@ -155,7 +155,7 @@ def test_the_env_id_a_flip_renamed_is_refused_by_read_verify_and_resume(dataset,
     assert verify_dataset(root) == 2  # and by --verify
     assert f"dpr collect: verify: {path}: row 0" in capsys.readouterr().err
     with pytest.raises(DatasetError, match=re.escape(str(path))):
-        collect(root, SPEC, episodes=3, workers=1)
+        collect(root, SPEC, episodes=3)
     assert tree_hash(root) == before
 
 
@@ -171,7 +171,7 @@ def test_a_dataset_without_meta_checksums_reads_as_before_and_gains_them(dataset
     (root / "meta/info.json").write_text(json.dumps(info, indent=4))
     assert_identical({**everything(root), "info": {}}, {**dataset.read, "info": {}})
 
-    collect(root, SPEC, episodes=3, workers=1)  # a resume: the third episode's row carries its checksums
+    collect(root, SPEC, episodes=3)  # a resume: the third episode's row carries its checksums
     assert json.loads((root / "meta/info.json").read_text())[META_CHECKSUMS_KEY]["rows_from"] == 2
     assert LeRobotReader(root).verify() == 15
     third = root / "meta/episodes/chunk-000/file-001.parquet"

@@ -23,6 +23,8 @@ from dpr.datasets.mcap import (
     METRIC_KEYS,
     McapEpisodeWriter,
     McapError,
+    StepOutcome,
+    SwarmState,
     episode_metadata,
     log_env_step,
     read_mcap,
@@ -77,12 +79,13 @@ def rollout(path: Path, env_id: str, steps: int = 30, seed: int = 7, magnets: bo
 
     metadata = episode_metadata(env, seed=seed, policy="wave")
     with McapEpisodeWriter(path, metadata=metadata) as writer:
-        log_env_step(writer, env, 0, None, None, None, None, info, magnets=magnets)
+        log_env_step(writer, env, 0, magnets=magnets)
         snapshot()
         for step in range(1, steps + 1):
             action = policy(obs)
             obs, reward, terminated, truncated, info = env.step(action)
-            log_env_step(writer, env, step, action, reward, terminated, truncated, info, magnets=magnets)
+            outcome = StepOutcome(action, reward, terminated, truncated, metrics=info)
+            log_env_step(writer, env, step, outcome, magnets=magnets)
             snapshot()
             seen["actions"].append(np.array(action))
             seen["rewards"].append(reward)
@@ -291,26 +294,25 @@ def write_minimal_steps(writer: McapEpisodeWriter, steps: int, n: int) -> None:
     metrics = {key: 0.5 for key in METRIC_KEYS} | {"is_success": False}
     for step in range(steps + 1):
         outcome = (
-            {}
+            None
             if step == 0
-            else {
-                "action": np.ones(n, dtype=np.int8),
-                "reward": 0.25 * step,
-                "terminated": False,
-                "truncated": step == steps,
-                "metrics": metrics,
-            }
+            else StepOutcome(
+                action=np.ones(n, dtype=np.int8),
+                reward=0.25 * step,
+                terminated=False,
+                truncated=step == steps,
+                metrics=metrics,
+            )
         )
-        writer.write_step(
-            step,
+        state = SwarmState(
             positions=np.full((n, 2), 0.1 * step),
             angles=np.zeros(n),
             velocities=np.zeros((n, 2)),
             angular_velocities=np.zeros(n),
             expansions=np.full(n, 0.5),
             alive=np.ones(n, bool),
-            **outcome,
         )
+        writer.write_step(step, state, outcome)
 
 
 def test_hand_written_episode_with_lz4(tmp_path):
@@ -336,12 +338,14 @@ def test_non_finite_values_are_written_as_null_and_read_as_nan(tmp_path):
         writer.write_scene(goal=[0.0, 0.0])
         writer.write_step(
             0,
-            positions=[[0.0, 0.0]],
-            angles=[0.0],
-            velocities=[[math.nan, math.inf]],
-            angular_velocities=[0.0],
-            expansions=[0.0],
-            alive=[True],
+            SwarmState(
+                positions=[[0.0, 0.0]],
+                angles=[0.0],
+                velocities=[[math.nan, math.inf]],
+                angular_velocities=[0.0],
+                expansions=[0.0],
+                alive=[True],
+            ),
         )
     with path.open("rb") as stream:
         for _schema, _channel, message in make_reader(stream).iter_messages(topics=["/swarm/state"]):
@@ -517,23 +521,24 @@ def test_bad_writer_input_names_file_and_argument(tmp_path):
     with McapEpisodeWriter(path, metadata={}) as writer:
         writer.write_scene(goal=[0.0, 0.0])
         with pytest.raises(McapError, match="expected 0, got 1"):
-            writer.write_step(1, positions=np.zeros((2, 2)), **state)
+            writer.write_step(1, SwarmState(positions=np.zeros((2, 2)), **state))
         with pytest.raises(McapError, match="step 0 is the reset state and takes no action"):
-            writer.write_step(0, positions=np.zeros((2, 2)), action=[0, 1], **state)
+            writer.write_step(0, SwarmState(positions=np.zeros((2, 2)), **state), StepOutcome(action=[0, 1]))
         with pytest.raises(McapError, match=r"episode\.mcap: velocities must have shape \(3, 2\)"):
-            writer.write_step(0, positions=np.zeros((3, 2)), **state)
-        writer.write_step(0, positions=np.zeros((2, 2)), **state)
+            writer.write_step(0, SwarmState(positions=np.zeros((3, 2)), **state))
+        writer.write_step(0, SwarmState(positions=np.zeros((2, 2)), **state))
         with pytest.raises(McapError, match="action, reward, terminated, truncated, metrics required"):
-            writer.write_step(1, positions=np.zeros((2, 2)), **state)
+            writer.write_step(1, SwarmState(positions=np.zeros((2, 2)), **state))
         with pytest.raises(McapError, match="metrics lacks total_distance"):
             writer.write_step(
                 1,
-                positions=np.zeros((2, 2)),
-                action=[0, 1],
-                reward=0.0,
-                terminated=False,
-                truncated=False,
-                metrics={"projected_displacement": 0, "net_displacement": 0, "is_success": False},
-                **state,
+                SwarmState(positions=np.zeros((2, 2)), **state),
+                StepOutcome(
+                    action=[0, 1],
+                    reward=0.0,
+                    terminated=False,
+                    truncated=False,
+                    metrics={"projected_displacement": 0, "net_displacement": 0, "is_success": False},
+                ),
             )
     assert read_mcap(path).n_steps == 0  # the rejected calls wrote nothing

@@ -33,7 +33,7 @@ FAST = {"epochs": 25, "patience": 25, "batch_size": 128, "lr": 3e-3}
 
 def record(root, env_id=ENV, n_robots=16, episodes=6, steps=64, policy="decentralised-wave", **env_kwargs):
     spec = CollectSpec(env_id, policy=policy, n_robots=n_robots, steps=steps, env_kwargs=env_kwargs, **DISK)
-    collect(root, spec, episodes=episodes, workers=1)
+    collect(root, spec, episodes=episodes)
     return root
 
 

@@ -3,13 +3,15 @@
 Ray is an optional extra (`pip install -e '.[distributed]'`); without it these tests skip.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 ray = pytest.importorskip("ray", reason="Ray is not installed: pip install -e '.[distributed]' to run these tests")
 
 from dpr.cli import main  # noqa: E402
-from dpr.datasets.collect import CollectSpec, collect  # noqa: E402
+from dpr.datasets.collect import CollectSpec, RolloutWorkers, collect  # noqa: E402
 from dpr.datasets.lerobot import LeRobotReader  # noqa: E402
 from dpr.datasets.replay import replay_dataset  # noqa: E402
 
@@ -17,8 +19,8 @@ SPEC = CollectSpec("dpr/Navigation-v0", robot_model="disk", n_robots=4, steps=40
 
 
 def test_ray_backend_records_the_same_dataset_as_processes(tmp_path):
-    collect(tmp_path / "processes", SPEC, episodes=4, workers=1)
-    summary = collect(tmp_path / "ray", SPEC, episodes=4, workers=2, backend="ray", mcap=True)
+    collect(tmp_path / "processes", SPEC, episodes=4)
+    summary = collect(tmp_path / "ray", replace(SPEC, mcap=True), episodes=4, workers=RolloutWorkers(2, backend="ray"))
     assert summary.episodes_added == 4 and not summary.interrupted
     assert not ray.is_initialized()  # the local cluster it started is shut down again
     ours, theirs = LeRobotReader(tmp_path / "ray"), LeRobotReader(tmp_path / "processes")
@@ -32,8 +34,8 @@ def test_ray_backend_records_the_same_dataset_as_processes(tmp_path):
 
 
 def test_ray_backend_resumes_a_dataset(tmp_path):
-    collect(tmp_path / "ds", SPEC, episodes=2, workers=1)
-    summary = collect(tmp_path / "ds", SPEC, episodes=3, workers=2, backend="ray")
+    collect(tmp_path / "ds", SPEC, episodes=2)
+    summary = collect(tmp_path / "ds", SPEC, episodes=3, workers=RolloutWorkers(2, backend="ray"))
     assert (summary.episodes_added, summary.episodes_total) == (1, 3)
 
 

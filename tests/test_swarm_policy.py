@@ -151,7 +151,7 @@ def demos(tmp_path_factory):
     """Three 40-step Markov-wave episodes of 5 disk robots with the last action in the observation."""
     root = tmp_path_factory.mktemp("swarm") / "demos"
     spec = CollectSpec(DEMO_ENV, policy="wave-markov", steps=40, n_robots=N, robot_model="disk", env_kwargs=DEMO_KWARGS)
-    collect(root, spec, episodes=3, workers=1)
+    collect(root, spec, episodes=3)
     return root
 
 

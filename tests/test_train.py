@@ -316,7 +316,7 @@ def test_collect_records_a_model_with_its_env_kwargs(runs, tmp_path):
 
     model = str(runs["ppo"].model_path)
     spec = CollectSpec(ENV, policy=model, steps=20, **SMALL_ENV)
-    summary = collect(tmp_path / "ds", spec, episodes=2, workers=1)
+    summary = collect(tmp_path / "ds", spec, episodes=2)
     assert summary.episodes_added == 2
     reader = LeRobotReader(tmp_path / "ds")
     assert reader.episodes[0]["policy"] == model

@@ -28,8 +28,8 @@ SMALL = ["--robot-model", "disk", "--n-robots", "4"]
 def dataset(tmp_path_factory):
     """Two 50-step disk episodes (seeds 0 and 1) with their MCAP logs."""
     root = tmp_path_factory.mktemp("viz") / "ds"
-    spec = CollectSpec("dpr/Navigation-v0", robot_model="disk", n_robots=4, steps=STEPS)
-    collect(root, spec, episodes=2, workers=1, mcap=True)
+    spec = CollectSpec("dpr/Navigation-v0", robot_model="disk", n_robots=4, steps=STEPS, mcap=True)
+    collect(root, spec, episodes=2)
     return root
 
 
@@ -162,7 +162,7 @@ def every_six(tmp_path_factory):
     `dpr bc` clone of it, which decides every 6 steps too."""
     root = tmp_path_factory.mktemp("every_six")
     spec = CollectSpec("dpr/Navigation-v0", robot_model="disk", n_robots=4, steps=10, env_kwargs={"action_repeat": 6})
-    collect(root / "ds", spec, episodes=2, workers=1)
+    collect(root / "ds", spec, episodes=2)
     argv = ["bc", "--dataset", str(root / "ds"), "--env", "dpr/Navigation-v0", "--epochs", "1"]
     assert run([*argv, "--out", str(root / "run")]) == 0
     return root / "ds", root / "run" / "model.zip"
@@ -364,8 +364,9 @@ def test_a_gate_v2_dataset_with_the_last_action_shows_the_robots_where_they_were
         n_robots=4,
         steps=20,
         env_kwargs={"obs_last_action": True},
+        mcap=True,
     )
-    collect(root, spec, episodes=1, workers=1, mcap=True)
+    collect(root, spec, episodes=1)
     from_dataset = episode_from_dataset(LeRobotReader(root), 0)
     from_mcap = episode_from_mcap(root / "mcap" / "seed-000000.mcap")
     np.testing.assert_allclose(from_dataset.positions, from_mcap.positions[:-1], atol=1e-3)

@@ -44,7 +44,7 @@ import numpy as np
 import dpr  # noqa: F401  (registers the ids)
 import dpr.datasets.collect as collect_module
 from dpr.datasets import features as F
-from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.collect import CollectSpec, RolloutWorkers, collect
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import LeRobotWriter
 from dpr.envs import MAX_EPISODE_STEPS, ParticleSwarmEnv
@@ -65,7 +65,7 @@ def timed_collect(spec: CollectSpec, episodes: int, workers: int) -> float:
     folder = Path(tempfile.mkdtemp(prefix="dpr-bench-"))
     try:
         started = time.perf_counter()
-        collect(folder / "ds", spec, episodes=episodes, workers=workers)
+        collect(folder / "ds", spec, episodes=episodes, workers=RolloutWorkers(workers))
         return time.perf_counter() - started
     finally:
         shutil.rmtree(folder)
@@ -176,7 +176,7 @@ def bench_scale(spec: CollectSpec, episodes: int, out: Path, workers: int) -> di
     if out.exists():
         raise SystemExit(f"--out: {out} already exists; the scale benchmark records into a new folder")
     started = time.perf_counter()
-    summary = collect(out, spec, episodes=episodes, workers=workers)
+    summary = collect(out, spec, episodes=episodes, workers=RolloutWorkers(workers))
     seconds = time.perf_counter() - started
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # this process: the writer
     children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker

@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.collect import CollectSpec, RolloutWorkers, collect
 from dpr.datasets.lerobot import LeRobotReader, compact
 
 
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
             shutil.rmtree(root)
         spec = CollectSpec(env_id="dpr/Navigation-v0", n_robots=args.n_robots, robot_model="disk", steps=args.steps)
         started = time.perf_counter()
-        summary = collect(root, spec, episodes=args.episodes, workers=args.workers)
+        summary = collect(root, spec, episodes=args.episodes, workers=RolloutWorkers(args.workers))
         record_s = time.perf_counter() - started
         before = measure(root, args.repeats)
         started = time.perf_counter()

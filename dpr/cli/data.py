@@ -31,10 +31,11 @@ DEFAULT_EPISODES = 10
 
 
 def collect_arguments(parser: argparse.ArgumentParser) -> None:
-    from dpr.datasets.collect import BACKENDS, CollectSpec, collect
+    from dpr.datasets.collect import BACKENDS, CollectSpec, RolloutWorkers, collect
 
     spec = defaults(CollectSpec)
     run = defaults(collect)
+    workers = defaults(RolloutWorkers)
     parser.add_argument("--env", required=True, help=f"env id: {ENV_ID_LIST}")
     parser.add_argument(
         "--policy",
@@ -81,9 +82,9 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--backend",
         choices=BACKENDS,
-        default=run["backend"],
+        default=workers["backend"],
         help="run rollouts in local worker processes or as Ray tasks (pip install -e '.[distributed]'; "
-        f"default {run['backend']})",
+        f"default {workers['backend']})",
     )
     parser.add_argument(
         "--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)"
@@ -101,13 +102,10 @@ def _check_backend(args, parser) -> None:
             parser.error("--backend ray needs Ray: pip install -e '.[distributed]'")
 
 
-def cmd_collect(args, parser) -> int:
-    from tqdm import tqdm
-
-    check_output(args.json, parser, "--json")
-    check_seed(args, parser)
-
-    from dpr.datasets.collect import CollectSpec, collect, format_summary
+def _collect_spec(args, parser):
+    """The :class:`~dpr.datasets.collect.CollectSpec` the flags ask for, checked, and an env made from it (a bad
+    --env-kwarg name or value fails here, before anything is written); a problem is a usage error naming flags."""
+    from dpr.datasets.collect import CollectSpec
     from dpr.policies.sb3 import is_model_path
 
     # a model records on the env it was trained on: its own kwargs, which the flags may only repeat (or, for a
@@ -128,44 +126,57 @@ def cmd_collect(args, parser) -> int:
             image_size=args.image_size,
             env_kwargs=env_kwargs,
             label_policy=args.label_policy,
+            mcap=args.mcap,
         )
     except ValueError as error:
         parser.error(flag_message(error))
     try:
-        spec.make_env().close()  # a bad --env-kwarg name or value fails here, before anything is written
+        spec.make_env().close()
     except (TypeError, ValueError) as error:
         parser.error(
             f"cannot make {spec.env_id} from --n-robots/--robot-model/--env-kwarg {spec.make_kwargs()}: {error}"
         )
+    return spec
+
+
+def _progress_bar(total: int, description: str):
+    """A tqdm bar of episodes, and the ``progress(record, index)`` callback that moves it and shows the frames
+    recorded and their rate (from the first episode's start)."""
+    import time
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=description, unit="episode")
+    frames = 0
+    started = None
+
+    def progress(record, index):
+        nonlocal frames, started
+        if started is None:
+            started = time.perf_counter() - record.seconds
+        frames += record.frames
+        bar.update(1)
+        bar.set_postfix(frames=frames, fps=f"{frames / max(time.perf_counter() - started, 1e-9):.0f}")
+
+    return bar, progress
+
+
+def cmd_collect(args, parser) -> int:
+    check_output(args.json, parser, "--json")
+    check_seed(args, parser)
+
+    from dpr.datasets.collect import RolloutWorkers, collect, format_summary
+
+    spec = _collect_spec(args, parser)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         parser.error(f"--out: {out} exists and is not a folder")
     _check_backend(args, parser)
-    bar = tqdm(total=args.episodes, desc=f"collect {spec.policy} {spec.env_id}", unit="episode")
-    frames = [0]
-    started = [None]
-
-    def progress(record, index):
-        import time
-
-        if started[0] is None:
-            started[0] = time.perf_counter() - record.seconds
-        frames[0] += record.frames
-        bar.update(1)
-        bar.set_postfix(frames=frames[0], fps=f"{frames[0] / max(time.perf_counter() - started[0], 1e-9):.0f}")
-
+    bar, progress = _progress_bar(args.episodes, f"collect {spec.policy} {spec.env_id}")
     try:
+        workers = RolloutWorkers(args.workers, backend=args.backend, address=args.address)
         summary = collect(
-            out,
-            spec,
-            episodes=args.episodes,
-            seed=args.seed,
-            workers=args.workers,
-            mcap=args.mcap,
-            compact=args.compact,
-            progress=progress,
-            backend=args.backend,
-            address=args.address,
+            out, spec, args.episodes, seed=args.seed, workers=workers, progress=progress, compact=args.compact
         )
     except ValueError as error:  # a DatasetError, or a policy that cannot run on this env
         bar.close()

@@ -1,7 +1,7 @@
 """Record policy rollouts as a LeRobot v3.0 dataset (and optionally one MCAP log per episode).
 
 ``collect`` rolls out a policy on one task for ``episodes`` seeds (``seed``, ``seed + 1``, ...), in worker
-processes or as Ray tasks (``backend="ray"``, local or on a cluster), and the main process appends each
+processes or as Ray tasks (:class:`RolloutWorkers`, local or on a cluster), and the main process appends each
 finished episode to the dataset in seed order: one valid dataset whatever ran the rollouts. Frames follow
 LeRobot's convention: frame ``t`` holds the observation the policy saw, the action it took, and the reward,
 done and success flags that action produced (``next.*``); an episode of ``T`` steps has ``T`` frames.
@@ -65,6 +65,7 @@ class CollectSpec:
     env_kwargs: dict = field(default_factory=dict)  # any further gym.make kwargs (e.g. object_type="box")
     # DAgger-style data: ``policy`` drives the env and the recorded action is this policy's on each observation
     label_policy: str | None = None
+    mcap: bool = False  # also one MCAP log per episode, in the dataset's mcap/ folder
 
     def __post_init__(self):
         check_choice("env_id", self.env_id, TASKS)
@@ -133,6 +134,64 @@ class SavedEpisode:
     metrics: EpisodeMetrics
 
 
+@dataclass
+class _Frames:
+    """What an episode's frames gather as it runs. States and images are taken before each step, so after a
+    physics error they hold one more (the state the blown-up, unrecorded step started from)."""
+
+    observations: list = field(default_factory=list)
+    actions: list = field(default_factory=list)
+    dones: list = field(default_factory=list)
+    successes: list = field(default_factory=list)
+    images: list = field(default_factory=list)
+    environment_states: list = field(default_factory=list)
+
+    def record(self, spec: CollectSpec, base, result, started: float) -> EpisodeRecord:
+        """The frames as the arrays of an :class:`EpisodeRecord` (``base``: the unwrapped env)."""
+        frames = len(self.actions)
+        if base.action_type == "discrete":
+            action_array = np.array(self.actions, dtype=np.int64).reshape(frames, 1)
+        else:
+            action_array = np.array(self.actions, dtype=np.float32).reshape(frames, base.n_robots)
+        return EpisodeRecord(
+            seed=result.seed,
+            observations=np.array(self.observations, dtype=np.float32).reshape(frames, base.state_size),
+            actions=action_array,
+            rewards=result.rewards.astype(np.float32),
+            dones=np.array(self.dones, dtype=bool),
+            successes=np.array(self.successes, dtype=bool),
+            metrics=result.metrics,
+            images=np.array(self.images[:frames], dtype=np.uint8).reshape(frames, spec.image_size, spec.image_size, 3)
+            if spec.pixels
+            else None,
+            environment_states=np.array(self.environment_states[:frames], dtype=np.float32).reshape(
+                frames, len(base.environment_state_names)
+            ),
+            physics_error=result.physics_error,
+            seconds=time.perf_counter() - started,
+            trajectory=result.trajectory,
+        )
+
+
+def _start_mcap_log(env, path: Path, seed: int, policy: str):
+    """An MCAP writer for the episode ``env`` was just reset into, its scene and reset state logged."""
+    from dpr.datasets.mcap import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
+
+    metadata = episode_metadata(env, seed=seed, policy=policy)
+    writer = McapEpisodeWriter(path, metadata=metadata, action_repeat=env.unwrapped.action_repeat)
+    log_env_scene(writer, env)
+    log_env_step(writer, env, 0)
+    return writer
+
+
+def _log_mcap_step(writer, env, step) -> None:
+    """Log the state a :class:`dpr.rollout.Step` led to, and the step itself."""
+    from dpr.datasets.mcap import StepOutcome, log_env_step
+
+    outcome = StepOutcome(step.action, step.reward, step.terminated, step.truncated, metrics=step.info)
+    log_env_step(writer, env, step.index, outcome)
+
+
 def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> EpisodeRecord:
     """Roll ``spec.policy`` out from ``reset(seed=seed)`` until the episode ends (:func:`dpr.rollout.roll_out`,
     whose rule for a physics error applies: the step that blew up is not recorded); optionally log it to MCAP."""
@@ -141,37 +200,31 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
     base = env.unwrapped
     policy = make_policy(spec.policy, env)
     labeller = None if spec.label_policy is None else make_policy(spec.label_policy, env)
-    observations, actions, dones, successes, images, environment_states = [], [], [], [], [], []
+    frames = _Frames()
     writer = None
+
+    def take_state() -> None:
+        frames.environment_states.append(base.environment_state())
+        if spec.pixels:
+            frames.images.append(env.render())
 
     def on_reset(observation, info) -> None:
         nonlocal writer
         if labeller is not None:
             labeller.reset(seed)
-        environment_states.append(base.environment_state())
-        if spec.pixels:
-            images.append(env.render())
+        take_state()
         if mcap_path is not None:
-            from dpr.datasets.mcap import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
-
-            metadata = episode_metadata(env, seed=seed, policy=spec.policy)
-            writer = McapEpisodeWriter(mcap_path, metadata=metadata, action_repeat=base.action_repeat)
-            log_env_scene(writer, env)
-            log_env_step(writer, env, 0, None, None, None, None, info)
+            writer = _start_mcap_log(env, mcap_path, seed, spec.policy)
 
     def on_step(step) -> None:
-        observations.append(step.observation)
-        actions.append(step.action if labeller is None else labeller(step.observation))
-        dones.append(step.done)
-        successes.append(step.info["is_success"])
+        frames.observations.append(step.observation)
+        frames.actions.append(step.action if labeller is None else labeller(step.observation))
+        frames.dones.append(step.done)
+        frames.successes.append(step.info["is_success"])
         if writer is not None:
-            from dpr.datasets.mcap import log_env_step
-
-            log_env_step(writer, env, step.index, step.action, step.reward, step.terminated, step.truncated, step.info)
+            _log_mcap_step(writer, env, step)
         if not step.done:  # the frame of the next step shows the state it starts from
-            environment_states.append(base.environment_state())
-            if spec.pixels:
-                images.append(env.render())
+            take_state()
 
     try:
         result = roll_out(env, policy, seed, on_reset=on_reset, on_step=on_step)
@@ -183,30 +236,7 @@ def rollout(spec: CollectSpec, seed: int, mcap_path: Path | None = None) -> Epis
         env.close()
     if writer is not None:
         writer.close()
-    frames = len(actions)
-    if base.action_type == "discrete":
-        action_array = np.array(actions, dtype=np.int64).reshape(frames, 1)
-    else:
-        action_array = np.array(actions, dtype=np.float32).reshape(frames, base.n_robots)
-    return EpisodeRecord(
-        seed=seed,
-        observations=np.array(observations, dtype=np.float32).reshape(frames, base.state_size),
-        actions=action_array,
-        rewards=result.rewards.astype(np.float32),
-        dones=np.array(dones, dtype=bool),
-        successes=np.array(successes, dtype=bool),
-        metrics=result.metrics,
-        # (after a physics error, the image of the state the blown-up step started from has no frame)
-        images=np.array(images[:frames], dtype=np.uint8).reshape(frames, spec.image_size, spec.image_size, 3)
-        if spec.pixels
-        else None,
-        environment_states=np.array(environment_states[:frames], dtype=np.float32).reshape(
-            frames, len(base.environment_state_names)
-        ),
-        physics_error=result.physics_error,
-        seconds=time.perf_counter() - started,
-        trajectory=result.trajectory,
-    )
+    return frames.record(spec, base, result, started)
 
 
 def save_record(
@@ -303,6 +333,21 @@ def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
 BACKENDS = ("processes", "ray")
 
 
+@dataclass(frozen=True)
+class RolloutWorkers:
+    """Where a collection's rollouts run: ``count`` worker processes (one: in this process), or as Ray tasks
+    (``backend="ray"``) on ``count`` CPUs of a local Ray cluster, or on the running cluster at ``address``."""
+
+    count: int = 1
+    backend: str = "processes"
+    address: str | None = None
+
+    def __post_init__(self):
+        check_choice("backend", self.backend, BACKENDS)
+        if self.address is not None and self.backend != "ray":
+            raise ParameterError("address", "is for backend='ray' (the Ray cluster to run on)")
+
+
 def _import_ray():
     try:
         import ray
@@ -343,19 +388,17 @@ def _ray_results(jobs: list, workers: int, address: str | None) -> Iterator[Epis
             ray.shutdown()
 
 
-def _results(
-    jobs: list, workers: int, backend: str = "processes", address: str | None = None
-) -> Iterator[EpisodeRecord]:
-    if backend == "ray":
-        yield from _ray_results(jobs, workers, address)
+def _results(jobs: list, workers: RolloutWorkers) -> Iterator[EpisodeRecord]:
+    if workers.backend == "ray":
+        yield from _ray_results(jobs, workers.count, workers.address)
         return
-    if workers <= 1 or len(jobs) <= 1:
+    if workers.count <= 1 or len(jobs) <= 1:
         for job in jobs:
             yield _rollout_job(job)
         return
     # spawn, not fork: pymunk spaces and pygame must not be shared with a forked parent
     context = mp.get_context("spawn")
-    pool = context.Pool(min(workers, len(jobs)), initializer=_ignore_sigint)
+    pool = context.Pool(min(workers.count, len(jobs)), initializer=_ignore_sigint)
     try:
         yield from pool.imap(_rollout_job, jobs)  # in job (seed) order, whatever order they finish in
         pool.close()
@@ -369,102 +412,42 @@ def collect(
     spec: CollectSpec,
     episodes: int,
     seed: int = 0,
-    workers: int = 1,
-    mcap: bool = False,
+    workers: RolloutWorkers = RolloutWorkers(),
     progress: Callable[[EpisodeRecord, int], None] | None = None,
-    backend: str = "processes",
-    address: str | None = None,
     compact: bool = False,
 ) -> CollectSummary:
     """Record ``episodes`` episodes of seeds ``seed .. seed + episodes - 1`` into the dataset at ``root``,
-    skipping seeds it already holds. ``progress(record, episode_index)`` is called after each saved episode.
-    Ctrl-C stops after the episodes already saved (the summary says ``interrupted``). ``compact=True`` packs the
-    dataset into LeRobot's ~100 MB files once every episode is recorded (not after Ctrl-C or an error; see
-    :func:`dpr.datasets.lerobot.compact`)."""
+    skipping seeds it already holds, rolled out by ``workers``. ``progress(record, episode_index)`` is called
+    after each saved episode. Ctrl-C stops after the episodes already saved (the summary says ``interrupted``).
+    ``compact=True`` packs the dataset into LeRobot's ~100 MB files once every episode is recorded (not after
+    Ctrl-C or an error; see :func:`dpr.datasets.lerobot.compact`)."""
     check_int("episodes", episodes, 1)
     check_int("seed", seed, 0)
-    check_choice("backend", backend, BACKENDS)
-    if address is not None and backend != "ray":
-        raise ParameterError("address", "is for backend='ray' (the Ray cluster to run on)")
-    if backend == "ray":
+    if workers.backend == "ray":
         _import_ray()
     root = Path(root)
-    probe = spec.make_env()
-    try:
-        for name in (spec.policy, spec.label_policy):  # a policy that cannot run on this env fails before any write
-            if name is not None:
-                make_policy(name, probe)
-        features = dataset_features(probe, spec.pixels, spec.image_size)
-        task = probe.unwrapped.task_description
-    finally:
-        probe.close()
-    # what must match to resume: the env, its kwargs, the policy, and whether episodes carry MCAP logs
-    info_extra = {"dpr": {F.ENV_ID: spec.env_id, F.POLICY: spec.policy, F.ENV_KWARGS: spec.make_kwargs(), "mcap": mcap}}
-    if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
-        info_extra["dpr"][F.LABEL_POLICY] = spec.label_policy
-    revision = swarm_class(spec.robot_model).revision
-    if revision > 1:  # a dataset of earlier physics is not resumed with these (first revisions record none)
-        info_extra["dpr"][F.ROBOT_MODEL_REVISION] = revision
-    info_extra["dpr"].update(time_info(spec.env_kwargs))  # fps is the decision rate (dpr.datasets.timing)
+    seeds = range(seed, seed + episodes)
+    features, task = _probe(spec)
+    info_extra = _info_extra(spec)
     if (root / INFO_PATH).is_file():  # a dataset of the wrong fps is named, not resumed with the right one
         info = load_info(root)
         check_dataset_time(root, info)
-        features = _resumed_features(root, info, spec, features, range(seed, seed + episodes))
+        features = _resumed_features(root, info, spec, features, seeds)
     bytes_before = _folder_bytes(root)
     writer = LeRobotWriter.open(
-        root,
-        fps=dataset_fps(spec.env_kwargs),
-        features=features,
-        robot_type=spec.robot_model,
-        info_extra=info_extra,
+        root, fps=dataset_fps(spec.env_kwargs), features=features, robot_type=spec.robot_model, info_extra=info_extra
     )
     started = time.perf_counter()
-    added: list[SavedEpisode] = []
-    interrupted = False
-    completed = False  # every episode recorded: only then is the dataset compacted
     episodes_before = writer.num_episodes
+    added: list[SavedEpisode] = []
+    completed = False  # every episode recorded: only then is the dataset compacted
+
+    def save(record: EpisodeRecord) -> int:
+        mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if spec.mcap else None
+        return save_record(writer, spec, record, task, mcap_file)
+
     try:
-        done = _recorded_seeds(root)
-        mcap_dir = root / MCAP_FOLDER
-        if mcap:
-            mcap_dir.mkdir(exist_ok=True)
-            for leftover in filter(is_temporary, mcap_dir.iterdir()):  # logs of episodes a killed run had in flight
-                leftover.unlink()
-        jobs = [
-            (spec, s, mcap_dir / f"seed-{s:06d}.mcap" if mcap else None)
-            for s in range(seed, seed + episodes)
-            if s not in done
-        ]
-        # Episodes are saved by one background thread while the next one rolls out (or arrives from a worker):
-        # recording then costs little more than the rollouts. Ctrl-C only reaches the main thread, so an
-        # episode being saved is always saved whole; at most one is in flight.
-        saver = ThreadPoolExecutor(1, thread_name_prefix="dpr-save")
-        in_flight: list[tuple[Future, EpisodeRecord]] = []
-
-        def settle() -> None:
-            while in_flight:
-                future, record = in_flight[0]
-                index = future.result()
-                with _sigint_deferred():
-                    in_flight.pop(0)
-                    added.append(SavedEpisode(record.seed, record.frames, record.metrics))
-                if progress is not None:
-                    progress(record, index)
-
-        try:
-            try:
-                saver.submit(int).result()  # start the thread now, not inside a later submit()
-                for record in _results(jobs, workers, backend, address):
-                    settle()
-                    mcap_file = f"{MCAP_FOLDER}/seed-{record.seed:06d}.mcap" if mcap else None
-                    with _sigint_deferred():
-                        in_flight.append((saver.submit(save_record, writer, spec, record, task, mcap_file), record))
-                settle()
-            except KeyboardInterrupt:
-                interrupted = True
-                settle()  # the episode being saved is finished, not abandoned
-        finally:
-            saver.shutdown(wait=True)
+        interrupted = _record(_pending_jobs(root, spec, seeds), workers, save, added, progress)
         completed = not interrupted
     finally:
         # releases (and deletes) the dataset's writer lock; saved episodes are already durable
@@ -483,6 +466,86 @@ def collect(
         interrupted=interrupted,
         metrics=_metric_summary(added),
     )
+
+
+def _probe(spec: CollectSpec) -> tuple[dict, str]:
+    """The dataset's features and the task's description, from an env of ``spec``; a policy that cannot run on
+    it fails here, before anything is written."""
+    probe = spec.make_env()
+    try:
+        for name in (spec.policy, spec.label_policy):
+            if name is not None:
+                make_policy(name, probe)
+        return dataset_features(probe, spec.pixels, spec.image_size), probe.unwrapped.task_description
+    finally:
+        probe.close()
+
+
+def _info_extra(spec: CollectSpec) -> dict:
+    """What info.json records of the spec, and what must match to resume: the env, its kwargs, the policy, and
+    whether episodes carry MCAP logs."""
+    recorded = {F.ENV_ID: spec.env_id, F.POLICY: spec.policy, F.ENV_KWARGS: spec.make_kwargs(), "mcap": spec.mcap}
+    if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
+        recorded[F.LABEL_POLICY] = spec.label_policy
+    revision = swarm_class(spec.robot_model).revision
+    if revision > 1:  # a dataset of earlier physics is not resumed with these (first revisions record none)
+        recorded[F.ROBOT_MODEL_REVISION] = revision
+    recorded.update(time_info(spec.env_kwargs))  # fps is the decision rate (dpr.datasets.timing)
+    return {"dpr": recorded}
+
+
+def _pending_jobs(root: Path, spec: CollectSpec, seeds: range) -> list[tuple[CollectSpec, int, Path | None]]:
+    """The rollouts of the seeds the dataset does not hold yet (each with its MCAP path, when logged). The MCAP
+    logs a killed run had in flight are removed."""
+    done = _recorded_seeds(root)
+    mcap_dir = root / MCAP_FOLDER
+    if spec.mcap:
+        mcap_dir.mkdir(exist_ok=True)
+        for leftover in filter(is_temporary, mcap_dir.iterdir()):
+            leftover.unlink()
+    return [(spec, s, mcap_dir / f"seed-{s:06d}.mcap" if spec.mcap else None) for s in seeds if s not in done]
+
+
+def _record(
+    jobs: list,
+    workers: RolloutWorkers,
+    save: Callable[[EpisodeRecord], int],
+    added: list[SavedEpisode],
+    progress: Callable[[EpisodeRecord, int], None] | None,
+) -> bool:
+    """Roll ``jobs`` out and ``save`` each episode, in job order, noting it in ``added``; True when Ctrl-C
+    stopped the run (after the episodes already saved).
+
+    Episodes are saved by one background thread while the next one rolls out (or arrives from a worker):
+    recording then costs little more than the rollouts. Ctrl-C only reaches the main thread, so an episode being
+    saved is always saved whole; at most one is in flight."""
+    saver = ThreadPoolExecutor(1, thread_name_prefix="dpr-save")
+    in_flight: list[tuple[Future, EpisodeRecord]] = []
+
+    def settle() -> None:
+        while in_flight:
+            future, record = in_flight[0]
+            index = future.result()
+            with _sigint_deferred():
+                in_flight.pop(0)
+                added.append(SavedEpisode(record.seed, record.frames, record.metrics))
+            if progress is not None:
+                progress(record, index)
+
+    try:
+        try:
+            saver.submit(int).result()  # start the thread now, not inside a later submit()
+            for record in _results(jobs, workers):
+                settle()
+                with _sigint_deferred():
+                    in_flight.append((saver.submit(save, record), record))
+            settle()
+        except KeyboardInterrupt:
+            settle()  # the episode being saved is finished, not abandoned
+            return True
+    finally:
+        saver.shutdown(wait=True)
+    return False
 
 
 def _resumed_features(root: Path, info: dict, spec: CollectSpec, features: dict, seeds: range) -> dict:
@@ -557,6 +620,7 @@ __all__ = [
     "CollectSummary",
     "DatasetError",
     "EpisodeRecord",
+    "RolloutWorkers",
     "collect",
     "dataset_features",
     "format_summary",

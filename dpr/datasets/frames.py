@@ -21,6 +21,7 @@ import os
 from bisect import bisect_right
 from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from dpr.checks import ParameterError, check_int
 from dpr.datasets import features as F
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
 
-__all__ = ["ConcatFrames", "EpisodeBlockSampler", "FrameDataset"]
+__all__ = ["ConcatFrames", "EpisodeBlockSampler", "FrameDataset", "FrameKeys"]
 
 NUMERIC_KINDS = frozenset("biuf")  # numpy dtype kinds a vector feature may have (bool, int, uint, float)
 NORMALISATION_STATS = ("min", "max", "mean", "std", "q01", "q10", "q50", "q90", "q99")
@@ -103,6 +104,17 @@ def _select_episodes(episodes: Sequence[int] | None, num_episodes: int, where: P
     return selected
 
 
+@dataclass(frozen=True)
+class FrameKeys:
+    """The features a :class:`FrameDataset` reads: each pair's ``observation`` and ``action`` (numeric 1-D
+    features), and the ``image`` (an 'image' feature, read only ``with_image``). The dataset names a key that it
+    lacks, or of the wrong kind, as ``observation_key``, ``action_key`` or ``image_key``."""
+
+    observation: str = F.OBSERVATION
+    action: str = F.ACTION
+    image: str = "observation.image"
+
+
 class FrameDataset(Dataset):
     """Behaviour-cloning pairs from a LeRobot v3.0 dataset: item ``i`` is the ``i``-th frame of the selected
     episodes (in the order given), as a dict of tensors:
@@ -112,6 +124,8 @@ class FrameDataset(Dataset):
     - ``action``: ``[N]`` in ``dtype`` (a discrete int64 ``[1]`` action comes back as a float ``[1]``);
     - ``frame_index``, ``episode_index``: int64 scalars (``episode_index`` is the dataset's own index);
     - ``image`` (only with ``with_image``): uint8 ``[H, W, 3]``, or ``[frame_stack, H, W, 3]`` when stacking.
+
+    ``keys`` (:class:`FrameKeys`) names the features these come from.
 
     ``len()`` and the item -> (episode, frame) map come from the episodes' meta rows; frame data is read only by
     ``__getitem__``, a whole episode at a time (only the needed columns), with an LRU cache of at most
@@ -123,13 +137,11 @@ class FrameDataset(Dataset):
         self,
         root: str | os.PathLike,
         *,
-        observation_key: str = F.OBSERVATION,
-        action_key: str = F.ACTION,
+        keys: FrameKeys = FrameKeys(),
         frame_stack: int = 1,
         episodes: list[int] | None = None,
         cache_episodes: int = 8,
         with_image: bool = False,
-        image_key: str = "observation.image",
         dtype: torch.dtype = torch.float32,
     ):
         self.frame_stack = _int("frame_stack", frame_stack, 1)
@@ -138,23 +150,23 @@ class FrameDataset(Dataset):
             raise ValueError(f"dtype must be a floating torch.dtype, got {dtype!r}")
         self.dtype = dtype
         self.with_image = bool(with_image)
-        self.observation_key = observation_key
-        self.action_key = action_key
-        self.image_key = image_key
+        self.observation_key = keys.observation
+        self.action_key = keys.action
+        self.image_key = keys.image
 
         reader = LeRobotReader(root)  # metadata only: info, episode meta rows, stats, data-file footers
         self.root = reader.root
         features = reader.features
-        self._obs_dim = _vector_feature(features, observation_key, "observation_key", self.root)
-        self._action_dim = _vector_feature(features, action_key, "action_key", self.root)
-        self.image_shape = _image_feature(features, image_key, self.root) if self.with_image else None
-        self._columns = [observation_key, action_key] + ([image_key] if self.with_image else [])
+        self._obs_dim = _vector_feature(features, self.observation_key, "observation_key", self.root)
+        self._action_dim = _vector_feature(features, self.action_key, "action_key", self.root)
+        self.image_shape = _image_feature(features, self.image_key, self.root) if self.with_image else None
+        self._columns = [self.observation_key, self.action_key] + ([self.image_key] if self.with_image else [])
 
         self._episode_ids = _select_episodes(episodes, reader.num_episodes, self.root)
         lengths = [int(reader.episodes[e]["length"]) for e in self._episode_ids]
         self._starts = np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)]).tolist()  # item offsets, n+1
         # Only the two features' stats travel with the dataset (pickled to workers), not the whole stats.json.
-        self._feature_stats = {k: reader.stats[k] for k in (observation_key, action_key) if k in reader.stats}
+        self._feature_stats = {k: reader.stats[k] for k in (self.observation_key, self.action_key) if k in reader.stats}
 
         self._reader: LeRobotReader | None = reader
         self._reader_pid = os.getpid()

@@ -22,7 +22,7 @@ from typing import Any
 from dpr import runs
 from dpr.checks import ParameterError, check_int
 from dpr.datasets import features
-from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.collect import CollectSpec, RolloutWorkers, collect
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import MAX_EPISODE_STEPS
 from dpr.envs.particle_env import split_swarm_kwargs
@@ -108,9 +108,8 @@ def dagger(
         spec = CollectSpec(
             env_id, policy=str(learner), steps=steps, env_kwargs=env_kwargs, label_policy=expert, **swarm
         )
-        summary = collect(
-            data, spec, episodes_per_round, seed=first_seed + (round_index - 1) * episodes_per_round, workers=workers
-        )
+        round_first_seed = first_seed + (round_index - 1) * episodes_per_round
+        summary = collect(data, spec, episodes_per_round, seed=round_first_seed, workers=RolloutWorkers(workers))
         if summary.interrupted:
             raise KeyboardInterrupt
         datasets.append(data)

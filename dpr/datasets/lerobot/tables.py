@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -46,6 +46,13 @@ def data_table(features: Mapping[str, Mapping], columns: Mapping[str, Any], n: i
     return pa.Table.from_arrays(arrays, names=names)
 
 
+class ExtraColumns(NamedTuple):
+    """The caller's own columns of an episodes-meta row (its ``episode_meta``): their fields, and one value each."""
+
+    fields: list[pa.Field]
+    arrays: list[pa.Array]
+
+
 def meta_table(
     *,
     episode: int,
@@ -54,13 +61,13 @@ def meta_table(
     data_file: tuple[int, int],
     meta_file: tuple[int, int],
     stats: Mapping[str, Mapping[str, np.ndarray]],
-    extra_fields: list[pa.Field],
-    extra_arrays: list[pa.Array],
+    extra: ExtraColumns,
     checksums: str | None = None,
 ) -> pa.Table:
     """The episode's one-row episodes-meta table; ``frames`` its global frame range [from, to), ``data_file`` and
-    ``meta_file`` the (chunk_index, file_index) of the files that hold it, ``checksums`` its data's
-    (:func:`dpr.datasets.lerobot.checksums.checksums_text`); last, the row's own checksums."""
+    ``meta_file`` the (chunk_index, file_index) of the files that hold it, ``extra`` the caller's columns (after
+    the standard ones), ``checksums`` its data's (:func:`dpr.datasets.lerobot.checksums.checksums_text`); last,
+    the row's own checksums."""
     fields: list[pa.Field] = []
     arrays: list[pa.Array] = []
 
@@ -83,6 +90,6 @@ def meta_table(
     add("meta/episodes/file_index", meta_file[1], pa.int64())
     if checksums is not None:
         add(CHECKSUMS_COLUMN, checksums, pa.string())
-    fields.extend(extra_fields)
-    arrays.extend(extra_arrays)
+    fields.extend(extra.fields)
+    arrays.extend(extra.arrays)
     return with_row_checksums(pa.Table.from_arrays(arrays, schema=pa.schema(fields)))

@@ -69,7 +69,7 @@ from dpr.datasets.lerobot.stats import (
     merge_aggregates,
     stats_json,
 )
-from dpr.datasets.lerobot.tables import data_table, episode_stats, meta_table
+from dpr.datasets.lerobot.tables import ExtraColumns, data_table, episode_stats, meta_table
 
 # ---------------------------------------------------------------------------------------------------------- writer
 
@@ -405,19 +405,12 @@ class LeRobotWriter:
         data_path = numbered_path(self.root, DATA_PATH, number)
         meta_path = numbered_path(self.root, EPISODES_PATH, number)
 
-        tasks = list(self._tasks)
-        task_index = dict(self._task_index)
-        episode_tasks: list[str] = []
-        for task in dict.fromkeys(self._frame_tasks):  # unique, in order of first appearance
-            if task not in task_index:
-                task_index[task] = len(tasks)
-                tasks.append(task)
-            episode_tasks.append(task)
+        tasks, task_index, episode_tasks = self._with_episode_tasks()
         new_tasks = len(tasks) > len(self._tasks)
 
         columns = self._episode_columns(episode, n, task_index)
         stats = episode_stats(self.features, columns)
-        extra_fields, extra_arrays = self._extra_columns(episode_meta, meta_path)
+        extra = self._extra_columns(episode_meta, meta_path)
         data = data_table(self.features, columns, n)
         meta = meta_table(
             episode=episode,
@@ -426,8 +419,7 @@ class LeRobotWriter:
             data_file=chunk_file(number),
             meta_file=chunk_file(number),
             stats=stats,
-            extra_fields=extra_fields,
-            extra_arrays=extra_arrays,
+            extra=extra,
             checksums=checksums_text(data),
         )
         aggregates = merge_aggregates(self._aggregates, stats)
@@ -446,11 +438,24 @@ class LeRobotWriter:
 
         self._tasks, self._task_index, self._aggregates, self._live = tasks, task_index, aggregates, live
         self._meta_at_open = None
-        self._extra_fields = extra_fields
+        self._extra_fields = extra.fields
         self._num_episodes += 1
         self._num_frames += n
         self._reset_buffer()
         return episode
+
+    def _with_episode_tasks(self) -> tuple[list[str], dict[str, int], list[str]]:
+        """The dataset's tasks and task index with the buffered episode's new tasks added (the writer's own are
+        changed only once the episode is committed), and the episode's tasks in order of first appearance."""
+        tasks = list(self._tasks)
+        task_index = dict(self._task_index)
+        episode_tasks: list[str] = []
+        for task in dict.fromkeys(self._frame_tasks):  # unique, in order of first appearance
+            if task not in task_index:
+                task_index[task] = len(tasks)
+                tasks.append(task)
+            episode_tasks.append(task)
+        return tasks, task_index, episode_tasks
 
     def _episode_columns(self, episode: int, n: int, task_index: Mapping[str, int]) -> dict[str, Any]:
         """The buffered frames stacked per feature, plus the five derived default columns."""
@@ -468,7 +473,7 @@ class LeRobotWriter:
         columns["task_index"] = np.fromiter((task_index[t] for t in self._frame_tasks), dtype=np.int64, count=n)
         return columns
 
-    def _extra_columns(self, episode_meta: dict | None, meta_path: Path) -> tuple[list[pa.Field], list[pa.Array]]:
+    def _extra_columns(self, episode_meta: dict | None, meta_path: Path) -> ExtraColumns:
         where = str(meta_path)
         given = dict(episode_meta or {})
         for key in given:
@@ -479,14 +484,14 @@ class LeRobotWriter:
                 field, stored = new_extra_field(key, value, where)
                 fields.append(field)
                 arrays.append(pa.array([stored], type=field.type))
-            return fields, arrays
+            return ExtraColumns(fields, arrays)
         expected = [f.name for f in self._extra_fields]
         if set(given) != set(expected):
             raise DatasetError(
                 f"{where}: episode_meta keys must be the same every episode: expected {sorted(expected)}, "
                 f"got {sorted(given)}"
             )
-        return self._extra_fields, [extra_array(f, given[f.name], where) for f in self._extra_fields]
+        return ExtraColumns(self._extra_fields, [extra_array(f, given[f.name], where) for f in self._extra_fields])
 
     def _info(
         self, total_episodes: int, total_frames: int, tasks: list[str], live: tuple[int, int], stats: dict[str, Any]

@@ -71,7 +71,14 @@ from dpr.datasets.mcap.schema import (
     TOPIC_STATE,
     McapError,
 )
-from dpr.datasets.mcap.writer import McapEpisodeWriter, episode_metadata, log_env_scene, log_env_step
+from dpr.datasets.mcap.writer import (
+    McapEpisodeWriter,
+    StepOutcome,
+    SwarmState,
+    episode_metadata,
+    log_env_scene,
+    log_env_step,
+)
 
 __all__ = [
     "MAGNET_DECIMALS",
@@ -90,6 +97,8 @@ __all__ = [
     "McapEpisode",
     "McapEpisodeWriter",
     "McapError",
+    "StepOutcome",
+    "SwarmState",
     "episode_metadata",
     "log_env_scene",
     "log_env_step",

@@ -10,10 +10,12 @@ unfinished episode on disk. :meth:`McapEpisodeWriter.close` copies the finished 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import tempfile
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +68,39 @@ def episode_metadata(env, *, seed: int | None, policy: str, **extra: Any) -> dic
     return metadata
 
 
+# -- what one step logs -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SwarmState:
+    """The swarm after a reset or a step, as :meth:`McapEpisodeWriter.write_step` logs it. Arrays are per robot:
+    ``positions`` and ``velocities`` (N, 2), the others (N,). ``object_pose`` (x, y, angle) with
+    ``object_velocity`` (vx, vy), and ``magnets`` (M, 2, 2), are recorded if step 0 has them, and then required at
+    every step. ``centre_of_mass`` defaults to the mean of ``positions``."""
+
+    positions: Any
+    angles: Any
+    velocities: Any
+    angular_velocities: Any
+    expansions: Any
+    alive: Any
+    object_pose: Any = None
+    object_velocity: Any = None
+    magnets: Any = None
+    centre_of_mass: Any = None
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What a step after the reset did: the action it was given, its reward and end flags, and the metrics so
+    far (keys :data:`METRIC_KEYS`; extra keys, as in an env's ``info``, are ignored). Every field is needed; one
+    left out is named by :meth:`McapEpisodeWriter.write_step`."""
+
+    action: Any = None
+    reward: float | None = None
+    terminated: bool | None = None
+    truncated: bool | None = None
+    metrics: Mapping[str, Any] | None = None
+
+
 # -- writer -------------------------------------------------------------------------------------------------
 def _array(path: Path, name: str, value: Any, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
     array = np.asarray(value, dtype=dtype)
@@ -83,7 +118,7 @@ class McapEpisodeWriter:
     """Writes one episode to an MCAP file; use as a context manager.
 
     Call :meth:`write_scene` once and :meth:`write_step` for steps 0, 1, 2, ... in order (step 0 is the reset
-    state and takes no action, reward or metrics; every later step needs them). Nothing appears under
+    state and takes no :class:`StepOutcome`; every later step needs one). Nothing appears under
     ``path`` until :meth:`close` succeeds, and nothing of the episode is on disk under any name before it: the
     data goes to an anonymous spool, copied on close into a temporary file beside ``path`` (see
     :class:`dpr.atomic.AtomicFile`), fsynced and renamed onto ``path`` (replacing any file there). Leaving the
@@ -191,77 +226,57 @@ class McapEpisodeWriter:
         self._message(TOPIC_SCENE, 0, message)
         self._scene_written = True
 
-    def write_step(
-        self,
-        step: int,
-        *,
-        positions,
-        angles,
-        velocities,
-        angular_velocities,
-        expansions,
-        alive,
-        action=None,
-        reward: float | None = None,
-        terminated: bool | None = None,
-        truncated: bool | None = None,
-        metrics: Mapping[str, Any] | None = None,
-        object_pose=None,
-        object_velocity=None,
-        magnets=None,
-        centre_of_mass=None,
-    ) -> None:
-        """One control step: the swarm's state after it and, for ``step >= 1``, the action that led to it,
-        its reward, end flags and the metrics so far (keys :data:`METRIC_KEYS`; extra keys are ignored).
-
-        Arrays are per robot: ``positions`` and ``velocities`` (N, 2), the others (N,). ``object_pose``
-        (x, y, angle) with ``object_velocity`` (vx, vy), and ``magnets`` (M, 2, 2), are recorded if step 0
-        has them, and then required at every step. ``centre_of_mass`` defaults to the mean of ``positions``.
-        """
+    def write_step(self, step: int, state: SwarmState, outcome: StepOutcome | None = None) -> None:
+        """One control step: the swarm's ``state`` after it and, for ``step >= 1``, the ``outcome`` that led to it
+        (step 0, the reset state, takes none). Everything is checked before anything is written, so a bad call
+        leaves the file consistent."""
         self._check_open()
-        path = self.path
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step != self._next_step:
             raise McapError(
-                path, f"steps must be written in order 0, 1, 2, ...: expected {self._next_step}, got {step!r}"
+                self.path, f"steps must be written in order 0, 1, 2, ...: expected {self._next_step}, got {step!r}"
             )
         step = int(step)
-        positions = np.asarray(positions, dtype=np.float64)
+        n, message = self._state_message(step, state)
+        extra = self._optional_messages(step, state.object_pose, state.object_velocity, state.magnets)
+        outcome_messages = self._outcome_messages(step, n, StepOutcome() if outcome is None else outcome)
+        self._message(TOPIC_STATE, step, message)
+        for topic, extra_message in extra + outcome_messages:
+            self._message(topic, step, extra_message)
+        self._next_step = step + 1
+
+    def _state_message(self, step: int, state: SwarmState) -> tuple[int, dict]:
+        """The robot count N and the ``/swarm/state`` message; step 0 fixes N and which optional parts follow."""
+        path = self.path
+        positions = np.asarray(state.positions, dtype=np.float64)
         if positions.ndim != 2 or positions.shape[1] != 2 or len(positions) < 1:
             raise McapError(path, f"positions must have shape (N, 2), got {positions.shape}")
         n = len(positions)
         if step == 0:
             self._n_robots = n
-            self._has_object = object_pose is not None
-            self._has_magnets = magnets is not None
+            self._has_object = state.object_pose is not None
+            self._has_magnets = state.magnets is not None
         elif n != self._n_robots:
             raise McapError(
                 path, f"positions must have shape ({self._n_robots}, 2) as at step 0, got {positions.shape}"
             )
-        velocities = _array(path, "velocities", velocities, (n, 2))
-        if centre_of_mass is None:
-            centre_of_mass = positions.mean(axis=0)
+        velocities = _array(path, "velocities", state.velocities, (n, 2))
+        centre_of_mass = positions.mean(axis=0) if state.centre_of_mass is None else state.centre_of_mass
         xy = positions.T.tolist()
         vxy = velocities.T.tolist()
-        state = {
+        message = {
             "step": step,
             "time": step * self.action_repeat / FPS,
             "x": xy[0],
             "y": xy[1],
-            "angle": _array(path, "angles", angles, (n,)).tolist(),
+            "angle": _array(path, "angles", state.angles, (n,)).tolist(),
             "vx": vxy[0],
             "vy": vxy[1],
-            "omega": _array(path, "angular_velocities", angular_velocities, (n,)).tolist(),
-            "expansion": _array(path, "expansions", expansions, (n,)).tolist(),
-            "alive": _array(path, "alive", alive, (n,), dtype=bool).tolist(),
+            "omega": _array(path, "angular_velocities", state.angular_velocities, (n,)).tolist(),
+            "expansion": _array(path, "expansions", state.expansions, (n,)).tolist(),
+            "alive": _array(path, "alive", state.alive, (n,), dtype=bool).tolist(),
             "centre_of_mass": _array(path, "centre_of_mass", centre_of_mass, (2,)).tolist(),
         }
-        # Validate everything before writing anything, so a bad call leaves the file consistent.
-        extra = self._optional_messages(step, object_pose, object_velocity, magnets)
-        outcome = self._outcome_messages(step, n, action, reward, terminated, truncated, metrics)
-        self._message(TOPIC_STATE, step, state)
-        for topic, message in extra + outcome:
-            self._message(topic, step, message)
-        self._next_step = step + 1
+        return n, message
 
     def _optional_messages(self, step: int, object_pose, object_velocity, magnets) -> list[tuple[str, dict]]:
         path = self.path
@@ -290,17 +305,9 @@ class McapEpisodeWriter:
             messages.append((TOPIC_MAGNETS, {"step": step, "segments": segments.round(MAGNET_DECIMALS).tolist()}))
         return messages
 
-    def _outcome_messages(
-        self, step: int, n: int, action, reward, terminated, truncated, metrics
-    ) -> list[tuple[str, dict]]:
+    def _outcome_messages(self, step: int, n: int, outcome: StepOutcome) -> list[tuple[str, dict]]:
         path = self.path
-        given = {
-            "action": action,
-            "reward": reward,
-            "terminated": terminated,
-            "truncated": truncated,
-            "metrics": metrics,
-        }
+        given = {field.name: getattr(outcome, field.name) for field in dataclasses.fields(outcome)}
         if step == 0:
             extra = [name for name, value in given.items() if value is not None]
             if extra:
@@ -309,21 +316,22 @@ class McapEpisodeWriter:
         missing = [name for name, value in given.items() if value is None]
         if missing:
             raise McapError(path, f"step {step}: {', '.join(missing)} required for every step after 0")
-        action_array = np.asarray(action)
+        action_array = np.asarray(outcome.action)
         if action_array.shape != (n,) or action_array.dtype.kind not in "buif":
             raise McapError(
                 path, f"action must be {n} numbers, got shape {action_array.shape} dtype {action_array.dtype}"
             )
         if action_array.dtype.kind == "b":
             action_array = action_array.astype(np.int64)
+        metrics = outcome.metrics
         absent = [key for key in METRIC_KEYS if key not in metrics]
         if absent:
             raise McapError(path, f"step {step}: metrics lacks {', '.join(absent)}")
         outcome = {
             "step": step,
-            "reward": float(reward),
-            "terminated": bool(terminated),
-            "truncated": bool(truncated),
+            "reward": float(outcome.reward),
+            "terminated": bool(outcome.terminated),
+            "truncated": bool(outcome.truncated),
             "projected_displacement": float(metrics["projected_displacement"]),
             "net_displacement": float(metrics["net_displacement"]),
             "total_distance": float(metrics["total_distance"]),
@@ -387,14 +395,15 @@ def log_env_scene(writer: McapEpisodeWriter, env) -> None:
 
 
 def log_env_step(
-    writer: McapEpisodeWriter, env, step: int, action, reward, terminated, truncated, info, *, magnets: bool = True
+    writer: McapEpisodeWriter, env, step: int, outcome: StepOutcome | None = None, *, magnets: bool = True
 ) -> None:
-    """Log ``env``'s state after ``reset()`` (``step`` 0: pass None for action, reward, terminated and
-    truncated; the scene is written too unless it already was) or after its ``step``-th ``env.step``.
+    """Log ``env``'s state after ``reset()`` (``step`` 0, no ``outcome``; the scene is written too unless it
+    already was) or after its ``step``-th ``env.step``, whose ``outcome`` carries the ``info`` it returned as
+    its metrics.
 
-    The arrays come from ``env.unwrapped.world``; the metrics from ``info``. A Discrete(2^N) action is
-    logged as its N bits (robot 0 the most significant), the targets the env applied. ``magnets=False``
-    skips ``/swarm/magnets`` (about a third of the logging cost at N=9); keep it the same for a whole episode.
+    The arrays come from ``env.unwrapped.world``. A Discrete(2^N) action is logged as its N bits (robot 0 the
+    most significant), the targets the env applied. ``magnets=False`` skips ``/swarm/magnets`` (about a third of
+    the logging cost at N=9); keep it the same for a whole episode.
     """
     base = env.unwrapped
     world = base.world
@@ -410,24 +419,20 @@ def log_env_step(
     swarm = world.swarm
     if step == 0 and not writer.scene_written:
         log_env_scene(writer, env)
+    action = None if outcome is None else outcome.action
     if action is not None and np.ndim(action) == 0 and getattr(base, "action_type", "") == "discrete":
-        action = (int(action) >> np.arange(base.n_robots - 1, -1, -1)) & 1
+        outcome = dataclasses.replace(outcome, action=(int(action) >> np.arange(base.n_robots - 1, -1, -1)) & 1)
     has_object = world.object_body is not None
-    writer.write_step(
-        step,
+    state = SwarmState(
         positions=swarm.position,
         angles=swarm.angle,
         velocities=swarm.velocity,
         angular_velocities=swarm.angular_velocity,
         expansions=swarm.expansion,
         alive=swarm.alive,
-        action=action,
-        reward=reward,
-        terminated=terminated,
-        truncated=truncated,
-        metrics=None if step == 0 else info,
         object_pose=world.object_pose if has_object else None,
         object_velocity=world.object_velocity if has_object else None,
         magnets=swarm.magnet_segments() if magnets else None,
         centre_of_mass=world.centre_of_mass,
     )
+    writer.write_step(step, state, outcome)
