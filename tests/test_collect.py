@@ -595,7 +595,7 @@ def test_collect_verify_names_a_corrupt_file(small_dataset, tmp_path, capsys):
 
 
 def test_a_compaction_that_freed_space_says_so():
-    from dpr.datasets.collect import CollectSummary, format_summary
+    from dpr.datasets.collect_summary import CollectSummary, format_summary
 
     summary = CollectSummary("ds", "dpr/Navigation-v0", "wave", 3, 0, 3, 0, 30, 1.5, -1_607_636, False, {})
     text = format_summary(summary)

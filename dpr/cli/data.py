@@ -165,7 +165,8 @@ def cmd_collect(args, parser) -> int:
     check_output(args.json, parser, "--json")
     check_seed(args, parser)
 
-    from dpr.datasets.collect import RolloutWorkers, collect, format_summary
+    from dpr.datasets.collect import RolloutWorkers, collect
+    from dpr.datasets.collect_summary import format_summary
 
     spec = _collect_spec(args, parser)
     out = Path(args.out)

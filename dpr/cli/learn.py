@@ -241,7 +241,14 @@ def cmd_train(args, parser) -> int:
             hyperparams=dict(args.hyperparam or []),
             eval_episodes=args.eval_episodes,
         )
-        result = train(config, args.out, resume=args.resume)
+        if config.engine == "batched":
+            from dpr.rl.batched_train import train_batched
+
+            if args.resume:
+                parser.error("--resume: a run on the batched engine does not resume yet; start it again")
+            result = train_batched(config, args.out)
+        else:
+            result = train(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error))
     return _training_done(result, args)

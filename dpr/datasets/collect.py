@@ -18,7 +18,6 @@ before it lacks it, and episodes are not added to it (one dataset, one layout), 
 
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 import signal
 import threading
@@ -26,7 +25,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gymnasium as gym
@@ -35,6 +34,7 @@ import numpy as np
 from dpr.atomic import is_temporary
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
+from dpr.datasets.collect_summary import CollectSummary, folder_bytes, metric_summary
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.datasets.lerobot.format import INFO_PATH, load_info
@@ -270,29 +270,6 @@ def save_record(
     return writer.save_episode(meta)
 
 
-@dataclass
-class CollectSummary:
-    root: str
-    env_id: str
-    policy: str
-    episodes_before: int
-    episodes_added: int
-    episodes_total: int
-    frames_added: int
-    frames_total: int
-    seconds: float
-    bytes_written: int  # the dataset's growth: negative when a compaction freed more than was added
-    interrupted: bool
-    metrics: dict  # median / min / max of each metric over the added episodes, and the success rate
-
-    def as_dict(self) -> dict:
-        return asdict(self)
-
-
-def _folder_bytes(root: Path) -> int:
-    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file()) if root.exists() else 0
-
-
 def _recorded_seeds(root: Path) -> set[int]:
     if not (root / "meta" / "info.json").is_file():
         return set()
@@ -433,7 +410,7 @@ def collect(
         info = load_info(root)
         check_dataset_time(root, info)
         features = _resumed_features(root, info, spec, features, seeds)
-    bytes_before = _folder_bytes(root)
+    bytes_before = folder_bytes(root)
     writer = LeRobotWriter.open(
         root, fps=dataset_fps(spec.env_kwargs), features=features, robot_type=spec.robot_model, info_extra=info_extra
     )
@@ -462,9 +439,9 @@ def collect(
         frames_added=sum(r.frames for r in added),
         frames_total=writer.num_frames,
         seconds=time.perf_counter() - started,
-        bytes_written=_folder_bytes(root) - bytes_before,
+        bytes_written=folder_bytes(root) - bytes_before,
         interrupted=interrupted,
-        metrics=_metric_summary(added),
+        metrics=metric_summary(added),
     )
 
 
@@ -575,55 +552,13 @@ def _resumed_features(root: Path, info: dict, spec: CollectSpec, features: dict,
     return {name: feature for name, feature in features.items() if name != F.ENVIRONMENT_STATE}
 
 
-_DISTANCES = tuple(name for name in F.METRIC_FIELDS if name != "success")
-
-
-def _metric_summary(records: list[SavedEpisode]) -> dict:
-    if not records:
-        return {}
-    out = {}
-    for name in _DISTANCES:
-        values = np.array([getattr(r.metrics, name) for r in records])
-        out[name] = {"median": float(np.median(values)), "min": float(values.min()), "max": float(values.max())}
-    out["success_rate"] = float(np.mean([r.metrics.success for r in records]))
-    return out
-
-
-def format_summary(summary: CollectSummary) -> str:
-    lines = [
-        f"dataset     {summary.root}  ({summary.env_id}, policy {summary.policy})",
-        f"episodes    {summary.episodes_added} added, {summary.episodes_total} in total"
-        + ("  (interrupted: run the same command again to resume)" if summary.interrupted else ""),
-        f"frames      {summary.frames_added} added, {summary.frames_total} in total",
-        f"{'written' if summary.bytes_written >= 0 else 'freed':<12s}{_human_bytes(abs(summary.bytes_written))} "
-        f"in {summary.seconds:.1f} s"
-        + (f" ({summary.frames_added / summary.seconds:.0f} frames/s)" if summary.seconds > 0 else ""),
-    ]
-    if summary.metrics:
-        m = summary.metrics
-        lines.append(f"success     {m['success_rate']:.0%}")
-        for name in _DISTANCES:
-            s = m[name]
-            lines.append(f"{name:<24s} median {s['median']:.1f}  min {s['min']:.1f}  max {s['max']:.1f}")
-    return "\n".join(lines)
-
-
-def _human_bytes(n: int) -> str:
-    if n < 1024:
-        return f"{n} B"
-    exponent = min(int(math.log(n, 1024)), 4)
-    return f"{n / 1024**exponent:.1f} {'BKMGT'[exponent]}{'iB' if exponent else ''}"
-
-
 __all__ = [
     "CollectSpec",
-    "CollectSummary",
     "DatasetError",
     "EpisodeRecord",
     "RolloutWorkers",
     "collect",
     "dataset_features",
-    "format_summary",
     "rollout",
     "save_record",
 ]

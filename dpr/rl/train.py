@@ -420,12 +420,8 @@ def train(
     (:mod:`dpr.rl.resume`; not when anchored to demonstrations). ``resume=True`` goes on from the snapshot of the
     stopped run in ``out``, made with the same ``config`` (a ParameterError otherwise), to the model the run would
     have made had it never stopped."""
-    if config.engine == ENGINES[1]:
-        if resume:
-            raise ParameterError("resume", "a run on the batched engine does not resume yet: start it again")
-        from dpr.rl.batched_train import train_batched
-
-        return train_batched(config, out, show_progress=show_progress, log=log)
+    if config.engine != ENGINES[0]:
+        raise ParameterError("engine", "train() runs the pymunk engine; dpr.rl.batched_train.train_batched the batched")
     hyper, env_kwargs, timesteps = config.resolve()
     hyper, budget = fit_budget(hyper, config.n_envs, timesteps, config.critic_warmup, config.command)
     if resume:

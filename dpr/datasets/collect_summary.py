@@ -1,0 +1,75 @@
+"""What a `dpr collect` run did: :class:`CollectSummary` and the text the command prints of it."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dpr.datasets import features as F
+
+
+@dataclass
+class CollectSummary:
+    root: str
+    env_id: str
+    policy: str
+    episodes_before: int
+    episodes_added: int
+    episodes_total: int
+    frames_added: int
+    frames_total: int
+    seconds: float
+    bytes_written: int  # the dataset's growth: negative when a compaction freed more than was added
+    interrupted: bool
+    metrics: dict  # median / min / max of each metric over the added episodes, and the success rate
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def folder_bytes(root: Path) -> int:
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file()) if root.exists() else 0
+
+
+_DISTANCES = tuple(name for name in F.METRIC_FIELDS if name != "success")
+
+
+def metric_summary(records: list) -> dict:
+    """Median, min and max of each distance over ``records`` (saved episodes), and their success rate."""
+    if not records:
+        return {}
+    out = {}
+    for name in _DISTANCES:
+        values = np.array([getattr(r.metrics, name) for r in records])
+        out[name] = {"median": float(np.median(values)), "min": float(values.min()), "max": float(values.max())}
+    out["success_rate"] = float(np.mean([r.metrics.success for r in records]))
+    return out
+
+
+def format_summary(summary: CollectSummary) -> str:
+    lines = [
+        f"dataset     {summary.root}  ({summary.env_id}, policy {summary.policy})",
+        f"episodes    {summary.episodes_added} added, {summary.episodes_total} in total"
+        + ("  (interrupted: run the same command again to resume)" if summary.interrupted else ""),
+        f"frames      {summary.frames_added} added, {summary.frames_total} in total",
+        f"{'written' if summary.bytes_written >= 0 else 'freed':<12s}{_human_bytes(abs(summary.bytes_written))} "
+        f"in {summary.seconds:.1f} s"
+        + (f" ({summary.frames_added / summary.seconds:.0f} frames/s)" if summary.seconds > 0 else ""),
+    ]
+    if summary.metrics:
+        m = summary.metrics
+        lines.append(f"success     {m['success_rate']:.0%}")
+        for name in _DISTANCES:
+            s = m[name]
+            lines.append(f"{name:<24s} median {s['median']:.1f}  min {s['min']:.1f}  max {s['max']:.1f}")
+    return "\n".join(lines)
+
+
+def _human_bytes(n: int) -> str:
+    if n < 1024:
+        return f"{n} B"
+    exponent = min(int(math.log(n, 1024)), 4)
+    return f"{n / 1024**exponent:.1f} {'BKMGT'[exponent]}{'iB' if exponent else ''}"

@@ -1,0 +1,83 @@
+"""The whole PPO loop's env steps per second: `dpr train` on the pymunk disk env against `dpr train --engine batched`,
+measured in one run.
+
+Both train the swarm actor (SwarmPolicy) on the same task and env kwargs (the last action observed, a decision every
+6 physics steps): the pymunk run in SB3's loop with its default rollout size and `--n-envs` processes, the batched
+run in dpr.rl.batched_ppo's loop on `--num-envs` envs of the batched engine. Each rate counts the steps of the whole
+run, rollouts and updates together (model building and saving excluded), over the median of `--repeats` runs.
+
+    python tools/bench_training.py [--env dpr/Navigation-v0] [--num-envs 1024] [--device cpu] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+from pathlib import Path
+
+import torch
+
+import dpr  # noqa: F401
+from dpr.rl.batched_train import train_batched
+from dpr.rl.train import TrainConfig, train
+
+ENV_KWARGS = {"obs_last_action": True, "action_repeat": 6}
+
+
+def pymunk_rate(env_id: str, n_envs: int, timesteps: int) -> float:
+    config = TrainConfig(
+        "ppo",
+        env_id,
+        robot_model="disk",
+        timesteps=timesteps,
+        n_envs=n_envs,
+        env_kwargs=ENV_KWARGS,
+        hyperparams={"policy": "SwarmPolicy", "n_steps": 512, "batch_size": 128, "n_epochs": 4},
+        eval_episodes=0,
+    )
+    with tempfile.TemporaryDirectory() as folder:
+        result = train(config, Path(folder) / "run", show_progress=False, log=lambda line: None)
+    return result.timesteps / result.seconds
+
+
+def batched_rate(env_id: str, num_envs: int, device: str, updates: int) -> float:
+    config = TrainConfig(
+        "ppo", env_id, robot_model="disk", n_envs=num_envs, preset="batched", engine="batched", device=device
+    )
+    hyper, _, _ = config.resolve()
+    timesteps = updates * num_envs * hyper.algo_kwargs["n_steps"]
+    config = TrainConfig(**{**config.__dict__, "timesteps": timesteps})
+    with tempfile.TemporaryDirectory() as folder:
+        result = train_batched(config, Path(folder) / "run", show_progress=False, log=lambda line: None)
+    return result.timesteps / result.seconds
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="dpr/Navigation-v0")
+    parser.add_argument("--n-envs", type=int, default=2, help="pymunk: envs in subprocesses (default 2, the cores)")
+    parser.add_argument("--pymunk-timesteps", type=int, default=2048)
+    parser.add_argument("--num-envs", type=int, default=1024, help="batched: envs per call (default 1024)")
+    parser.add_argument("--updates", type=int, default=3, help="batched: PPO updates per run (default 3)")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--json")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(2)
+    pymunk = statistics.median(pymunk_rate(args.env, args.n_envs, args.pymunk_timesteps) for _ in range(args.repeats))
+    batched = statistics.median(
+        batched_rate(args.env, args.num_envs, args.device, args.updates) for _ in range(args.repeats)
+    )
+    print("| loop | env steps/s | ratio |\n|---|---:|---:|")
+    print(f"| dpr train, pymunk disk, {args.n_envs} processes | {pymunk:,.0f} | 1.0 |")
+    label = f"dpr train --engine batched, {args.num_envs} envs, {args.device}"
+    print(f"| {label} | {batched:,.0f} | {batched / pymunk:.1f} |")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"pymunk": pymunk, "batched": batched, "args": vars(args)}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
