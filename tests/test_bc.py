@@ -15,7 +15,7 @@ from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.frames import FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.evaluation.scoring import evaluate
-from dpr.imitation import behaviour_clone
+from dpr.imitation import CloneConfig, behaviour_clone
 from dpr.imitation.bc import measure
 from dpr.imitation.loss import check_features
 from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
@@ -37,7 +37,7 @@ def dataset(tmp_path_factory):
 @pytest.fixture(scope="module")
 def cloned(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("bc_run") / "run"
-    return behaviour_clone(dataset, ENV, epochs=40, patience=40, out=out, log=lambda line: None, **FAST)
+    return behaviour_clone(dataset, ENV, CloneConfig(epochs=40, patience=40, **FAST), out=out, log=lambda line: None)
 
 
 def test_run_folder_holds_model_log_and_config(cloned, dataset):
@@ -90,7 +90,7 @@ def test_value_head_is_left_alone(dataset, tmp_path):
     from dpr.policies.hyperparams import load_hyperparams
     from dpr.policies.sb3 import build_model, make_vec_env
 
-    result = behaviour_clone(dataset, ENV, epochs=2, out=tmp_path / "run", log=lambda line: None, **FAST)
+    result = behaviour_clone(dataset, ENV, CloneConfig(epochs=2, **FAST), out=tmp_path / "run", log=lambda line: None)
     model, _ = load_model(result.model_path)
     env = make_vec_env(ENV, {"n_robots": 4, "robot_model": "disk"}, 64, 1)
     torch.manual_seed(0)
@@ -103,7 +103,9 @@ def test_value_head_is_left_alone(dataset, tmp_path):
 
 
 def test_early_stopping_stops_after_patience_epochs(dataset, tmp_path):
-    result = behaviour_clone(dataset, ENV, epochs=60, patience=2, out=tmp_path / "run", log=lambda line: None, **FAST)
+    result = behaviour_clone(
+        dataset, ENV, CloneConfig(epochs=60, patience=2, **FAST), out=tmp_path / "run", log=lambda line: None
+    )
     assert result.stopped_early and result.epochs_run < 60
     assert result.epochs_run == result.best_epoch + 2
 
@@ -206,7 +208,7 @@ def test_dataset_of_another_env_names_both(dataset, tmp_path):
 
 def test_dataset_of_another_n_names_both(dataset, tmp_path, capsys):
     with pytest.raises(ValueError, match=r"n_robots=4.*n_robots=9"):
-        behaviour_clone(dataset, ENV, env_kwargs={"n_robots": 9}, out=tmp_path / "run")
+        behaviour_clone(dataset, ENV, CloneConfig(env_kwargs={"n_robots": 9}), out=tmp_path / "run")
     assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--n-robots", "9", "--out", str(tmp_path / "r")]) == 2
     assert "n_robots=4" in capsys.readouterr().err
 
@@ -228,9 +230,9 @@ def test_existing_out_and_bad_arguments_are_refused(dataset, tmp_path, capsys):
     assert run(["bc", "--dataset", str(dataset), "--env", ENV, "--out", str(out)]) == 2
     assert "--out: " in (err := capsys.readouterr().err) and "already exists" in err
     with pytest.raises(ValueError, match="algo must be one of"):
-        behaviour_clone(dataset, ENV, algo="sac", out=tmp_path / "sac")
+        behaviour_clone(dataset, ENV, CloneConfig(algo="sac"), out=tmp_path / "sac")
     with pytest.raises(ValueError, match="val_fraction"):
-        behaviour_clone(dataset, ENV, val_fraction=1.0, out=tmp_path / "v")
+        behaviour_clone(dataset, ENV, CloneConfig(val_fraction=1.0), out=tmp_path / "v")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
 
 
@@ -238,7 +240,11 @@ def test_dqn_clone_classifies_the_recorded_actions_as_integers(dataset, tmp_path
     """DQN: the Q-network learns the demonstrated MultiBinary actions as Discrete(2^N) classes, its target
     network is the trained Q-network, and the model runs on the discrete-action env."""
     result = behaviour_clone(
-        dataset, ENV, algo="dqn", epochs=150, patience=150, out=tmp_path / "dqn", log=lambda line: None, **FAST
+        dataset,
+        ENV,
+        CloneConfig(algo="dqn", epochs=150, patience=150, **FAST),
+        out=tmp_path / "dqn",
+        log=lambda line: None,
     )
     info = read_model_info(result.model_path)
     assert info.algo == "dqn" and info.env_kwargs["action_type"] == "discrete"

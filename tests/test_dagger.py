@@ -19,7 +19,7 @@ from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.frames import ConcatFrames, FrameDataset
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
 from dpr.envs.particle_env import ROBOT_FEATURES
-from dpr.imitation import behaviour_clone
+from dpr.imitation import CloneConfig, DaggerConfig, behaviour_clone
 from dpr.imitation.bc import measure
 from dpr.imitation.dagger import dagger
 from dpr.policies.features import SwarmFeatures
@@ -34,7 +34,8 @@ SMALL_ENV = {"n_robots": N, "robot_model": "disk"}
 MEMORY = {"obs_last_action": True}
 ENV_KWARGS = {**SMALL_ENV, **MEMORY}
 STEPS = 30
-FAST = {"batch_size": 128, "lr": 3e-3, "log": lambda line: None}
+FAST = {"batch_size": 128, "lr": 3e-3}
+QUIET = {"log": lambda line: None}
 SMALL_NET = {"policy_kwargs": {"net_arch": [16]}}
 SWARM_NET = {"policy_kwargs": {"net_arch": [16], "features_extractor": "swarm"}}
 OBS_DIM = ROBOT_FEATURES * N + N + 1  # 4 robots, then the last action and its held steps
@@ -202,7 +203,9 @@ def cloned_two(demos, labelled, tmp_path_factory):
     loader = bc_module._loader
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(bc_module, "_loader", spy)
-        result = behaviour_clone([demos, labelled], ENV, epochs=2, patience=2, out=out, hyperparams=SMALL_NET, **FAST)
+        result = behaviour_clone(
+            [demos, labelled], ENV, CloneConfig(epochs=2, patience=2, hyperparams=SMALL_NET, **FAST), out=out, **QUIET
+        )
     return result, served
 
 
@@ -249,7 +252,9 @@ def test_hyperparams_override_shapes_the_saved_model(cloned_two):
 
 
 def test_clone_with_swarm_features_runs_as_a_policy(demos, tmp_path):
-    result = behaviour_clone(demos, ENV, epochs=1, out=tmp_path / "run", hyperparams=SWARM_NET, **FAST)
+    result = behaviour_clone(
+        demos, ENV, CloneConfig(epochs=1, hyperparams=SWARM_NET, **FAST), out=tmp_path / "run", **QUIET
+    )
     model, _ = load_model(result.model_path)
     extractor = model.policy.features_extractor
     assert isinstance(extractor, SwarmFeatures) and extractor.n_robots == N
@@ -266,7 +271,9 @@ def test_clone_with_swarm_features_runs_as_a_policy(demos, tmp_path):
 
 def test_change_weight_reweights_the_loss(demos, tmp_path):
     def val_nll(name, **kwargs):
-        result = behaviour_clone(demos, ENV, epochs=1, out=tmp_path / name, hyperparams=SMALL_NET, **FAST, **kwargs)
+        result = behaviour_clone(
+            demos, ENV, CloneConfig(epochs=1, hyperparams=SMALL_NET, **FAST, **kwargs), out=tmp_path / name, **QUIET
+        )
         return result.history[1]["val_nll"]  # after one update from the same initial network
 
     plain = val_nll("default")
@@ -283,7 +290,7 @@ def test_datasets_that_differ_are_refused_before_the_run_folder_exists(demos, ot
         ("steps20", [", 20)", ", 30)"]),
     ):
         with pytest.raises(ValueError, match="must match") as info:
-            behaviour_clone([demos, others[name]], ENV, out=out, **FAST)
+            behaviour_clone([demos, others[name]], ENV, CloneConfig(**FAST), out=out, **QUIET)
         for word in [str(others[name]), str(demos), *words]:
             assert word in str(info.value), (name, word)
         assert not out.exists()
@@ -295,9 +302,9 @@ def test_bad_change_weight_is_refused_before_the_run_folder_exists(demos, others
     out = tmp_path / "run"
     for bad in (0.5, 0, -2.0, True, "2", math.nan):
         with pytest.raises(ValueError, match="change_weight must be a number >= 1"):
-            behaviour_clone(demos, ENV, change_weight=bad, out=out, **FAST)
+            behaviour_clone(demos, ENV, CloneConfig(change_weight=bad, **FAST), out=out, **QUIET)
     with pytest.raises(ValueError, match="change_weight needs.*obs_last_action=True"):
-        behaviour_clone(others["no_memory"], ENV, change_weight=2.0, out=out, **FAST)
+        behaviour_clone(others["no_memory"], ENV, CloneConfig(change_weight=2.0, **FAST), out=out, **QUIET)
     assert not out.exists()
 
 
@@ -305,7 +312,8 @@ def test_bad_change_weight_is_refused_before_the_run_folder_exists(demos, others
 @pytest.fixture(scope="module")
 def dagger_run(demos, tmp_path_factory):
     out = tmp_path_factory.mktemp("dagger_run") / "run"
-    return dagger(demos, ENV, out, rounds=1, episodes_per_round=2, workers=1, epochs=1, hyperparams=SMALL_NET, **FAST)
+    dagger_config = DaggerConfig(rounds=1, episodes_per_round=2, workers=1)
+    return dagger(demos, ENV, out, dagger_config, CloneConfig(epochs=1, hyperparams=SMALL_NET, **FAST), **QUIET)
 
 
 def test_dagger_run_folder(dagger_run, demos):
@@ -348,12 +356,20 @@ def test_dagger_data_is_driven_by_the_clone_and_labelled_by_the_expert(dagger_ru
 def test_dagger_refuses_demo_seeds_and_a_used_folder(demos, tmp_path):
     out = tmp_path / "run"
     with pytest.raises(ValueError, match="overlap"):  # seeds 2, 3: the demonstrations hold seed 2
-        dagger(demos, ENV, out, rounds=1, episodes_per_round=2, first_seed=2, workers=1, epochs=1, **FAST)
+        dagger_config = DaggerConfig(rounds=1, episodes_per_round=2, first_seed=2, workers=1)
+        dagger(demos, ENV, out, dagger_config, CloneConfig(epochs=1, **FAST), **QUIET)
     assert not out.exists()
     out.mkdir()
     (out / "file").write_text("x")
     with pytest.raises(ValueError, match="already exists"):
-        dagger(demos, ENV, out, rounds=1, episodes_per_round=2, workers=1, epochs=1, **FAST)
+        dagger(
+            demos,
+            ENV,
+            out,
+            DaggerConfig(rounds=1, episodes_per_round=2, workers=1),
+            CloneConfig(epochs=1, **FAST),
+            **QUIET,
+        )
     for bad, words in (
         ({"rounds": -1}, "rounds"),
         ({"episodes_per_round": 0}, "episodes_per_round"),
@@ -361,7 +377,7 @@ def test_dagger_refuses_demo_seeds_and_a_used_folder(demos, tmp_path):
         ({"expert": "oracle"}, "policy must be one of"),
     ):
         with pytest.raises(ValueError, match=words):
-            dagger(demos, ENV, tmp_path / "bad", **{"workers": 1, **bad})
+            dagger(demos, ENV, tmp_path / "bad", DaggerConfig(**{"workers": 1, **bad}))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 

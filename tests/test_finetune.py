@@ -18,7 +18,7 @@ from helpers import run_cli as run
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.envs import ENV_IDS
 from dpr.evaluation.scoring import evaluate
-from dpr.imitation import behaviour_clone
+from dpr.imitation import CloneConfig, behaviour_clone
 from dpr.policies.hyperparams import load_hyperparams
 from dpr.policies.registry import make_policy
 from dpr.policies.sb3 import (
@@ -51,7 +51,9 @@ def cloned(tmp_path_factory):
     root = tmp_path_factory.mktemp("finetune")
     spec = CollectSpec(ENV, policy="wave-markov", steps=STEPS, env_kwargs=MEMORY, **SMALL_ENV)
     collect(root / "demos", spec, episodes=3)
-    return behaviour_clone(root / "demos", ENV, epochs=1, batch_size=128, out=root / "bc", log=lambda line: None)
+    return behaviour_clone(
+        root / "demos", ENV, CloneConfig(epochs=1, batch_size=128), out=root / "bc", log=lambda line: None
+    )
 
 
 def finetune_config(init_from, **kwargs) -> TrainConfig:

@@ -16,6 +16,7 @@ from dpr.checks import ParameterError
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.envs import parallel_env
 from dpr.envs.parallel import AgentsAsVecEnv, SwarmsAsVecEnv
+from dpr.imitation import PerRobotCloneConfig
 from dpr.imitation.per_robot import behaviour_clone_per_robot
 from dpr.policies.decentralised import PerRobotPolicyAdapter
 from dpr.policies.hyperparams import load_hyperparams
@@ -46,8 +47,15 @@ def cloned(tmp_path_factory):
     """A per-robot clone of the decentralised wave: three 24-step episodes of 4 disk robots, a few epochs."""
     root = tmp_path_factory.mktemp("ft_per_robot")
     spec = CollectSpec(ENV, policy="decentralised-wave", n_robots=4, steps=STEPS, **DISK)
+<<<<<<< HEAD
     collect(root / "demos", spec, episodes=3)
     return behaviour_clone_per_robot(root / "demos", ENV, epochs=3, batch_size=64, out=root / "bc", log=lambda _: None)
+=======
+    collect(root / "demos", spec, episodes=3, workers=1)
+    return behaviour_clone_per_robot(
+        root / "demos", ENV, PerRobotCloneConfig(epochs=3, batch_size=64), out=root / "bc", log=lambda _: None
+    )
+>>>>>>> cut-imitation
 
 
 def finetune(cloned, out, **kwargs):

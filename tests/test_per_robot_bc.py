@@ -16,7 +16,7 @@ from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import parallel_env
 from dpr.envs.parallel import AgentsAsVecEnv
-from dpr.imitation import behaviour_clone
+from dpr.imitation import CloneConfig, PerRobotCloneConfig, behaviour_clone
 from dpr.imitation.per_robot import behaviour_clone_per_robot, relabel_dataset, robot_actions
 from dpr.policies.decentralised import DecentralisedWavePolicy, PerRobotPolicyAdapter
 from dpr.policies.per_robot_model import RobotModelPolicy
@@ -45,7 +45,7 @@ def dataset(tmp_path_factory):
 @pytest.fixture(scope="module")
 def cloned(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("per_robot_run") / "run"
-    return behaviour_clone_per_robot(dataset, ENV, out=out, log=lambda line: None, **FAST)
+    return behaviour_clone_per_robot(dataset, ENV, PerRobotCloneConfig(**FAST), out=out, log=lambda line: None)
 
 
 class Recording:
@@ -145,7 +145,11 @@ def test_model_runs_in_other_action_types_and_in_the_pettingzoo_env(cloned):
 def test_datasets_of_two_swarm_sizes_train_one_model(dataset, tmp_path):
     small = record(tmp_path / "dwave4", n_robots=4, episodes=2, steps=32)
     result = behaviour_clone_per_robot(
-        [dataset, small], ENV, out=tmp_path / "run", epochs=1, batch_size=512, log=lambda line: None
+        [dataset, small],
+        ENV,
+        PerRobotCloneConfig(epochs=1, batch_size=512),
+        out=tmp_path / "run",
+        log=lambda line: None,
     )
     info = read_model_info(result.model_path)
     assert info.per_robot["trained_n_robots"] == [4, 16]
@@ -199,7 +203,7 @@ def test_the_raw_distance_layout_and_model_files_that_predate_the_distance_perio
 # -- refused -------------------------------------------------------------------------------------------------------
 def test_max_neighbours_below_one_is_refused(dataset, tmp_path):
     with pytest.raises(ParameterError, match="max_neighbours"):
-        behaviour_clone_per_robot(dataset, ENV, max_neighbours=0, out=tmp_path / "run")
+        behaviour_clone_per_robot(dataset, ENV, PerRobotCloneConfig(max_neighbours=0), out=tmp_path / "run")
     with pytest.raises(ParameterError, match="max_neighbours"):
         RobotModelSpec("disk", 0, 16, False, False)
     assert not (tmp_path / "run").exists()
@@ -248,7 +252,7 @@ def test_envs_the_model_was_not_trained_for_are_refused(cloned):
 
 def test_centralised_model_is_not_a_per_robot_model(dataset, tmp_path):
     central = record(tmp_path / "wave4", n_robots=4, episodes=2, steps=16, policy="wave")
-    result = behaviour_clone(central, ENV, epochs=1, out=tmp_path / "run", log=lambda line: None)
+    result = behaviour_clone(central, ENV, CloneConfig(epochs=1), out=tmp_path / "run", log=lambda line: None)
     with pytest.raises(ParameterError, match="centralised model"):
         RobotModelPolicy.load(result.model_path)
     env = parallel_env("navigation", n_robots=4, local_obs=True, clock_period=16, **DISK)
@@ -261,7 +265,7 @@ def test_datasets_that_differ_in_more_than_n_are_refused(dataset, tmp_path):
     with pytest.raises(ParameterError, match="dataset_dirs: .*may differ in n_robots and start_radius only"):
         behaviour_clone_per_robot([dataset, other], ENV, out=tmp_path / "run")
     with pytest.raises(ParameterError, match="algo"):
-        behaviour_clone_per_robot(dataset, ENV, algo="dqn", out=tmp_path / "run")
+        behaviour_clone_per_robot(dataset, ENV, PerRobotCloneConfig(algo="dqn"), out=tmp_path / "run")
     assert not (tmp_path / "run").exists()
 
 
@@ -269,7 +273,9 @@ def test_demonstrations_from_wider_starts_clone_together_and_the_model_keeps_no_
     """Wider starts teach the goal distances of larger swarms: such datasets clone with the others, and the model
     runs on the task's own starts (its file carries no start_radius)."""
     wide = record(tmp_path / "wide", ENV, n_robots=4, episodes=2, steps=16, start_radius=[150.0, 900.0])
-    result = behaviour_clone_per_robot([dataset, wide], ENV, out=tmp_path / "run", log=lambda line: None, epochs=1)
+    result = behaviour_clone_per_robot(
+        [dataset, wide], ENV, PerRobotCloneConfig(epochs=1), out=tmp_path / "run", log=lambda line: None
+    )
     info = read_model_info(result.model_path)
     assert "start_radius" not in info.env_kwargs
     assert RobotModelPolicy.load(result.model_path).spec.trained_n_robots == (4, 16)

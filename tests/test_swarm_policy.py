@@ -13,7 +13,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs.particle_env import ROBOT_FEATURES
-from dpr.imitation import behaviour_clone
+from dpr.imitation import CloneConfig, behaviour_clone
 from dpr.policies.hyperparams import SWARM_CRITICS, load_hyperparams
 from dpr.policies.sb3 import (
     SWARM_POLICY,
@@ -169,7 +169,7 @@ def test_a_clone_runs_saves_loads_and_fine_tunes(demos, tmp_path):
     """BC clones into it, the model file reloads to the same actions, and PPO fine-tunes it from the file."""
     env_id, kwargs = DEMO_ENV, DEMO_KWARGS
     clone = behaviour_clone(
-        demos, env_id, epochs=3, out=tmp_path / "bc", hyperparams=SWARM, lr=3e-3, log=lambda _: None
+        demos, env_id, CloneConfig(epochs=3, hyperparams=SWARM, lr=3e-3), out=tmp_path / "bc", log=lambda _: None
     )
     assert clone.history[-1]["val_nll"] < clone.history[0]["val_nll"]
     model, _ = load_model(clone.model_path)
@@ -284,7 +284,7 @@ def test_a_clone_fine_tunes_with_the_swarm_critic_keeping_its_actor(demos, tmp_p
     """A clone made with the MLP critic starts a fine-tuning run whose critic is the swarm one: its actor's weights
     are the clone's, the critic is new."""
     clone = behaviour_clone(
-        demos, DEMO_ENV, epochs=1, out=tmp_path / "bc", hyperparams=SWARM, lr=3e-3, log=lambda _: None
+        demos, DEMO_ENV, CloneConfig(epochs=1, hyperparams=SWARM, lr=3e-3), out=tmp_path / "bc", log=lambda _: None
     )
     source, _ = load_model(clone.model_path)
     env = gym.make(DEMO_ENV, n_robots=N, robot_model="disk", **DEMO_KWARGS)

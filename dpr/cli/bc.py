@@ -17,7 +17,7 @@ from dpr.cli.common import (
 )
 from dpr.sim.models import ROBOT_MODELS
 
-# dpr.imitation.bc and dpr.imitation.dagger parameters, said as the flags that set them.
+# The parameters and settings fields of dpr.imitation.bc, .dagger and .config, said as the flags that set them.
 BC_FLAGS = {
     "dataset_dirs": "--dataset",
     "rounds": "--dagger-rounds",
@@ -26,48 +26,42 @@ BC_FLAGS = {
 }
 
 
+# The fit's settings (fields of dpr.imitation.config.FitConfig), each set by --<field>: its type and what it is, where
+# {unit} is what one sample is and {held_out} what validation holds out.
+FIT_FLAGS = (
+    ("epochs", positive_int, "maximum epochs"),
+    ("batch_size", positive_int, "{unit} per gradient step"),
+    ("lr", float, "Adam learning rate"),
+    ("val_fraction", float, "{held_out}"),
+    ("patience", positive_int, "stop after this many epochs without a better validation log-likelihood"),
+    ("seed", int, "seed of the model, the split and the shuffling"),
+)
+# The DaggerConfig fields `dpr bc` sets besides --dagger-rounds (which defaults to none): flag, type, what it is.
+DAGGER_FLAGS = (
+    ("episodes_per_round", "--dagger-episodes", positive_int, "episodes per DAgger round"),
+    ("first_seed", "--dagger-seed", int, "first seed of the DAgger episodes; must not be a demonstration seed"),
+    ("expert", "--expert", str, "policy that labels the DAgger states; a function of the observation"),
+)
+
+
 def add_fit_flags(parser, clone: dict, unit: str, held_out: str) -> None:
-    """The flags of a cloning run's fit, with their yaml defaults: ``unit`` is what one sample is."""
-    default_argument(parser, "--epochs", clone["epochs"], "maximum epochs")
-    default_argument(parser, "--batch-size", clone["batch_size"], f"{unit} per gradient step")
-    default_argument(parser, "--lr", clone["lr"], "Adam learning rate", type=float)
-    default_argument(parser, "--val-fraction", clone["val_fraction"], held_out, type=float)
-    default_argument(
-        parser,
-        "--patience",
-        clone["patience"],
-        "stop after this many epochs without a better validation log-likelihood",
-    )
-    default_argument(parser, "--seed", clone["seed"], "seed of the model, the split and the shuffling", type=int)
+    """The flags of a cloning run's fit (:data:`FIT_FLAGS`), defaulting to ``clone``'s."""
+    for name, type_, what in FIT_FLAGS:
+        flag = "--" + name.replace("_", "-")
+        default_argument(parser, flag, clone[name], what.format(unit=unit, held_out=held_out), type=type_)
 
 
-def bc_arguments(parser: argparse.ArgumentParser) -> None:
+def dataset_arguments(parser: argparse.ArgumentParser, datasets: str, env: str, env_default: str) -> None:
+    """--dataset, one or more folders (``datasets`` says which), and --env (``env`` says which; by default
+    ``env_default``)."""
+    parser.add_argument("--dataset", required=True, nargs="+", help=datasets)
+    parser.add_argument("--env", help=f"{env}, e.g. {EXAMPLE_ENV_ID} (default: {env_default})")
+
+
+def hyperparam_argument(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
-    from dpr.imitation.bc import behaviour_clone
-    from dpr.imitation.dagger import dagger
-    from dpr.policies.sb3 import BC_ALGOS, SWARM_POLICY
+    from dpr.policies.sb3 import SWARM_POLICY
 
-    clone = defaults(behaviour_clone)
-    dagger_run = defaults(dagger)
-
-    parser.add_argument(
-        "--dataset",
-        required=True,
-        nargs="+",
-        help="dataset folder(s) written by `dpr collect` on the same env; validation episodes come from the first",
-    )
-    parser.add_argument(
-        "--env", help=f"env id the dataset was recorded on, e.g. {EXAMPLE_ENV_ID} (default: the one its episodes name)"
-    )
-    parser.add_argument(
-        "--algo",
-        choices=BC_ALGOS,
-        default=clone["algo"],
-        help=f"model to clone into (default {clone['algo']}; dqn: its Q-network as a classifier over 2^N actions)",
-    )
-    parser.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
-    parser.add_argument("--robot-model", choices=ROBOT_MODELS, help="only checked: it must be the dataset's")
-    add_fit_flags(parser, clone, "frames", "fraction of episodes held out for validation")
     parser.add_argument(
         "--hyperparam",
         action="append",
@@ -78,7 +72,13 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
         "the robots, the pipeline's choice); policy=MlpPolicy gives the yaml's MLP over the whole observation. "
         "dqn keeps the yaml's policy. The model file records its network, and `dpr finetune` builds the same",
     )
-    parser.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
+
+
+def dagger_arguments(parser: argparse.ArgumentParser) -> None:
+    """--dagger-rounds (0 by default: plain cloning) and the other DAgger settings (:data:`DAGGER_FLAGS`)."""
+    from dpr.imitation.config import DaggerConfig
+
+    dagger_run = defaults(DaggerConfig)
     parser.add_argument(
         "--dagger-rounds",
         type=int,
@@ -86,22 +86,34 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
         help="DAgger rounds after cloning: roll the clone out, label its states with --expert, clone "
         "again on everything (default 0: plain behaviour cloning)",
     )
-    default_argument(parser, "--dagger-episodes", dagger_run["episodes_per_round"], "episodes per DAgger round")
-    default_argument(
-        parser,
-        "--dagger-seed",
-        dagger_run["first_seed"],
-        "first seed of the DAgger episodes; must not be a demonstration seed",
-        type=int,
-    )
-    default_argument(
-        parser,
-        "--expert",
-        dagger_run["expert"],
-        "policy that labels the DAgger states; a function of the observation",
-        type=str,
-    )
+    for name, flag, type_, what in DAGGER_FLAGS:
+        default_argument(parser, flag, dagger_run[name], what, type=type_)
     workers_argument(parser, "processes that roll out DAgger episodes")
+
+
+def bc_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.imitation.config import CloneConfig
+    from dpr.policies.sb3 import BC_ALGOS
+
+    clone = defaults(CloneConfig)
+    dataset_arguments(
+        parser,
+        "dataset folder(s) written by `dpr collect` on the same env; validation episodes come from the first",
+        "env id the dataset was recorded on",
+        "the one its episodes name",
+    )
+    parser.add_argument(
+        "--algo",
+        choices=BC_ALGOS,
+        default=clone["algo"],
+        help=f"model to clone into (default {clone['algo']}; dqn: its Q-network as a classifier over 2^N actions)",
+    )
+    parser.add_argument("--n-robots", type=positive_int, help="swarm size N; only checked: it must be the dataset's")
+    parser.add_argument("--robot-model", choices=ROBOT_MODELS, help="only checked: it must be the dataset's")
+    add_fit_flags(parser, clone, "frames", "fraction of episodes held out for validation")
+    hyperparam_argument(parser)
+    parser.add_argument("--out", help="new run folder (default runs/bc/<task>-<algo>-seed<S>-<timestamp>)")
+    dagger_arguments(parser)
 
 
 def bc_hyperparams(algo: str, given: dict) -> dict:
@@ -132,8 +144,23 @@ def recorded_env_id(args, parser: argparse.ArgumentParser) -> str:
     return episodes[0][ENV_ID]
 
 
+def fit_settings(args) -> dict:
+    """The model and fit settings (:class:`dpr.imitation.config.FitConfig` fields) that the flags say."""
+    return {name: getattr(args, name) for name in ("algo", *(name for name, *_ in FIT_FLAGS))}
+
+
+def dagger_config(args):
+    """The :class:`dpr.imitation.config.DaggerConfig` of `dpr bc`'s DAgger flags."""
+    from dpr.imitation.config import DaggerConfig
+
+    dest = {flag: flag[2:].replace("-", "_") for _, flag, *_ in DAGGER_FLAGS}  # where argparse keeps each flag
+    settings = {name: getattr(args, dest[flag]) for name, flag, *_ in DAGGER_FLAGS}
+    return DaggerConfig(rounds=args.dagger_rounds, workers=args.workers, **settings)
+
+
 def cmd_bc(args, parser) -> int:
     from dpr.imitation.bc import behaviour_clone
+    from dpr.imitation.config import CloneConfig
 
     check_seed(args, parser)
     args.env = recorded_env_id(args, parser)
@@ -144,39 +171,20 @@ def cmd_bc(args, parser) -> int:
         for name, value in (("n_robots", args.n_robots), ("robot_model", args.robot_model))
         if value is not None
     }
-    bc_kwargs = dict(
-        algo=args.algo,
-        epochs=args.epochs,
-        batch_size=args.batch_size,
-        lr=args.lr,
-        val_fraction=args.val_fraction,
-        patience=args.patience,
-        seed=args.seed,
-        env_kwargs=requested,
-        hyperparams=bc_hyperparams(args.algo, dict(args.hyperparam or [])),
-        show_progress=True,
-    )
+    hyperparams = bc_hyperparams(args.algo, dict(args.hyperparam or []))
     try:
-        if args.dagger_rounds:
+        dagger_run = dagger_config(args) if args.dagger_rounds else None
+        clone = CloneConfig(**fit_settings(args), env_kwargs=requested, hyperparams=hyperparams)
+        if dagger_run is not None:
             from dpr.imitation.bc import default_run_dir
             from dpr.imitation.dagger import dagger
 
             out = args.out or default_run_dir(args.env, f"{args.algo}-dagger", args.seed)
-            run = dagger(
-                args.dataset,
-                args.env,
-                out,
-                expert=args.expert,
-                rounds=args.dagger_rounds,
-                episodes_per_round=args.dagger_episodes,
-                first_seed=args.dagger_seed,
-                workers=args.workers,
-                **bc_kwargs,
-            )
+            run = dagger(args.dataset, args.env, out, dagger_run, clone, show_progress=True)
             result, model = run.rounds[-1], run.model_path
             print(f"DAgger: {len(run.rounds) - 1} round(s), datasets {', '.join(map(str, run.datasets))}")
         else:
-            result = behaviour_clone(args.dataset, args.env, out=args.out, **bc_kwargs)
+            result = behaviour_clone(args.dataset, args.env, clone, out=args.out, show_progress=True)
             model = result.model_path
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, BC_FLAGS))
@@ -192,21 +200,18 @@ def cmd_bc(args, parser) -> int:
 
 
 def bc_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
-    from dpr.imitation.per_robot import behaviour_clone_per_robot
+    from dpr.imitation.config import PerRobotCloneConfig
     from dpr.policies.decentralised import MODEL_DEFAULTS
     from dpr.policies.sb3 import FINETUNE_ALGOS
 
-    clone = defaults(behaviour_clone_per_robot)
+    clone = defaults(PerRobotCloneConfig)
     holds = ", ".join(f"{model} {values['hold_steps']}" for model, values in MODEL_DEFAULTS.items())
-    parser.add_argument(
-        "--dataset",
-        required=True,
-        nargs="+",
-        help="dataset folder(s) written by `dpr collect` on the same env, of any swarm sizes (e.g. one of N=9 and "
+    dataset_arguments(
+        parser,
+        "dataset folder(s) written by `dpr collect` on the same env, of any swarm sizes (e.g. one of N=9 and "
         "one of N=25); every dataset of 2 or more episodes gives validation episodes",
-    )
-    parser.add_argument(
-        "--env", help=f"env id the datasets were recorded on, e.g. {EXAMPLE_ENV_ID} (default: the one they name)"
+        "env id the datasets were recorded on",
+        "the one they name",
     )
     parser.add_argument(
         "--algo",
@@ -239,6 +244,7 @@ def bc_decentralised_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_bc_decentralised(args, parser) -> int:
+    from dpr.imitation.config import PerRobotCloneConfig
     from dpr.imitation.per_robot import behaviour_clone_per_robot
 
     check_seed(args, parser)
@@ -246,24 +252,15 @@ def cmd_bc_decentralised(args, parser) -> int:
     if not args.lr > 0:
         parser.error(f"--lr must be > 0, got {args.lr}")
     try:
-        result = behaviour_clone_per_robot(
-            args.dataset,
-            args.env,
-            algo=args.algo,
+        config = PerRobotCloneConfig(
+            **fit_settings(args),
             max_neighbours=args.max_neighbours,
             hold_steps=args.hold_steps,
             n_phases=args.n_phases,
             distance_period=args.distance_period,
-            epochs=args.epochs,
-            batch_size=args.batch_size,
-            lr=args.lr,
-            val_fraction=args.val_fraction,
-            patience=args.patience,
-            seed=args.seed,
-            out=args.out,
             env_kwargs={} if args.robot_model is None else {"robot_model": args.robot_model},
-            show_progress=True,
         )
+        result = behaviour_clone_per_robot(args.dataset, args.env, config, out=args.out, show_progress=True)
     except (TypeError, ValueError) as error:
         parser.error(flag_message(error, BC_DECENTRALISED_FLAGS))
     model = result.model_path
@@ -280,7 +277,7 @@ def cmd_bc_decentralised(args, parser) -> int:
 
 def distance_period(text: str) -> float | str | None:
     """``--distance-period``: 'wave', 'none' or a length > 0."""
-    from dpr.imitation.per_robot import WAVE_LENGTH
+    from dpr.imitation.config import WAVE_LENGTH
 
     if text in (WAVE_LENGTH, "none"):
         return None if text == "none" else text
@@ -293,7 +290,7 @@ def distance_period(text: str) -> float | str | None:
     return value
 
 
-# dpr.imitation.per_robot parameters, said as the flags that set them.
+# The parameters and settings fields of dpr.imitation.per_robot and .config, said as the flags that set them.
 BC_DECENTRALISED_FLAGS = {"dataset_dirs": "--dataset"}
 
 COMMANDS = (

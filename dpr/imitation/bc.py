@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -45,16 +44,15 @@ import yaml
 from torch.utils.data import DataLoader
 
 from dpr import runs
-from dpr.checks import ParameterError, check_int
+from dpr.checks import ParameterError
 from dpr.datasets import features
 from dpr.datasets.frames import ConcatFrames, EpisodeBlockSampler, FrameDataset
 from dpr.datasets.lerobot import LeRobotReader
-from dpr.envs import MAX_EPISODE_STEPS, TASKS
+from dpr.envs import MAX_EPISODE_STEPS
+from dpr.imitation.config import CloneConfig, check_env_id
 from dpr.imitation.loss import batch_stats, check_features
-from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.hyperparams import Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
-    BC_ALGOS,
-    DEFAULT_ALGO,
     DQN,
     ModelInfo,
     model_architecture,
@@ -178,26 +176,6 @@ def finish_bc_run(
         val_ids,
         fit.history,
     )
-
-
-# ------------------------------------------------------------------------------------------------ arguments
-
-
-def check_bc_arguments(
-    env_id: str, algo: str, epochs: int, batch_size: int, lr: float, val_fraction: float, patience: int, seed: int
-) -> None:
-    if env_id not in TASKS:
-        raise ValueError(f"env must be one of {tuple(TASKS)}, got {env_id!r}")
-    if algo not in BC_ALGOS:
-        raise ValueError(f"algo must be one of {BC_ALGOS}, got {algo!r}")
-    check_int("epochs", epochs, 1)
-    check_int("batch_size", batch_size, 1)
-    check_int("patience", patience, 1)
-    check_int("seed", seed, 0)
-    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not lr > 0 or not math.isfinite(lr):
-        raise ValueError(f"lr must be a number > 0, got {lr!r}")
-    if isinstance(val_fraction, bool) or not isinstance(val_fraction, (int, float)) or not 0 < val_fraction < 1:
-        raise ValueError(f"val_fraction must be a number in (0, 1), got {val_fraction!r}")
 
 
 # ------------------------------------------------------------------------------------------------ dataset -> env
@@ -350,68 +328,67 @@ def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
     return runs.default_run_dir(RUNS_DIR, env_id, algo, seed)
 
 
-def behaviour_clone(
-    dataset_dirs: str | Path | list[str | Path],
-    env_id: str,
-    *,
-    algo: str = DEFAULT_ALGO,
-    epochs: int = 20,
-    batch_size: int = 256,
-    lr: float = 1e-3,
-    val_fraction: float = 0.2,
-    patience: int = 3,
-    seed: int = 0,
-    out: str | Path | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    hyperparams: dict[str, Any] | None = None,
-    change_weight: float = 1.0,
-    show_progress: bool = False,
-    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
-) -> BCResult:
-    """Behaviour-clone the dataset at ``dataset_dirs`` (recorded by ``dpr collect`` on ``env_id``; or a list of
-    datasets of the same env, whose first one provides the validation episodes and the rest only train) into a new
-    ``algo`` model built as ``dpr train`` builds it; save it with ``bc_log.json`` and ``config.yaml`` into ``out``
-    (a new or empty folder; default ``runs/bc/<task>-<algo>-seed<S>-<timestamp>``).
+def start_run(run_dir: Path, record: dict[str, Any]) -> Path:
+    """Make ``run_dir`` and write ``record`` (what the run resolved) as its ``config.yaml``; that file's path.
+    :func:`finish_bc_run` completes it."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    config_path = run_dir / "config.yaml"
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    return config_path
 
-    ``env_kwargs`` may restate kwargs (e.g. ``{"n_robots": 9}``); any that differ from the dataset's are an error.
-    Bad input raises ValueError (DatasetError for an unreadable dataset) before anything is written."""
-    from dpr.policies.sb3 import build_model, make_vec_env
 
-    check_bc_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
-    runs.check_new_folder(out)
+# ------------------------------------------------------------------------------------------------ behaviour_clone
+
+
+def read_matching_datasets(
+    dataset_dirs: str | Path | list[str | Path], env_id: str, requested: dict[str, Any]
+) -> tuple[list[LeRobotReader], dict[str, Any], int | None]:
+    """Readers of the datasets, and the env kwargs and episode length (:func:`dataset_env`) that all of them were
+    recorded with. A DatasetError names a folder that is not a dataset; datasets that differ are a
+    :class:`ParameterError` about ``dataset_dirs`` naming both."""
     dataset_dirs = [dataset_dirs] if isinstance(dataset_dirs, (str, Path)) else list(dataset_dirs)
     if not dataset_dirs:
         raise ParameterError("dataset_dirs", "give at least one dataset")
-    readers = [LeRobotReader(path) for path in dataset_dirs]  # DatasetError naming a folder that is not a dataset
+    readers = [LeRobotReader(path) for path in dataset_dirs]
     reader = readers[0]
-    kwargs, steps = dataset_env(reader, env_id, env_kwargs)
+    kwargs, steps = dataset_env(reader, env_id, requested)
     for other in readers[1:]:
-        recorded = dataset_env(other, env_id, env_kwargs)
+        recorded = dataset_env(other, env_id, requested)
         if recorded != (kwargs, steps):
             raise ParameterError(
                 "dataset_dirs",
                 f"{other.root} was recorded with {recorded}, "
                 f"{reader.root} with {(kwargs, steps)}; datasets cloned together must match",
             )
-    hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
+    return readers, kwargs, steps
+
+
+def model_env_kwargs(algo: str, hyper: Hyperparams, recorded: dict[str, Any], root: Path) -> dict[str, Any]:
+    """The kwargs of the env the model acts on: the ``recorded`` ones (of the dataset at ``root``) with the
+    algorithm's yaml env_kwargs over them, which must not contradict them (a :class:`ParameterError` about
+    ``algo``)."""
     for name, value in hyper.env_kwargs.items():  # e.g. an algorithm that needs another action type
         # DQN's Discrete(2^N) actions are the recorded MultiBinary ones, encoded as integers
-        converted = algo == DQN and name == "action_type" and kwargs.get(name) == "multibinary"
-        if name in kwargs and kwargs[name] != value and not converted:
+        converted = algo == DQN and name == "action_type" and recorded.get(name) == "multibinary"
+        if name in recorded and recorded[name] != value and not converted:
             raise ParameterError(
                 "algo",
                 f"{algo} needs {name}={value!r} (its yaml env_kwargs); the dataset "
-                f"{reader.root} was recorded with {name}={kwargs[name]!r}",
+                f"{root} was recorded with {name}={recorded[name]!r}",
             )
-    kwargs = {**kwargs, **hyper.env_kwargs}
-    steps = int(steps) if steps else MAX_EPISODE_STEPS
-    env_text = f"{env_id} {kwargs}"
-    if isinstance(change_weight, bool) or not isinstance(change_weight, (int, float)) or not change_weight >= 1.0:
-        raise ValueError(f"change_weight must be a number >= 1, got {change_weight!r}")
-    probe = gym.make(env_id, **kwargs)  # a bad kwarg fails here, before the run folder exists
+    return {**recorded, **hyper.env_kwargs}
+
+
+def check_frames_fit(
+    env_id: str, kwargs: dict[str, Any], readers: list[LeRobotReader], change_weight: float
+) -> slice | None:
+    """Check that every dataset's frames fit the spaces of ``env_id`` made with ``kwargs`` (a bad kwarg fails here,
+    before the run folder exists). The slice of the observation that holds the previous action (None without
+    ``obs_last_action``), which a ``change_weight`` other than 1 needs."""
+    probe = gym.make(env_id, **kwargs)
     try:
         for each in readers:
-            check_features(each, probe.observation_space, probe.action_space, env_text)
+            check_features(each, probe.observation_space, probe.action_space, f"{env_id} {kwargs}")
         base = probe.unwrapped
         previous_action = (
             slice(base.memory_offset, base.memory_offset + base.n_robots) if base.obs_last_action else None
@@ -422,79 +399,147 @@ def behaviour_clone(
         raise ValueError(
             "change_weight needs the previous action in the observation: a dataset recorded with obs_last_action=True"
         )
-    train_ids, val_ids = split_episodes(reader.num_episodes, val_fraction, seed)
+    return previous_action
 
-    run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    record: dict[str, Any] = {
-        "algo": algo,
+
+def clone_record(
+    config: CloneConfig,
+    env_id: str,
+    kwargs: dict[str, Any],
+    steps: int,
+    readers: list[LeRobotReader],
+    split: tuple[list[int], list[int]],
+    hyper: Hyperparams,
+) -> dict[str, Any]:
+    """What a ``dpr bc`` run resolved, as its config.yaml says it: the model, the env, the datasets and the
+    training (``split``) and validation episodes of the first, the fit."""
+    reader = readers[0]
+    return {
+        "algo": config.algo,
         "env_id": env_id,
         "env_kwargs": kwargs,
         "steps_per_episode": steps,
         "dataset": str(reader.root.resolve()),
         "dataset_episodes": reader.num_episodes,
         "dataset_frames": reader.num_frames,
-        "train_episodes": train_ids,
-        "val_episodes": val_ids,
+        "train_episodes": split[0],
+        "val_episodes": split[1],
         "more_datasets": [
             {"dataset": str(r.root.resolve()), "episodes": r.num_episodes, "frames": r.num_frames} for r in readers[1:]
         ],
         "bc": {
-            "epochs": epochs,
-            "batch_size": batch_size,
-            "lr": lr,
-            "val_fraction": val_fraction,
-            "patience": patience,
-            "seed": seed,
-            "change_weight": change_weight,
+            **config.fit_record(),
+            "change_weight": config.change_weight,
             "optimizer": "Adam",
-            **(_DQN_LOSS if algo == DQN else _ACTOR_CRITIC_LOSS),
+            **(_DQN_LOSS if config.algo == DQN else _ACTOR_CRITIC_LOSS),
         },
         "hyperparameters": hyper.as_dict(),
         "versions": runs.package_versions(),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-    config_path = run_dir / "config.yaml"
-    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    log(
-        f"dpr bc: {algo} on {env_id} {kwargs} from {reader.root} ({len(train_ids)} train / {len(val_ids)} "
-        f"validation episodes) -> {run_dir}"
-    )
+
+
+def new_model(env_id: str, kwargs: dict[str, Any], steps: int, hyper: Hyperparams, seed: int):
+    """The untrained SB3 model, built as ``dpr train`` builds it (torch seeded with ``seed`` first)."""
+    from dpr.policies.sb3 import build_model, make_vec_env
 
     torch.manual_seed(seed)
     env = make_vec_env(env_id, kwargs, steps, 1)
     try:
-        model = build_model(hyper, env, seed, None)
+        return build_model(hyper, env, seed, None)
     finally:
         env.close()
-    policy = model.policy
-    train_set = FrameDataset(reader.root, episodes=train_ids, cache_episodes=BLOCK_EPISODES)
+
+
+def frame_sets(
+    readers: list[LeRobotReader], train_ids: list[int], val_ids: list[int]
+) -> tuple[FrameDataset | ConcatFrames, FrameDataset]:
+    """The training frames (the first dataset's ``train_ids`` episodes, then every episode of the others) and the
+    validation frames (the first dataset's ``val_ids``)."""
+    root = readers[0].root
+    train_set = FrameDataset(root, episodes=train_ids, cache_episodes=BLOCK_EPISODES)
     if len(readers) > 1:
         train_set = ConcatFrames(
             [train_set, *(FrameDataset(r.root, cache_episodes=BLOCK_EPISODES) for r in readers[1:])]
         )
-    val_set = FrameDataset(reader.root, episodes=val_ids, cache_episodes=BLOCK_EPISODES)
-    sampler = EpisodeBlockSampler(train_set, block_episodes=BLOCK_EPISODES, seed=seed)
-    loader = _loader(train_set, batch_size, sampler)
-    optimizer = torch.optim.Adam(trained_parameters(policy), lr=lr)
+    return train_set, FrameDataset(root, episodes=val_ids, cache_episodes=BLOCK_EPISODES)
 
+
+def fit_frames(
+    policy,
+    train_set: FrameDataset | ConcatFrames,
+    val_set: FrameDataset,
+    config: CloneConfig,
+    previous_action: slice | None,
+    title: str,
+    show_progress: bool,
+) -> EarlyStoppedFit:
+    """Train ``policy``'s actor on ``train_set`` with a fresh Adam, epoch after epoch, early-stopped on
+    ``val_set`` (:func:`fit_with_early_stopping`); a progress bar called ``title`` counts the frames."""
     from tqdm import tqdm
+
+    sampler = EpisodeBlockSampler(train_set, block_episodes=BLOCK_EPISODES, seed=config.seed)
+    loader = _loader(train_set, config.batch_size, sampler)
+    optimizer = torch.optim.Adam(trained_parameters(policy), lr=config.lr)
+    n_actions, change_weight = train_set.action_dim, config.change_weight
 
     def run_epoch(epoch: int) -> dict[str, Any]:
         sampler.set_epoch(epoch)
         return {
-            **_train_epoch(policy, optimizer, loader, train_set.action_dim, bar, previous_action, change_weight),
-            **measure(policy, val_set, batch_size, "val"),
+            **_train_epoch(policy, optimizer, loader, n_actions, bar, previous_action, change_weight),
+            **measure(policy, val_set, config.batch_size, "val"),
         }
 
     # Epoch 0 is the untrained policy: the baseline every later epoch is compared with.
-    first = {**measure(policy, train_set, batch_size, "train"), **measure(policy, val_set, batch_size, "val")}
-    with tqdm(
-        total=epochs * len(train_set), desc=f"bc {algo} {env_id}", unit="frame", disable=not show_progress
-    ) as bar:
-        fit = fit_with_early_stopping(policy, first, run_epoch, epochs, patience, bar)
-    if hasattr(policy, "q_net_target"):  # DQN bootstraps from its target network: start it at the clone
-        policy.q_net_target.load_state_dict(policy.q_net.state_dict())
+    first = {
+        **measure(policy, train_set, config.batch_size, "train"),
+        **measure(policy, val_set, config.batch_size, "val"),
+    }
+    with tqdm(total=config.epochs * len(train_set), desc=title, unit="frame", disable=not show_progress) as bar:
+        return fit_with_early_stopping(policy, first, run_epoch, config.epochs, config.patience, bar)
+
+
+def behaviour_clone(
+    dataset_dirs: str | Path | list[str | Path],
+    env_id: str,
+    config: CloneConfig | None = None,
+    *,
+    out: str | Path | None = None,
+    show_progress: bool = False,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+) -> BCResult:
+    """Behaviour-clone the dataset at ``dataset_dirs`` (recorded by ``dpr collect`` on ``env_id``; or a list of
+    datasets of the same env, whose first one provides the validation episodes and the rest only train) into a new
+    ``config.algo`` model built as ``dpr train`` builds it, fitted as ``config`` (default :class:`CloneConfig`)
+    says; save it with ``bc_log.json`` and ``config.yaml`` into ``out`` (a new or empty folder; default
+    ``runs/bc/<task>-<algo>-seed<S>-<timestamp>``).
+
+    ``config.env_kwargs`` may restate kwargs (e.g. ``{"n_robots": 9}``); any that differ from the dataset's are an
+    error. Bad input raises ValueError (DatasetError for an unreadable dataset; bad settings when ``config`` is made)
+    before anything is written."""
+    config = CloneConfig() if config is None else config
+    algo, seed = config.algo, config.seed
+    check_env_id(env_id)
+    runs.check_new_folder(out)
+    readers, recorded, steps = read_matching_datasets(dataset_dirs, env_id, config.env_kwargs)
+    hyper = load_hyperparams(algo, env_id, overrides=config.hyperparams)
+    kwargs = model_env_kwargs(algo, hyper, recorded, readers[0].root)
+    steps = int(steps) if steps else MAX_EPISODE_STEPS
+    previous_action = check_frames_fit(env_id, kwargs, readers, config.change_weight)
+    train_ids, val_ids = split_episodes(readers[0].num_episodes, config.val_fraction, seed)
+
+    run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
+    record = clone_record(config, env_id, kwargs, steps, readers, (train_ids, val_ids), hyper)
+    config_path = start_run(run_dir, record)
+    log(
+        f"dpr bc: {algo} on {env_id} {kwargs} from {readers[0].root} ({len(train_ids)} train / {len(val_ids)} "
+        f"validation episodes) -> {run_dir}"
+    )
+    model = new_model(env_id, kwargs, steps, hyper, seed)
+    train_set, val_set = frame_sets(readers, train_ids, val_ids)
+    fit = fit_frames(model.policy, train_set, val_set, config, previous_action, f"bc {algo} {env_id}", show_progress)
+    if hasattr(model.policy, "q_net_target"):  # DQN bootstraps from its target network: start it at the clone
+        model.policy.q_net_target.load_state_dict(model.policy.q_net.state_dict())
 
     model_path = run_dir / "model.zip"
     model.save(model_path)

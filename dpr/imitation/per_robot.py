@@ -29,36 +29,37 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
-import yaml
 
 from dpr import runs
-from dpr.checks import ParameterError, check_int, check_number
+from dpr.checks import ParameterError
 from dpr.datasets.features import ACTION, OBSERVATION, SEED
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import MAX_EPISODE_STEPS, TASKS
-from dpr.envs.local_obs import MAX_NEIGHBOURS, LocalObservation
+from dpr.envs.local_obs import LocalObservation
 from dpr.envs.particle_env import joint_action_bits
 from dpr.imitation.bc import (
     AccuracyMeter,
     BCResult,
-    check_bc_arguments,
+    EarlyStoppedFit,
     dataset_env,
     finish_bc_run,
     fit_with_early_stopping,
     split_episodes,
+    start_run,
 )
+from dpr.imitation.config import WAVE_LENGTH, PerRobotCloneConfig, check_env_id
 from dpr.imitation.loss import batch_stats, check_features
-from dpr.policies.decentralised import DEFAULT_N_PHASES, MODEL_DEFAULTS, wave_env_kwargs
-from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.decentralised import MODEL_DEFAULTS, wave_env_kwargs
+from dpr.policies.hyperparams import Hyperparams, load_hyperparams
 from dpr.policies.per_robot_spec import RobotModelSpec
-from dpr.policies.sb3 import DEFAULT_ALGO, FINETUNE_ALGOS, ModelInfo, trained_parameters, write_model_info
-from dpr.policies.wave import BIN_WIDTH
+from dpr.policies.sb3 import ModelInfo, trained_parameters, write_model_info
 from dpr.sim.models import swarm_class
 
 __all__ = [
@@ -79,7 +80,6 @@ CENTRALISED_ONLY_KWARGS = ("n_robots", "action_type", "obs_type", "obs_last_acti
 # leaves them out. Where the swarm starts changes which distances to the goal the robots see, not what a robot
 # observes or does, so demonstrations from wider starts teach the distances that larger swarms span.
 EPISODE_ONLY_KWARGS = ("n_robots", "start_radius")
-WAVE_LENGTH = "wave"  # distance_period: one wave length, n_phases x the wave's bin width
 _LOSS = {
     "loss": "mean per-sample NLL of the recorded action (one sample = one robot at one frame, Categorical(2))",
     "trained": "actor only",
@@ -237,112 +237,112 @@ def default_run_dir(env_id: str, algo: str, seed: int) -> Path:
     return runs.default_run_dir(RUNS_DIR, env_id, algo, seed)
 
 
-def behaviour_clone_per_robot(
-    dataset_dirs: str | Path | list[str | Path],
-    env_id: str,
-    *,
-    algo: str = DEFAULT_ALGO,
-    max_neighbours: int = MAX_NEIGHBOURS,
-    hold_steps: int | None = None,
-    n_phases: int = DEFAULT_N_PHASES,
-    distance_period: float | str | None = WAVE_LENGTH,
-    epochs: int = 20,
-    batch_size: int = 512,
-    lr: float = 1e-3,
-    val_fraction: float = 0.2,
-    patience: int = 3,
-    seed: int = 0,
-    out: str | Path | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    hyperparams: dict[str, Any] | None = None,
-    show_progress: bool = False,
-    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
-) -> BCResult:
-    """Clone the robots' actions in ``dataset_dirs`` (one or more datasets recorded by ``dpr collect`` on
-    ``env_id``, possibly of different swarm sizes and start radii, otherwise with the same env kwargs) into a new
-    per-robot ``algo`` model (module docstring); save ``model.zip``, ``bc_log.json`` and ``config.yaml`` into
-    ``out`` (a new or empty folder; default ``runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>``).
-
-    The local observation has ``max_neighbours`` neighbour slots and a clock whose period is one wave cycle of the
-    robot model: ``hold_steps`` (the robot model's wave hold by default, as the decentralised wave) x ``n_phases``;
-    with the decentralised wave as the teacher, they must be the values it ran with. ``distance_period`` replaces
-    the raw distance to the goal by its phase (:class:`~dpr.envs.local_obs.LocalObservation`): ``"wave"`` (the
-    default) one wave length, ``n_phases`` x the wave's bin width, so that a robot senses its band of the wave and
-    nothing that grows with the swarm; a length in world units; or None for the raw distance. ``hyperparams``
-    override the algorithm's yaml entry for ``env_id`` (the network). Bad input raises ValueError before anything is
-    written."""
-    from dpr.envs.parallel import AgentsAsVecEnv, parallel_env
-    from dpr.policies.sb3 import build_model
-
-    if algo not in FINETUNE_ALGOS:
-        raise ParameterError("algo", f"a per-robot model is an actor-critic: one of {FINETUNE_ALGOS}, got {algo!r}")
-    check_bc_arguments(env_id, algo, epochs, batch_size, lr, val_fraction, patience, seed)
-    check_int("max_neighbours", max_neighbours, 1)
-    runs.check_new_folder(out)
-    if "n_robots" in (env_kwargs or {}):
-        raise ParameterError("env_kwargs", "n_robots is each dataset's own; a per-robot model runs any N")
-    readers, kwargs_list, steps_list = _read_datasets(dataset_dirs, env_id, env_kwargs)
-    kwargs = kwargs_list[0]
-    robot_model = kwargs.get("robot_model", "paddle")
-    clock_period = wave_env_kwargs(robot_model, hold_steps, n_phases)["clock_period"]
-    if distance_period == WAVE_LENGTH:
-        distance_period = n_phases * BIN_WIDTH
-    elif distance_period is not None:
-        distance_period = check_number("distance_period", distance_period, above=0)
-    hold = MODEL_DEFAULTS[robot_model]["hold_steps"] if hold_steps is None else hold_steps
-    hyper = load_hyperparams(algo, env_id, overrides=hyperparams)
+def check_per_robot_hyperparams(hyper: Hyperparams) -> None:
+    """A :class:`ParameterError` about ``hyperparams`` unless the yaml entry builds a model of one robot's vector."""
     if hyper.env_kwargs:
         raise ParameterError("hyperparams", f"a per-robot model takes no yaml env_kwargs, got {hyper.env_kwargs}")
     if (hyper.algo_kwargs.get("policy_kwargs") or {}).get("features_extractor", "flatten") != "flatten":
         raise ParameterError("hyperparams", "a per-robot model reads one robot's vector: features_extractor flatten")
-    for reader, recorded in zip(readers, kwargs_list):  # the frames must be the recorded env's
+
+
+def check_recorded_frames(env_id: str, readers: list[LeRobotReader], kwargs_list: list[dict[str, Any]]) -> None:
+    """Check that each dataset's frames fit the spaces of the centralised env it was recorded on."""
+    for reader, recorded in zip(readers, kwargs_list):
         probe = gym.make(env_id, **recorded)
         try:
             check_features(reader, probe.observation_space, probe.action_space, f"{env_id} {recorded}")
         finally:
             probe.close()
-    task_kwargs = {k: v for k, v in kwargs.items() if k not in (*CENTRALISED_ONLY_KWARGS, *EPISODE_ONLY_KWARGS)}
-    n_values = [int(k["n_robots"]) for k in kwargs_list]
+
+
+def swarm_env_and_spec(
+    env_id: str, kwargs: dict[str, Any], n_values: list[int], clock_period: int, config: PerRobotCloneConfig
+):
+    """The PettingZoo env whose agents' spaces the model gets (local observations of ``config``'s layout, on the
+    task's kwargs), and the model's :class:`RobotModelSpec` (it learned on swarms of ``n_values`` robots)."""
+    from dpr.envs.parallel import parallel_env
+
+    robot_model = kwargs.get("robot_model", "paddle")
     swarm_env = parallel_env(
         TASKS[env_id],
         n_robots=n_values[0],
         local_obs=True,
-        max_neighbours=max_neighbours,
+        max_neighbours=config.max_neighbours,
         clock_period=clock_period,
-        distance_period=distance_period,
-        **task_kwargs,
+        distance_period=config.distance_length,
+        **task_kwargs(kwargs),
     )
     layout = swarm_env.local_layout
     spec = RobotModelSpec(
         robot_model,
-        max_neighbours,
+        config.max_neighbours,
         clock_period,
         layout.dead_flag,
         layout.has_object,
-        hold,
-        n_phases,
+        MODEL_DEFAULTS[robot_model]["hold_steps"] if config.hold_steps is None else config.hold_steps,
+        config.n_phases,
         tuple(sorted(set(n_values))),
         layout.distance_period,
     )
+    return swarm_env, spec
+
+
+def task_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The recorded env kwargs a per-robot model depends on: those of neither the centralised env nor the
+    episodes."""
+    return {k: v for k, v in kwargs.items() if k not in (*CENTRALISED_ONLY_KWARGS, *EPISODE_ONLY_KWARGS)}
+
+
+def split_datasets(readers: list[LeRobotReader], val_fraction: float, seed: int) -> list[tuple[list[int], list[int]]]:
+    """The training and validation episodes of each dataset: whole episodes of every dataset with two or more are
+    held out; a :class:`ParameterError` about ``dataset_dirs`` when none has two."""
     splits = []
-    for reader in readers:  # whole episodes of every dataset with two or more are held out
+    for reader in readers:
         if reader.num_episodes >= 2:
             splits.append(split_episodes(reader.num_episodes, val_fraction, seed))
         else:
             splits.append((list(range(reader.num_episodes)), []))
     if not any(val for _, val in splits):
         raise ParameterError("dataset_dirs", "behaviour cloning needs a dataset of at least 2 episodes (one held out)")
+    return splits
 
-    run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    steps = int(steps_list[0]) if steps_list[0] else MAX_EPISODE_STEPS
-    record: dict[str, Any] = {
-        "algo": algo,
-        "env_id": env_id,
-        "env_kwargs": task_kwargs,
-        "per_robot": spec.as_dict(),
-        "steps_per_episode": steps,
-        "datasets": [
+
+@dataclass
+class PerRobotInputs:
+    """What a per-robot cloning run learns from and builds, checked before anything is written: the datasets
+    (``readers``, each one's swarm size in ``n_values`` and its training and validation episodes in ``splits``),
+    the env kwargs the model depends on (:func:`task_kwargs`) and its episode length, the yaml entry of the model,
+    the PettingZoo env whose agents' spaces it gets, and its :class:`RobotModelSpec`."""
+
+    readers: list[LeRobotReader]
+    n_values: list[int]
+    splits: list[tuple[list[int], list[int]]]
+    model_kwargs: dict[str, Any]
+    steps: int
+    hyper: Hyperparams
+    swarm_env: Any
+    spec: RobotModelSpec
+
+    @property
+    def episode_ids(self) -> tuple[list[int], list[int]]:
+        """Every dataset's training episodes, one after the other, and its validation ones."""
+        return [i for train, _ in self.splits for i in train], [i for _, val in self.splits for i in val]
+
+    def new_model(self, seed: int):
+        """The untrained model on the swarm env's agents, built as PPO fine-tunes it (torch seeded first)."""
+        from dpr.envs.parallel import AgentsAsVecEnv
+        from dpr.policies.sb3 import build_model
+
+        torch.manual_seed(seed)
+        venv = AgentsAsVecEnv(self.swarm_env)
+        try:
+            return build_model(self.hyper, venv, seed, None)
+        finally:
+            venv.close()
+
+    def record(self, config: PerRobotCloneConfig, env_id: str) -> dict[str, Any]:
+        """What the run resolved, as its config.yaml says it."""
+        datasets = [
             {
                 "dataset": str(r.root.resolve()),
                 "n_robots": n,
@@ -351,85 +351,146 @@ def behaviour_clone_per_robot(
                 "train_episodes": train,
                 "val_episodes": val,
             }
-            for r, n, (train, val) in zip(readers, n_values, splits)
-        ],
-        "bc": {
-            "epochs": epochs,
-            "batch_size": batch_size,
-            "lr": lr,
-            "val_fraction": val_fraction,
-            "patience": patience,
-            "seed": seed,
-            "optimizer": "Adam",
-            **_LOSS,
-        },
-        "hyperparameters": hyper.as_dict(),
-        "versions": runs.package_versions(),
-        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
-    config_path = run_dir / "config.yaml"
-    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    datasets_text = ", ".join(f"{r.root} (N={n})" for r, n in zip(readers, n_values))
-    log(f"dpr bc-decentralised: per-robot {algo} on {env_id} {task_kwargs} from {datasets_text} -> {run_dir}")
+            for r, n, (train, val) in zip(self.readers, self.n_values, self.splits)
+        ]
+        return {
+            "algo": config.algo,
+            "env_id": env_id,
+            "env_kwargs": self.model_kwargs,
+            "per_robot": self.spec.as_dict(),
+            "steps_per_episode": self.steps,
+            "datasets": datasets,
+            "bc": {**config.fit_record(), "optimizer": "Adam", **_LOSS},
+            "hyperparameters": self.hyper.as_dict(),
+            "versions": runs.package_versions(),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
 
-    started = time.perf_counter()
+
+def check_inputs(
+    dataset_dirs: str | Path | list[str | Path], env_id: str, config: PerRobotCloneConfig
+) -> PerRobotInputs:
+    """Read and check the datasets and the model's settings (module docstring): a ValueError naming what is wrong,
+    before anything is written."""
+    readers, kwargs_list, steps_list = _read_datasets(dataset_dirs, env_id, config.env_kwargs)
+    robot_model = kwargs_list[0].get("robot_model", "paddle")
+    clock_period = wave_env_kwargs(robot_model, config.hold_steps, config.n_phases)["clock_period"]
+    hyper = load_hyperparams(config.algo, env_id, overrides=config.hyperparams)
+    check_per_robot_hyperparams(hyper)
+    check_recorded_frames(env_id, readers, kwargs_list)
+    n_values = [int(k["n_robots"]) for k in kwargs_list]
+    swarm_env, spec = swarm_env_and_spec(env_id, kwargs_list[0], n_values, clock_period, config)
+    splits = split_datasets(readers, config.val_fraction, config.seed)
+    steps = int(steps_list[0]) if steps_list[0] else MAX_EPISODE_STEPS
+    return PerRobotInputs(readers, n_values, splits, task_kwargs(kwargs_list[0]), steps, hyper, swarm_env, spec)
+
+
+@dataclass(frozen=True)
+class RobotSamples:
+    """The per-robot samples of a run: training rows and labels, and validation ones, all of them and by swarm
+    size (numpy)."""
+
+    train_rows: torch.Tensor
+    train_labels: torch.Tensor
+    val_rows: torch.Tensor
+    val_labels: torch.Tensor
+    val_by_n: dict[int, tuple[np.ndarray, np.ndarray]]
+
+
+def relabel_splits(inputs: PerRobotInputs, env_id: str) -> RobotSamples:
+    """Every dataset's training and validation episodes relabelled into per-robot samples (:func:`relabel_dataset`)
+    of the swarm env's local layout."""
+    readers, n_values, splits, layout = inputs.readers, inputs.n_values, inputs.splits, inputs.swarm_env.local_layout
     train_parts = [relabel_dataset(r, env_id, layout, train) for r, (train, _) in zip(readers, splits)]
     val_parts = {n: relabel_dataset(r, env_id, layout, val) for r, n, (_, val) in zip(readers, n_values, splits) if val}
-    train_rows = torch.from_numpy(np.concatenate([rows for rows, _ in train_parts]))
-    train_labels = torch.from_numpy(np.concatenate([labels for _, labels in train_parts]))
-    val_rows = torch.from_numpy(np.concatenate([rows for rows, _ in val_parts.values()]))
-    val_labels = torch.from_numpy(np.concatenate([labels for _, labels in val_parts.values()]))
-    log(
-        f"dpr bc-decentralised: {len(train_rows)} training / {len(val_rows)} validation robot-frames "
-        f"(relabelled in {time.perf_counter() - started:.0f} s)"
+    return RobotSamples(
+        torch.from_numpy(np.concatenate([rows for rows, _ in train_parts])),
+        torch.from_numpy(np.concatenate([labels for _, labels in train_parts])),
+        torch.from_numpy(np.concatenate([rows for rows, _ in val_parts.values()])),
+        torch.from_numpy(np.concatenate([labels for _, labels in val_parts.values()])),
+        val_parts,
     )
 
-    torch.manual_seed(seed)
-    venv = AgentsAsVecEnv(swarm_env)
-    try:
-        model = build_model(hyper, venv, seed, None)
-    finally:
-        venv.close()
-    policy = model.policy
-    optimizer = torch.optim.Adam(trained_parameters(policy), lr=lr)
-    generator = torch.Generator().manual_seed(seed)
+
+def fit_samples(
+    policy, samples: RobotSamples, config: PerRobotCloneConfig, title: str, show_progress: bool
+) -> EarlyStoppedFit:
+    """Train ``policy``'s actor on the training samples with a fresh Adam, epoch after epoch, early-stopped on the
+    validation samples (:func:`fit_with_early_stopping`); validation rows also give the accuracy at each swarm size
+    when there are several. A progress bar called ``title`` counts the epochs."""
+    from tqdm import tqdm
+
+    optimizer = torch.optim.Adam(trained_parameters(policy), lr=config.lr)
+    generator = torch.Generator().manual_seed(config.seed)
+    batch_size, measured = config.batch_size, 4 * config.batch_size
 
     def validation() -> dict[str, Any]:
-        row = _measure(policy, val_rows, val_labels, 4 * batch_size, "val")
-        if len(val_parts) > 1:
+        row = _measure(policy, samples.val_rows, samples.val_labels, measured, "val")
+        if len(samples.val_by_n) > 1:
             row["val_accuracy_by_n"] = {
-                n: _measure(policy, torch.from_numpy(r), torch.from_numpy(y), 4 * batch_size, "val")["val_accuracy"]
-                for n, (r, y) in val_parts.items()
+                n: _measure(policy, torch.from_numpy(r), torch.from_numpy(y), measured, "val")["val_accuracy"]
+                for n, (r, y) in samples.val_by_n.items()
             }
         return row
 
-    from tqdm import tqdm
-
     def run_epoch(epoch: int) -> dict[str, Any]:
-        row = {**_train_epoch(policy, optimizer, train_rows, train_labels, batch_size, generator), **validation()}
+        trained = _train_epoch(policy, optimizer, samples.train_rows, samples.train_labels, batch_size, generator)
+        row = {**trained, **validation()}
         bar.update(1)
         return row
 
-    first = {**_measure(policy, train_rows, train_labels, 4 * batch_size, "train"), **validation()}
-    with tqdm(total=epochs, desc=f"bc-decentralised {algo} {env_id}", unit="epoch", disable=not show_progress) as bar:
-        fit = fit_with_early_stopping(policy, first, run_epoch, epochs, patience, bar)
+    first = {**_measure(policy, samples.train_rows, samples.train_labels, measured, "train"), **validation()}
+    with tqdm(total=config.epochs, desc=title, unit="epoch", disable=not show_progress) as bar:
+        return fit_with_early_stopping(policy, first, run_epoch, config.epochs, config.patience, bar)
+
+
+def behaviour_clone_per_robot(
+    dataset_dirs: str | Path | list[str | Path],
+    env_id: str,
+    config: PerRobotCloneConfig | None = None,
+    *,
+    out: str | Path | None = None,
+    show_progress: bool = False,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+) -> BCResult:
+    """Clone the robots' actions in ``dataset_dirs`` (one or more datasets recorded by ``dpr collect`` on
+    ``env_id``, possibly of different swarm sizes and start radii, otherwise with the same env kwargs) into a new
+    per-robot ``config.algo`` model (module docstring) with the local observation and fit ``config`` says (default
+    :class:`PerRobotCloneConfig`); save ``model.zip``, ``bc_log.json`` and ``config.yaml`` into ``out`` (a new or
+    empty folder; default ``runs/bc-decentralised/<task>-<algo>-seed<S>-<timestamp>``).
+
+    The clock's period is one wave cycle of the robot model: ``config.hold_steps`` (the robot model's wave hold by
+    default, as the decentralised wave) x ``config.n_phases``; with the decentralised wave as the teacher, they must
+    be the values it ran with. Bad input raises ValueError (bad settings when ``config`` is made) before anything
+    is written."""
+    config = PerRobotCloneConfig() if config is None else config
+    algo, seed = config.algo, config.seed
+    check_env_id(env_id)
+    runs.check_new_folder(out)
+    inputs = check_inputs(dataset_dirs, env_id, config)
+
+    run_dir = Path(out) if out is not None else default_run_dir(env_id, algo, seed)
+    record = inputs.record(config, env_id)
+    config_path = start_run(run_dir, record)
+    datasets_text = ", ".join(f"{r.root} (N={n})" for r, n in zip(inputs.readers, inputs.n_values))
+    log(f"dpr bc-decentralised: per-robot {algo} on {env_id} {inputs.model_kwargs} from {datasets_text} -> {run_dir}")
+    started = time.perf_counter()
+    samples = relabel_splits(inputs, env_id)
+    log(
+        f"dpr bc-decentralised: {len(samples.train_rows)} training / {len(samples.val_rows)} validation robot-frames "
+        f"(relabelled in {time.perf_counter() - started:.0f} s)"
+    )
+
+    model = inputs.new_model(seed)
+    fit = fit_samples(model.policy, samples, config, f"bc-decentralised {algo} {env_id}", show_progress)
 
     model_path = run_dir / "model.zip"
     model.save(model_path)
-    write_model_info(model_path, ModelInfo(algo, env_id, task_kwargs, steps, per_robot=spec.as_dict()))
-    train_ids = [i for train, _ in splits for i in train]
-    val_ids = [i for _, val in splits for i in val]
+    info = ModelInfo(algo, env_id, inputs.model_kwargs, inputs.steps, per_robot=inputs.spec.as_dict())
+    write_model_info(model_path, info)
     best = fit.best
-    result = finish_bc_run(
-        run_dir,
-        model_path,
-        config_path,
-        record,
-        fit,
-        train_ids,
-        val_ids,
-        best_val_expand_recall=best["val_expand_recall"],
-    )
+    extra = {"best_val_expand_recall": best["val_expand_recall"]}
+    result = finish_bc_run(run_dir, model_path, config_path, record, fit, *inputs.episode_ids, **extra)
     log(
         f"dpr bc-decentralised: wrote {model_path} (best epoch {best['epoch']}: validation accuracy "
         f"{best['val_accuracy']:.4f}, expansion recall {best['val_expand_recall']:.4f}; {fit.seconds:.0f} s)"

@@ -100,14 +100,15 @@ def record_demonstrations(
 def clone(settings: Mapping[str, Any], inputs: Mapping[str, Path], out: Path, work: Path, show_progress: bool) -> None:
     """Behaviour cloning of the demonstrations (``inputs["demonstrations"]``) into an actor-critic."""
     from dpr.imitation.bc import behaviour_clone
+    from dpr.imitation.config import CloneConfig
 
+    config = CloneConfig(
+        algo=settings["algo"], epochs=settings["epochs"], seed=settings["seed"], hyperparams=settings["hyperparams"]
+    )
     result = behaviour_clone(
         inputs["demonstrations"] / DATASET,
         settings["env_id"],
-        algo=settings["algo"],
-        epochs=settings["epochs"],
-        hyperparams=settings["hyperparams"],
-        seed=settings["seed"],
+        config,
         out=_fresh(work / "run"),
         show_progress=show_progress,
         log=_quiet,
