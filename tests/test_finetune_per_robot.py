@@ -47,15 +47,10 @@ def cloned(tmp_path_factory):
     """A per-robot clone of the decentralised wave: three 24-step episodes of 4 disk robots, a few epochs."""
     root = tmp_path_factory.mktemp("ft_per_robot")
     spec = CollectSpec(ENV, policy="decentralised-wave", n_robots=4, steps=STEPS, **DISK)
-<<<<<<< HEAD
     collect(root / "demos", spec, episodes=3)
-    return behaviour_clone_per_robot(root / "demos", ENV, epochs=3, batch_size=64, out=root / "bc", log=lambda _: None)
-=======
-    collect(root / "demos", spec, episodes=3, workers=1)
     return behaviour_clone_per_robot(
         root / "demos", ENV, PerRobotCloneConfig(epochs=3, batch_size=64), out=root / "bc", log=lambda _: None
     )
->>>>>>> cut-imitation
 
 
 def finetune(cloned, out, **kwargs):
