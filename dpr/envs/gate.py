@@ -180,6 +180,12 @@ class GateEnv(ParticleSwarmEnv):
         self._gate_centre = (walls[0][0] + walls[0][3] + walls[1][0] + walls[1][3]) / 4  # the walls' inner corners
         return walls
 
+    def passage_frame(self) -> tuple[np.ndarray, float]:
+        """This episode's passage geometry, set when its walls are drawn: the unit vector from the start toward the
+        goal, and the walls' near face in units from the start along it (a robot whose centre lies beyond it has
+        passed: ``gate_passage``)."""
+        return self._gate_along.copy(), self._gate_near
+
     def _environment_extra(self) -> list[float]:
         """The opening's centre relative to the swarm's centre (``gate.dx``, ``gate.dy``)."""
         return (self._gate_centre - self.world.centre_of_mass).tolist()

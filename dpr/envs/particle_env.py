@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -83,6 +84,17 @@ def joint_action_bits(n_robots: int) -> np.ndarray:
     """The value of each robot's bit in a ``action_type="discrete"`` action (int64 [N]): robot 0 is the most
     significant bit, so the integer action is ``expand @ joint_action_bits(N)``."""
     return 1 << np.arange(n_robots - 1, -1, -1, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class StartLayout:
+    """One episode's start (:meth:`ParticleSwarmEnv.draw_layout`), in world coordinates."""
+
+    start: np.ndarray  # (2,) the swarm's centre
+    centres: np.ndarray  # (N, 2) the robots' centres, on the start grid around ``start``
+    dead: np.ndarray  # int64 indices of the unresponsive robots, ascending
+    walls: list[np.ndarray]  # the static walls, each a (4, 2) polygon
+    obj: ObjectSpec | None  # the object to push, if the task has one
 
 
 def _copy(observation):
@@ -246,20 +258,26 @@ class ParticleSwarmEnv(gym.Env):
         return self.start_radius[1] + self.start_shift + swarm_half + 2 * self.swarm_class.expanded_radius
 
     # -- gymnasium API ------------------------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+    def draw_layout(self) -> StartLayout:
+        """Draw the next episode's start from ``self.np_random``, without building a physics world: the swarm's
+        centre, then the task's dead robots, walls and object, in that order (the order of the generator's
+        draws, which every seed's episode depends on). :meth:`reset` builds its World from it; the batched
+        engine (:mod:`dpr.envs.batched`) calls it with each of its envs' generators in turn. Tasks keep their
+        per-episode geometry (the gate's opening) as attributes of the env, as reset always did."""
         radius = self.np_random.uniform(*self.start_radius) + self.start_shift
         angle = self.np_random.uniform(0.0, 2 * math.pi)
-        self.start = self.goal + radius * np.array([math.cos(angle), math.sin(angle)])
+        start = self.goal + radius * np.array([math.cos(angle), math.sin(angle)])
         dead = self._dead_robots()
-        centres = grid_centres(self.n_robots, self.start)
+        centres = grid_centres(self.n_robots, start)
+        walls = self._walls(start)
+        return StartLayout(start, centres, dead, walls, self._object(start, centres))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        layout = self.draw_layout()
+        self.start = layout.start
         self.world = World(
-            self.n_robots,
-            self.robot_model,
-            centre=self.start,
-            dead=dead,
-            walls=self._walls(self.start),
-            obj=self._object(self.start, centres),
+            self.n_robots, self.robot_model, centre=layout.start, dead=layout.dead, walls=layout.walls, obj=layout.obj
         )
         self._tracker = MetricTracker(self._agent_position(), self.goal)
         self.physics_step = 0  # physics steps since the reset
