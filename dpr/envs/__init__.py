@@ -3,7 +3,9 @@
 ``import dpr`` registers ``dpr/Navigation-v0``, ``dpr/Gate-v2``, ``dpr/Unresponsive-v0`` and
 ``dpr/Manipulation-v0`` (each ``max_episode_steps=MAX_EPISODE_STEPS``), and the gate's earlier versions:
 ``dpr/Gate-v0``, the paper's placement, which the swarm does not reach in an episode, and ``dpr/Gate-v1``, whose
-state does not hold the opening. Tasks of other packages come in through
+state does not hold the opening. Each id's ``vector_entry_point`` is the batched disk engine
+(``gymnasium.make_vec(env_id, num_envs=K, vectorization_mode="vector_entry_point", robot_model="disk")``,
+:mod:`dpr.envs.batched`, imported only then: it needs torch). Tasks of other packages come in through
 :func:`register_task`; the packages that ``DPR_ENV_PACKAGES`` names are imported last (``dpr --env-package``).
 """
 
@@ -29,6 +31,7 @@ from dpr.envs.tasks import (
     ENV_IDS,
     TASK_CLASSES,
     TASKS,
+    VECTOR_ENTRY_POINTS,
     load_env_packages,
     load_listed_env_packages,
     register_task,
@@ -43,6 +46,7 @@ for _env_id, _task in TASKS.items():
             entry_point=f"{_cls.__module__}:{_cls.__name__}",
             max_episode_steps=MAX_EPISODE_STEPS,
             kwargs=EARLIER_ENV_IDS.get(_env_id, (_task, {}))[1],
+            vector_entry_point=VECTOR_ENTRY_POINTS[_task],
         )
 
 __all__ = [
@@ -57,6 +61,7 @@ __all__ = [
     "REWARDS",
     "TASKS",
     "TASK_CLASSES",
+    "VECTOR_ENTRY_POINTS",
     "GateEnv",
     "ManipulationEnv",
     "NavigationEnv",

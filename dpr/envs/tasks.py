@@ -39,6 +39,11 @@ EARLIER_ENV_IDS = {
 }
 # every registered id -> its task: "dpr/Gate-v0" -> "gate", "dpr/Gate-v2" -> "gate"
 TASKS = {**{env_id: task for task, env_id in ENV_IDS.items()}, **{i: t for i, (t, _) in EARLIER_ENV_IDS.items()}}
+# Built-in task -> its Gymnasium vector env on the batched disk engine (dpr.envs.batched), the ``vector_entry_point``
+# of its ids: a string, so that Gymnasium imports that module (and torch) only when make_vec asks for it
+VECTOR_ENTRY_POINTS = {
+    task: f"dpr.envs.batched:{cls.__name__.removesuffix('Env')}VectorEnv" for task, cls in TASK_CLASSES.items()
+}
 # env id -> the env id whose entry of the algorithms' hyperparameter files its learners use (a user's task has
 # none of its own)
 HYPERPARAMS_OF: dict[str, str] = {}
