@@ -90,7 +90,9 @@ def test_growth_into_a_neighbour_is_limited():
     """Two touching robots: one expanding presses at most DISK_GROWTH_OVERLAP per step into the other."""
     world = BatchedDiskWorld(1, 2)
     gap = 2 * C.DISK_CONTRACTED_RADIUS
-    world.reset(torch.ones(1, dtype=torch.bool), torch.tensor([[[0.0, 0.0], [gap, 0.0]]]), torch.zeros(1, 2, dtype=bool))
+    world.reset(
+        torch.ones(1, dtype=torch.bool), torch.tensor([[[0.0, 0.0], [gap, 0.0]]]), torch.zeros(1, 2, dtype=bool)
+    )
     free = BatchedDiskWorld(1, 1)
     free.reset(torch.ones(1, dtype=torch.bool), torch.zeros(1, 1, 2), torch.zeros(1, 1, dtype=bool))
     world.step(torch.tensor([[1.0, 0.0]]))
