@@ -224,7 +224,8 @@ def main() -> int:
     print("|---|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
         print(
-            f"| {r['case']} | {r['seeds']} | {r['pymunk_median']:+.1f} | {r['batched_median']:+.1f} | {r['ratio']:.2f} | "
+            f"| {r['case']} | {r['seeds']} | {r['pymunk_median']:+.1f} | {r['batched_median']:+.1f} | "
+            f"{r['ratio']:.2f} | "
             f"{r['pymunk_overlap']:.2f} | {r['batched_overlap']:.2f} | {'yes' if r['agrees'] else '**no**'} |"
         )
     if args.json:

@@ -95,7 +95,6 @@ class _Bodies:
         rods = self._valid
         rod_bias = -bias * (distance - rod_length) / dt
 
-        families = []  # contact families: (touching, normal, tangent, own lever, other lever, ...)
         if has_walls:
             wall_distance, wall_out = disk_wall_distance(self.position, self.walls, self._wall_edge, self._wall_normal)
             wall_touching = (wall_distance < radius[..., None]) & self._wall_present[:, None]
