@@ -159,11 +159,6 @@ class ParticleSwarmVectorEnv(VectorEnv):
         self.approach_reward = getattr(template, "approach_reward", 0.0)
         self.metadata = {**self.metadata, "render_fps": steps_per_second({"action_repeat": self.action_repeat})}
 
-        self.single_observation_space = template.observation_space
-        self.single_action_space = template.action_space
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
-
         # A throwaway draw tells the shapes every episode shares: walls, dead robots, object, landmarks.
         probe = self._draw(template, np.random.default_rng(0))
         layout = probe[0]
@@ -180,6 +175,11 @@ class ParticleSwarmVectorEnv(VectorEnv):
             object_mass=100.0 if layout.obj is None else layout.obj.mass,
         )
         self.device = self.world.device
+        # after the world, which refuses a (K, N) too large for the device before anything the size of K is made
+        self.single_observation_space = template.observation_space
+        self.single_action_space = template.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
         k = self.num_envs
         self._generators: list[np.random.Generator | None] = [None] * k
 
@@ -190,9 +190,9 @@ class ParticleSwarmVectorEnv(VectorEnv):
         self._walls = np.zeros((k, len(layout.walls), 4, 2))
         self._object_start = np.zeros((k, 2))
         self._landmarks = np.zeros((k, len(probe[1]), 2))
-        self._start = np.zeros((k, 2))  # the swarm's centre as drawn (the gate measures passage from it)
-        self._along = np.zeros((k, 2))  # Gate: unit vector from the start toward the goal
-        self._near = np.zeros(k)  # Gate: the walls' near face, along it from the start
+        # Gate's passage measure: the swarm's centre as drawn, the unit vector from it toward the goal, and the
+        # walls' near face along that vector
+        self._passage = np.zeros((k, 5))
 
         f64 = dict(dtype=torch.float64, device=self.device)
         self._goal = torch.as_tensor(template.goal, **f64)
@@ -261,8 +261,7 @@ class ParticleSwarmVectorEnv(VectorEnv):
             if layout.obj is not None:
                 self._object_start[i] = layout.obj.position
             self._landmarks[i] = landmarks
-            self._start[i] = layout.start
-            self._along[i], self._near[i] = along, near
+            self._passage[i] = (*layout.start, *along, near)
 
         mask_np = np.zeros(self.num_envs, dtype=bool)
         mask_np[rows] = True
@@ -271,6 +270,7 @@ class ParticleSwarmVectorEnv(VectorEnv):
         rows_of = lambda t: mask.reshape(-1, *([1] * (t.dim() - 1)))  # noqa: E731
         renew = lambda old, new: torch.where(rows_of(old), new, old)  # noqa: E731
 
+        self._passage_frame = torch.as_tensor(self._passage, device=self.device)
         landmarks = torch.as_tensor((self._landmarks - self.template.goal) * LENGTH_SCALE, device=self.device)
         self._landmark_obs = renew(self._landmark_obs, landmarks.reshape(self.num_envs, -1).float())
         agent = self._agent_position()
@@ -479,10 +479,12 @@ class ParticleSwarmVectorEnv(VectorEnv):
         if self.has_object:
             info["object_position"] = self.world.object_position.double()
         if self.is_gate:
-            start = torch.as_tensor(self._start, device=self.device)
-            along = torch.as_tensor(self._along, device=self.device)
-            near = torch.as_tensor(self._near, device=self.device)
-            past = ((self.world.position.double() - start[:, None]) * along[:, None]).sum(dim=2) > near[:, None]
+            start, along, near = (
+                self._passage_frame[:, None, 0:2],
+                self._passage_frame[:, None, 2:4],
+                self._passage_frame[:, 4:],
+            )
+            past = ((self.world.position.double() - start) * along).sum(dim=2) > near
             info[GATE_PASSAGE] = past.double().mean(dim=1)
             info[GATE_CONTACT_STEP] = self._contact_step
         if bool(started.any()):
