@@ -75,6 +75,8 @@ def test_the_tensor_interface_resets_in_the_same_step():
 def test_the_paddle_model_is_refused_by_name():
     with pytest.raises(ParameterError, match="robot_model.*paddle"):
         make(robot_model="paddle")
+    with pytest.raises(ParameterError, match="robot_model.*paddle"):  # the single env's default, not silently disk
+        gym.make_vec("dpr/Navigation-v0", num_envs=2)
 
 
 @pytest.mark.parametrize("num_envs", [0, -1])

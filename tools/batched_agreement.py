@@ -110,7 +110,9 @@ class BatchedWave:
         centre = relative.mean(dim=1)
         direction = centre / torch.linalg.vector_norm(centre, dim=-1, keepdim=True)
         distance = (relative * direction[:, None]).sum(-1).abs()
-        bins = torch.div(distance - distance.min(dim=1, keepdim=True).values, self.bin_width, rounding_mode="floor").long()
+        bins = torch.div(
+            distance - distance.min(dim=1, keepdim=True).values, self.bin_width, rounding_mode="floor"
+        ).long()
         self.bins = torch.where(replan[:, None], bins, self.bins)
         self.phases = torch.where(replan, self.bins.max(dim=1).values + 1, self.phases)
         self.step_in_cycle = torch.where(replan, 0, self.step_in_cycle)
@@ -184,7 +186,9 @@ def main() -> int:
         started = time.perf_counter()
         with ProcessPoolExecutor(args.workers) as pool:
             starts = list(pool.map(pymunk_start, [task] * len(seeds), [n] * len(seeds), seeds))
-            futures = {key: pool.submit(pymunk_episode, task, n, seed, args.steps, args.overlap_every) for key, seed in todo}
+            futures = {
+                key: pool.submit(pymunk_episode, task, n, seed, args.steps, args.overlap_every) for key, seed in todo
+            }
             for key, future in futures.items():
                 cache[key] = {"key": key, **future.result()}
                 if args.cache:
@@ -220,7 +224,8 @@ def main() -> int:
     print("|---|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
         print(
-            f"| {r['case']} | {r['seeds']} | {r['pymunk_median']:+.1f} | {r['batched_median']:+.1f} | {r['ratio']:.2f} | "
+            f"| {r['case']} | {r['seeds']} | {r['pymunk_median']:+.1f} | {r['batched_median']:+.1f} | "
+            f"{r['ratio']:.2f} | "
             f"{r['pymunk_overlap']:.2f} | {r['batched_overlap']:.2f} | {'yes' if r['agrees'] else '**no**'} |"
         )
     if args.json:

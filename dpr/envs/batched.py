@@ -94,12 +94,12 @@ class BatchedSwarmVectorEnv(VectorEnv):
     ):
         check_int("num_envs", num_envs, 1)
         check_int("max_episode_steps", max_episode_steps, 1)
-        robot_model = env_kwargs.setdefault("robot_model", ROBOT_MODEL)
+        robot_model = env_kwargs.get("robot_model", "paddle")  # the single env's default: never silently disk
         if robot_model != ROBOT_MODEL:
             raise ParameterError(
                 "robot_model",
-                f"the batched engine simulates the {ROBOT_MODEL!r} robot model only, got {robot_model!r}: use "
-                "gymnasium.make or another vectorization_mode for the paddle model",
+                f"the batched engine simulates the {ROBOT_MODEL!r} robot model only, got {robot_model!r}: pass "
+                "robot_model='disk', or vectorization_mode='sync' or 'async' for the paddle model",
             )
         if env_kwargs.get("obs_type", "state") != "state":
             raise ParameterError(

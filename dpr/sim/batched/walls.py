@@ -11,7 +11,9 @@ def wall_geometry(walls: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torc
     swarm without walls fills its slots)."""
     edge = torch.roll(walls, -1, dims=2) - walls
     # shoelace: positive for counter-clockwise vertices, whose outward normals point to the right of each edge
-    area = (walls[..., 0] * torch.roll(walls, -1, dims=2)[..., 1] - torch.roll(walls, -1, dims=2)[..., 0] * walls[..., 1]).sum(-1)
+    area = (
+        walls[..., 0] * torch.roll(walls, -1, dims=2)[..., 1] - torch.roll(walls, -1, dims=2)[..., 0] * walls[..., 1]
+    ).sum(-1)
     right = torch.stack([edge[..., 1], -edge[..., 0]], dim=-1)
     outward = right * torch.where(area >= 0, 1.0, -1.0)[..., None, None]
     length = torch.linalg.vector_norm(outward, dim=-1, keepdim=True)
@@ -33,7 +35,9 @@ def disk_wall_distance(
     to_point = centre[:, :, None, None, :] - closest
     segment_distance = torch.linalg.vector_norm(to_point, dim=-1)
     distance, closest_edge = segment_distance.min(dim=-1)
-    outside_normal = torch.gather(to_point, 3, closest_edge[..., None, None].expand(*closest_edge.shape, 1, 2))[..., 0, :]
+    outside_normal = torch.gather(to_point, 3, closest_edge[..., None, None].expand(*closest_edge.shape, 1, 2))[
+        ..., 0, :
+    ]
     outside_normal = outside_normal / distance[..., None].clamp(min=1e-12)
     inside_normal = torch.gather(
         outward[:, None].expand(*height.shape, 2), 3, nearest_edge[..., None, None].expand(*nearest_edge.shape, 1, 2)

@@ -1,0 +1,203 @@
+"""The batched disk engine (dpr.sim.batched): shapes, the command rule, growth, neighbours, determinism, errors, and
+agreement with the pymunk disk model on a short wave."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from dpr.checks import ParameterError
+from dpr.sim import constants as C
+from dpr.sim.batched import BatchedDiskWorld
+from dpr.sim.batched.neighbours import all_pairs, cell_list
+from dpr.sim.objects import gate_polygons
+from dpr.sim.swarm import REACHED_FRACTION
+from dpr.sim.world import World, grid_centres
+
+
+def _world(k=2, n=9, spread=(0.0, 0.0), **kwargs) -> BatchedDiskWorld:
+    world = BatchedDiskWorld(k, n, **kwargs)
+    centres = torch.tensor(np.stack([grid_centres(n, (500.0 + i * spread[0], i * spread[1])) for i in range(k)]))
+    world.reset(torch.ones(k, dtype=torch.bool), centres, torch.zeros(k, n, dtype=torch.bool))
+    return world
+
+
+def test_shapes_and_dtypes():
+    world = BatchedDiskWorld(3, 5, n_walls=2, object_radius=30.0)
+    for name, shape in [
+        ("position", (3, 5, 2)),
+        ("velocity", (3, 5, 2)),
+        ("angular_velocity", (3, 5)),
+        ("radius", (3, 5)),
+        ("expansion", (3, 5)),
+        ("target", (3, 5)),
+        ("object_position", (3, 2)),
+        ("object_velocity", (3, 2)),
+        ("walls", (3, 2, 4, 2)),
+    ]:
+        assert tuple(getattr(world, name).shape) == shape and getattr(world, name).dtype == torch.float32, name
+    assert world.moving.dtype == torch.bool and world.alive.dtype == torch.bool
+    world.step(torch.ones(3, 5))
+    assert world.is_sane().shape == (3,) and world.max_overlap().shape == (3,)
+    assert world.robots_touch_walls().dtype == torch.bool
+
+
+def test_masked_reset_touches_only_masked_swarms():
+    world = _world(k=3)
+    for _ in range(5):
+        world.step(torch.ones(3, 9))
+    before = world.position.clone(), world.radius.clone()
+    fresh = torch.tensor(np.stack([grid_centres(9, (0.0, 900.0))] * 3))
+    dead = torch.zeros(3, 9, dtype=torch.bool)
+    dead[1, 0] = True
+    world.reset(torch.tensor([False, True, False]), fresh, dead)
+    assert torch.equal(world.position[1], fresh[1].float())
+    assert torch.all(world.radius[1] == np.float32(C.DISK_CONTRACTED_RADIUS)) and torch.all(world.expansion[1] == 0)
+    assert not world.alive[1, 0] and world.alive[0].all() and world.alive[2].all()
+    for swarm in (0, 2):
+        assert torch.equal(world.position[swarm], before[0][swarm])
+        assert torch.equal(world.radius[swarm], before[1][swarm])
+
+
+def test_command_rule_keeps_a_moving_robot_on_its_target():
+    """Swarm.command: a robot accepts a new target only once it has reached its previous one."""
+    world = _world(k=1, n=1)
+    world.step(torch.ones(1, 1))  # expand: a stroke takes ~3 steps
+    assert world.moving[0, 0] and world.target[0, 0] == 1
+    world.step(torch.zeros(1, 1))  # ignored: still moving
+    assert world.target[0, 0] == 1
+    for _ in range(3):
+        world.step(torch.ones(1, 1))
+    assert world.expansion[0, 0] == pytest.approx(1.0, abs=1e-5)
+    world.step(torch.zeros(1, 1))  # reached: accepted
+    assert world.target[0, 0] == 0
+    assert (1 - world.expansion[0, 0]) < 1 - REACHED_FRACTION
+
+
+def test_dead_robots_stay_contracted_and_keep_magnets():
+    world = BatchedDiskWorld(1, 9)
+    dead = torch.zeros(1, 9, dtype=torch.bool)
+    dead[0, 4] = True
+    world.reset(torch.ones(1, dtype=torch.bool), torch.tensor(grid_centres(9, (0, 0)))[None], dead)
+    for step in range(20):
+        world.step(torch.full((1, 9), float(step % 8 < 4)))
+        assert world.radius[0, 4] == np.float32(C.DISK_CONTRACTED_RADIUS) and world.target[0, 4] == 0
+    assert world._valid[0, 4].any()  # its rods to its neighbours
+
+
+def test_growth_into_a_neighbour_is_limited():
+    """Two touching robots: one expanding presses at most DISK_GROWTH_OVERLAP per step into the other."""
+    world = BatchedDiskWorld(1, 2)
+    gap = 2 * C.DISK_CONTRACTED_RADIUS
+    world.reset(
+        torch.ones(1, dtype=torch.bool), torch.tensor([[[0.0, 0.0], [gap, 0.0]]]), torch.zeros(1, 2, dtype=bool)
+    )
+    free = BatchedDiskWorld(1, 1)
+    free.reset(torch.ones(1, dtype=torch.bool), torch.zeros(1, 1, 2), torch.zeros(1, 1, dtype=bool))
+    world.step(torch.tensor([[1.0, 0.0]]))
+    free.step(torch.ones(1, 1))
+    grown = world.radius[0, 0] - C.DISK_CONTRACTED_RADIUS
+    assert grown <= C.DISK_GROWTH_OVERLAP + 1e-5 < free.radius[0, 0] - C.DISK_CONTRACTED_RADIUS
+    assert world.expansion[0, 0] < free.expansion[0, 0]
+
+
+def test_deterministic():
+    runs = []
+    for _ in range(2):
+        world = _world(k=2, n=40, spread=(37.0, 11.0))
+        for step in range(15):
+            world.step((torch.arange(40) % 3 == step % 3).float().expand(2, 40))
+        runs.append(world.position.clone())
+    assert torch.equal(runs[0], runs[1])
+
+
+@pytest.mark.parametrize(
+    "kwargs, parameter",
+    [
+        ({"num_envs": 0, "n_robots": 9}, "num_envs"),
+        ({"num_envs": 1, "n_robots": 0}, "n_robots"),
+        ({"num_envs": 1, "n_robots": 9, "device": "cuda"}, "device"),
+        ({"num_envs": 10**9, "n_robots": 10**4}, "num_envs"),
+    ],
+)
+def test_bad_input_names_the_argument(kwargs, parameter):
+    if parameter == "device" and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(ParameterError) as error:
+        BatchedDiskWorld(**kwargs)
+    assert error.value.parameter == parameter
+
+
+def test_cell_list_finds_the_all_pairs_neighbours():
+    generator = torch.Generator().manual_seed(0)
+    position = torch.rand(3, 300, 2, generator=generator) * 1500 - 700  # dense and sparse corners
+    index, valid, overflow = cell_list(position, 100.0, cell_cap=16, max_neighbours=64)
+    assert not overflow
+    every_index, every_valid = all_pairs(position, 100.0)
+    found = torch.zeros(3, 300, 301, dtype=torch.bool)  # column 300 takes the empty slots
+    found.scatter_(2, torch.where(valid, index, 300), True)
+    assert torch.equal(found[..., :300], every_valid)
+    # too small caps are reported, not silently obeyed
+    assert cell_list(position, 100.0, cell_cap=1, max_neighbours=64)[2]
+    assert cell_list(position, 100.0, cell_cap=16, max_neighbours=1)[2]
+
+
+def test_cell_list_engine_matches_all_pairs_engine():
+    """The same swarm stepped with the cell list (N > ALL_PAIRS_LIMIT forced) and all pairs: same physics."""
+    a, b = _world(k=1, n=40), _world(k=1, n=40)
+    b.use_cells = True
+    b._config["use_cells"] = True
+    b._index = torch.zeros(1, 40, b.max_neighbours, dtype=torch.long)
+    b._valid = torch.zeros(1, 40, b.max_neighbours, dtype=torch.bool)
+    for name in ("_rod_impulse", "_normal_impulse", "_tangent_impulse"):
+        setattr(b, name, torch.zeros(1, 40, b.max_neighbours))
+    for step in range(10):
+        targets = (torch.arange(40) % 2 == step % 2).float()[None]
+        a.step(targets)
+        b.step(targets)
+    assert torch.allclose(a.position, b.position, atol=1e-2)
+
+
+def test_walls_block_and_ball_moves():
+    walls = np.stack(gate_polygons((0.0, 0.0), (300.0, 0.0), 150.0, at=40.0))
+    world = BatchedDiskWorld(1, 1, n_walls=2, object_radius=30.0)
+    world.reset(
+        torch.ones(1, dtype=torch.bool),
+        torch.tensor([[[40.0 - C.DISK_CONTRACTED_RADIUS - 20.0, 120.0]]]),  # 20 units before the upper wall's near face
+        torch.zeros(1, 1, dtype=bool),
+        walls=torch.tensor(walls)[None],
+        object_position=torch.tensor([[-1000.0, 0.0]]),
+    )
+    assert not world.robots_touch_walls()[0]
+    world.velocity[:] = torch.tensor([200.0, 0.0])
+    for _ in range(5):
+        world.step(torch.zeros(1, 1))
+    assert world.robots_touch_walls()[0] or world.position[0, 0, 0] < 40.0 - C.DISK_CONTRACTED_RADIUS + 1.0
+    assert world.position[0, 0, 0] < 40.0 - C.DISK_CONTRACTED_RADIUS + 3.0  # not through the wall
+    assert torch.equal(world.object_position, torch.tensor([[-1000.0, 0.0]]))
+
+
+def test_short_wave_agrees_with_pymunk():
+    """Smoke test of tools/batched_agreement.py's comparison: a 200-step wave from the same start moves both
+    engines' swarms the same way (the full comparison runs 2500 steps over 100 seeds)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent.parent / "tools"))
+    from batched_agreement import BatchedWave
+
+    n, steps = 9, 200
+    start = np.array([500.0, 0.0])
+    world = World(n, "disk", centre=start)
+    ours = BatchedDiskWorld(1, n)
+    ours.reset(torch.ones(1, dtype=torch.bool), torch.tensor(world.swarm.position)[None], torch.zeros(1, n, dtype=bool))
+    goal = torch.zeros(1, 2)
+    wave_a, wave_b = BatchedWave(goal, n), BatchedWave(goal, n)
+    for _ in range(steps):
+        world.step(wave_a(torch.tensor(world.swarm.position, dtype=torch.float32)[None])[0].numpy())
+        ours.step(wave_b(ours.position))
+    theirs = start[0] - world.centre_of_mass[0]
+    mine = start[0] - ours.position[0].mean(dim=0)[0].item()
+    assert theirs > 0 and mine > 0
+    assert 0.5 < mine / theirs < 2.0
