@@ -7,7 +7,7 @@ import torch
 
 import dpr  # noqa: F401
 from dpr.policies.batched import BatchedMarkovWavePolicy, BatchedWavePolicy, bin_ranks
-from dpr.policies.wave import MarkovWavePolicy, WavePolicy
+from dpr.policies.wave import MODEL_DEFAULTS, MarkovWavePolicy, WavePolicy
 
 
 def _episodes(env_id: str, seeds, steps: int, markov: bool, **env_kwargs):
@@ -57,3 +57,26 @@ def test_a_reset_restarts_only_the_masked_envs():
 def test_bin_ranks_count_only_non_empty_bins():
     bins = torch.tensor([[0, 5, 5, 9], [2, 2, 2, 2]])
     assert bin_ranks(bins).tolist() == [[0, 1, 1, 2], [0, 0, 0, 0]]
+
+
+def test_the_batched_decentralised_wave_acts_as_its_adapter():
+    """Against DecentralisedWavePolicy.for_env on Unresponsive (dead robots among them), one env restarted midway."""
+    from dpr.policies.batched import BatchedDecentralisedWavePolicy
+    from dpr.policies.decentralised import DecentralisedWavePolicy
+
+    envs = [gym.make("dpr/Unresponsive-v0", robot_model="disk") for _ in range(2)]
+    singles = [DecentralisedWavePolicy.for_env(env) for env in envs]
+    batched = BatchedDecentralisedWavePolicy(2, 9, **MODEL_DEFAULTS["disk"])
+    observations = [env.reset(seed=seed)[0] for env, seed in zip(envs, (11, 12))]
+    for policy in singles:
+        policy.reset()
+    for step in range(120):
+        if step == 50:  # env 1 starts again: its clock restarts, env 0's runs on
+            observations[1] = envs[1].reset(seed=13)[0]
+            singles[1].reset()
+            batched.reset(torch.tensor([False, True]))
+        actions = batched(torch.as_tensor(np.stack(observations)))
+        for i, (env, policy) in enumerate(zip(envs, singles)):
+            expected = policy(observations[i])
+            np.testing.assert_array_equal(actions[i].numpy(), expected, err_msg=f"env {i}, step {step}")
+            observations[i] = env.step(expected)[0]

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import torch
 
-from dpr.envs.particle_env import HELD_STEPS_CAP, ROBOT_FEATURES
-from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS, MarkovWavePolicy, WavePolicy
+from dpr.checks import check_choice, check_int, check_number
+from dpr.envs.particle_env import HELD_STEPS_CAP, LENGTH_SCALE, ROBOT_FEATURES
+from dpr.policies.decentralised import DEFAULT_N_PHASES
+from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS, START_SIDES, MarkovWavePolicy, WavePolicy
 
 
 def plan_bins(positions: torch.Tensor, bin_width: float, start_side: str) -> torch.Tensor:
@@ -108,6 +110,47 @@ class BatchedMarkovWavePolicy:
         return torch.where(repeat[:, None], last, expand).float()
 
 
+class BatchedDecentralisedWavePolicy:
+    """:class:`~dpr.policies.decentralised.DecentralisedWavePolicy` for K envs, as its
+    :class:`~dpr.policies.decentralised.PerRobotPolicyAdapter` runs it in one env: every robot cuts its distance to
+    the goal into bands of ``bin_width`` numbered ``band mod n_phases``, and in phase p of the shared clock (period
+    ``hold_steps x n_phases`` steps, counted per env from its episode's start) the robots of band number p expand
+    (``start_side="far"``: band number ``-band mod n_phases``). Each robot reads only its own distance, rounded to
+    float32 as its local observation holds it, so the bands are the adapter's."""
+
+    def __init__(
+        self,
+        num_envs: int,
+        n_robots: int,
+        hold_steps: int = 10,
+        n_phases: int = DEFAULT_N_PHASES,
+        bin_width: float = BIN_WIDTH,
+        start_side: str = "near",
+        device: str | torch.device = "cpu",
+    ):
+        self.n_robots = check_int("n_robots", n_robots, 1)
+        self.hold_steps = check_int("hold_steps", hold_steps, 1)
+        self.n_phases = check_int("n_phases", n_phases, 2)
+        self.bin_width = check_number("bin_width", bin_width, above=0)
+        self.start_side = check_choice("start_side", start_side, START_SIDES)
+        self.clock_period = self.hold_steps * self.n_phases
+        self.steps = torch.zeros(num_envs, dtype=torch.long, device=device)  # since each env's episode started
+
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Restart the clock of the envs of ``mask`` (all when None)."""
+        self.steps = torch.zeros_like(self.steps) if mask is None else torch.where(mask, 0, self.steps)
+
+    def __call__(self, observation: torch.Tensor) -> torch.Tensor:
+        n = self.n_robots
+        observed = observation[:, : ROBOT_FEATURES * n].double().reshape(-1, n, ROBOT_FEATURES)[..., 0:2]
+        sensed = torch.hypot(observed[..., 0], observed[..., 1]).float().double()  # as a local observation holds it
+        band = torch.floor(sensed / LENGTH_SCALE / self.bin_width).long()
+        phase = (self.steps % self.clock_period) * self.n_phases // self.clock_period
+        self.steps = self.steps + 1
+        own = band if self.start_side == "near" else -band
+        return (torch.remainder(own, self.n_phases) == phase[:, None]).float()
+
+
 class BatchedRandomPolicy:
     """Uniformly random 0/1 per robot, from a torch generator seeded once (the batched stream is its own: it does
     not repeat the single env's ``action_space.sample()`` draws)."""
@@ -145,7 +188,7 @@ class BatchedModelPolicy:
 def make_batched_policy(name: str, venv, seed: int = 0):
     """The policy called ``name`` (:func:`dpr.policies.registry.make_policy`'s names) for the batched vector env
     ``venv``: the waves and ``random`` in batch, or a centralised model file trained for ``venv``'s spaces (on either
-    engine). A per-robot model and the decentralised wave are refused by name: they do not run in batch yet."""
+    engine). A per-robot model is refused by name: it does not run in batch yet."""
     from dpr.policies.registry import DECENTRALISED_WAVE, RANDOM, WAVE, WAVE_MARKOV, parse_scripted_name
     from dpr.policies.sb3 import is_model_path, load_model, read_model_info
 
@@ -164,7 +207,6 @@ def make_batched_policy(name: str, venv, seed: int = 0):
         return BatchedMarkovWavePolicy(env.n_robots, **defaults)
     if base == RANDOM:
         return BatchedRandomPolicy(venv.num_envs, env.n_robots, seed, venv.device)
-    raise ValueError(
-        f"policy {base!r} does not run on the batched engine yet (choose {WAVE}, {WAVE_MARKOV}, "
-        f"{RANDOM} or a model file); {DECENTRALISED_WAVE} runs on the pymunk engine"
-    )
+    assert base == DECENTRALISED_WAVE, base  # parse_scripted_name admits no other name
+    defaults = {**MODEL_DEFAULTS[env.robot_model], **settings}
+    return BatchedDecentralisedWavePolicy(venv.num_envs, env.n_robots, device=venv.device, **defaults)
