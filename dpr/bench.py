@@ -135,3 +135,84 @@ def format_table(rows: list[dict]) -> str:
             growth = last["us_per_robot_step"] / first["us_per_robot_step"]
             lines.append(f"{model}: cost per robot-step at N={sizes[-1]} is {growth:.2f}x that at N={sizes[0]}")
     return "\n".join(lines)
+
+
+# -- the batched engine ------------------------------------------------------------------------------------------
+BATCHED_ENVS = (1, 64, 1024, 4096, 16384)  # K at N=9
+BATCHED_SIZES = (100, 1000, 10000)  # N, with K*N near BATCHED_ROBOTS robots in all
+BATCHED_ROBOTS = 10_000
+
+
+def bench_batched(num_envs: int, n_robots: int, seconds: float = 2.0, device: str = "cpu", seed: int = 0) -> dict:
+    """Env steps per second of ``num_envs`` Navigation envs of N robots on the batched engine
+    (``step_tensors``: physics, observation, reward, same-step resets), random actions drawn on the device, timed
+    for at least ``seconds`` after one warm-up step; and the peak memory of the device (CUDA), or of the process."""
+    import resource
+
+    import torch
+
+    envs = gym.make_vec(
+        "dpr/Navigation-v0",
+        num_envs=num_envs,
+        vectorization_mode="vector_entry_point",
+        robot_model="disk",
+        n_robots=n_robots,
+        device=device,
+    ).unwrapped
+    envs.reset_tensors(seed)
+    generator = torch.Generator(device=envs.device).manual_seed(seed)
+    shape = (num_envs, n_robots)
+    step = lambda: envs.step_tensors(torch.randint(0, 2, shape, generator=generator, device=envs.device))  # noqa: E731
+    step()
+    count, started = 0, time.perf_counter()
+    while count < 2 or time.perf_counter() - started < seconds:
+        step()
+        count += 1
+    if envs.device.type == "cuda":
+        torch.cuda.synchronize(envs.device)
+    rate = count * num_envs / (time.perf_counter() - started)
+    if envs.device.type == "cuda":
+        peak = torch.cuda.max_memory_allocated(envs.device)
+    else:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the process's, in bytes (Linux: KiB)
+    envs.close()
+    return {
+        "engine": "batched",
+        "device": str(envs.device),
+        "num_envs": num_envs,
+        "n_robots": n_robots,
+        "env_steps_per_s": rate,
+        "us_per_robot_step": 1e6 / (rate * n_robots),
+        "peak_memory_mb": peak / 2**20,
+    }
+
+
+def run_batched_benchmarks(ks=BATCHED_ENVS, sizes=BATCHED_SIZES, seconds: float = 2.0, device="cpu", progress=None):
+    """The batched engine at N=9 for every K in ``ks`` and at every N in ``sizes`` (K*N near
+    :data:`BATCHED_ROBOTS`), each beside the pymunk disk env at the same N (random actions, :func:`bench_env`; not
+    above N=1000, whose steps take seconds), in one run."""
+    pymunk = {n: bench_env("disk", n, steps=max(20, 2000 // n), repeats=3) for n in (9, *sizes) if n <= 1000}
+    rows = []
+    for k, n in [(k, 9) for k in ks] + [(max(1, BATCHED_ROBOTS // n), n) for n in sizes]:
+        row = bench_batched(k, n, seconds, device)
+        row["pymunk_env_steps_per_s"] = pymunk[n]["env_steps_per_s"] if n in pymunk else None
+        rows.append(row)
+        if progress is not None:
+            progress(row)
+    return rows
+
+
+def format_batched_table(rows: list[dict]) -> str:
+    lines = [
+        "| N | K | pymunk env steps/s | batched env steps/s | batched / pymunk (robot-steps) | µs per robot-step "
+        "| peak memory (MiB) |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        reference = r["pymunk_env_steps_per_s"]
+        ratio = f"{r['env_steps_per_s'] / reference:.1f}x" if reference else "-"
+        lines.append(
+            f"| {r['n_robots']} | {r['num_envs']} | {f'{reference:.0f}' if reference else '-'} | "
+            f"{r['env_steps_per_s']:.0f} | {ratio} | {r['us_per_robot_step']:.2f} | {r['peak_memory_mb']:.0f} |"
+        )
+    return "\n".join(lines)

@@ -18,20 +18,51 @@ from dpr.sim.models import ROBOT_MODELS
 
 
 def bench_arguments(parser: argparse.ArgumentParser) -> None:
-    from dpr.bench import run_benchmarks
+    from dpr.bench import BATCHED_ROBOTS, run_batched_benchmarks, run_benchmarks
 
     bench = defaults(run_benchmarks)
     parser.add_argument("--models", nargs="+", choices=ROBOT_MODELS, default=list(bench["models"]))
     parser.add_argument("--sizes", nargs="+", type=positive_int, default=list(bench["sizes"]))
     default_argument(parser, "--steps", bench["steps"], "env steps per timed block at N=9")
     default_argument(parser, "--repeats", bench["repeats"], "timed blocks; medians are reported")
+    batched = defaults(run_batched_benchmarks)
+    parser.add_argument(
+        "--engine",
+        choices=("pymunk", "batched"),
+        default="pymunk",
+        help="pymunk: env against physics-only steps/s of both robot models (default); batched: the batched disk "
+        "engine's env steps/s at N=9 for each --ks and at each --batched-sizes, beside the pymunk disk env",
+    )
+    parser.add_argument("--ks", nargs="+", type=positive_int, default=list(batched["ks"]), help="batched: K at N=9")
+    parser.add_argument(
+        "--batched-sizes",
+        nargs="+",
+        type=positive_int,
+        default=list(batched["sizes"]),
+        help=f"batched: N, each with K*N near {BATCHED_ROBOTS} robots",
+    )
+    parser.add_argument("--device", default=batched["device"], help="batched: torch device, cpu or cuda")
     json_argument(parser, "the rows")
 
 
 def cmd_bench(args, parser) -> int:
-    from dpr.bench import format_table, run_benchmarks
+    from dpr.bench import format_batched_table, format_table, run_batched_benchmarks, run_benchmarks
 
     check_output(args.json, parser, "--json")
+    if args.engine == "batched":
+        rows = run_batched_benchmarks(
+            args.ks,
+            args.batched_sizes,
+            device=args.device,
+            progress=lambda r: print(
+                f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
+                file=sys.stderr,
+            ),
+        )
+        print(format_batched_table(rows))
+        if args.json:
+            write_json(args.json, rows)
+        return 0
     rows = run_benchmarks(
         models=args.models,
         sizes=args.sizes,
@@ -52,7 +83,7 @@ def cmd_bench(args, parser) -> int:
 COMMANDS = (
     Command(
         "bench",
-        help="env steps/s vs physics-only steps/s for both robot models",
+        help="env steps/s vs physics-only steps/s for both robot models, or of the batched engine",
         description="Time env.step with random actions against the pymunk part of the same steps "
         "(see dpr.bench); prints a markdown table for BENCHMARKS.md.",
         arguments=bench_arguments,
