@@ -1,0 +1,80 @@
+"""Evaluation, training and benchmarks on the batched engine: the same files as on pymunk, and models that run on
+both engines."""
+
+import json
+
+import pytest
+import torch
+
+import dpr  # noqa: F401
+from dpr.bench import bench_batched
+from dpr.checks import ParameterError
+from dpr.cli import main
+from dpr.evaluation.batched import evaluate_batched
+from dpr.evaluation.scoring import evaluate, evaluation_payload
+from dpr.rl.batched_train import train_batched
+from dpr.rl.train import TrainConfig, train
+
+SMALL = {"robot_model": "disk", "n_robots": 4}
+
+
+def test_evaluate_batched_writes_what_evaluate_writes():
+    seeds = [3, 4]
+    batched = evaluate_batched(["dpr/Gate-v2"], "wave", seeds, steps=30, env_kwargs=SMALL)
+    reference = evaluate(["dpr/Gate-v2"], "wave", seeds, steps=30, env_kwargs=SMALL)
+    left = evaluation_payload("wave", ["dpr/Gate-v2"], SMALL, 30, seeds, batched)
+    right = evaluation_payload("wave", ["dpr/Gate-v2"], SMALL, 30, seeds, reference)
+    assert [sorted(e) for e in left["episodes"]] == [sorted(e) for e in right["episodes"]]
+    assert sorted(left["summary"]) == sorted(right["summary"])
+    assert [e["seed"] for e in left["episodes"]] == seeds
+    # the same starts: both trajectories begin where gymnasium.make(...).reset(seed) puts the swarm
+    for a, b in zip(left["episodes"], right["episodes"]):
+        assert a["trajectory"][0] == pytest.approx(b["trajectory"][0], abs=1e-3)
+
+
+@pytest.fixture(scope="module")
+def batched_model(tmp_path_factory):
+    config = TrainConfig(
+        "ppo",
+        "dpr/Navigation-v0",
+        n_robots=4,
+        robot_model="disk",
+        n_envs=8,
+        timesteps=8 * 32,
+        preset="batched",
+        engine="batched",
+        hyperparams={"batch_size": 64},
+    )
+    return train_batched(config, tmp_path_factory.mktemp("batched") / "run", show_progress=False, log=lambda _: None)
+
+
+def test_a_batched_run_writes_a_ppo_model_that_runs_on_both_engines(batched_model, tmp_path):
+    assert batched_model.model_path.is_file() and batched_model.timesteps == 256
+    record = batched_model.config_path.read_text()
+    assert "engine: batched" in record and "env_steps_per_second" in record
+    for engine in ("pymunk", "batched"):
+        out = tmp_path / f"{engine}.json"
+        argv = ["evaluate", "--policy", str(batched_model.model_path), "--env", "dpr/Navigation-v0", "--seeds", "1"]
+        assert main([*argv, "--steps", "24", "--engine", engine, "--json", str(out)]) == 0
+        assert json.loads(out.read_text())["episodes"][0]["steps"] == 24
+
+
+def test_train_refuses_what_the_batched_engine_cannot_do():
+    with pytest.raises(ParameterError, match="algo"):
+        TrainConfig("a2c", "dpr/Navigation-v0", robot_model="disk", engine="batched")
+    with pytest.raises(ParameterError, match="robot_model"):
+        TrainConfig("ppo", "dpr/Navigation-v0", engine="batched")
+    with pytest.raises(ParameterError, match="engine"):
+        train(TrainConfig("ppo", "dpr/Navigation-v0", robot_model="disk", engine="batched"))
+
+
+def test_the_batched_bench_measures_a_rate():
+    row = bench_batched(4, 4, seconds=0.0)
+    assert row["env_steps_per_s"] > 0 and row["n_robots"] == 4 and row["peak_memory_mb"] > 0
+
+
+def test_cuda_without_cuda_is_refused_by_name():
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: the refusal is for machines without it")
+    with pytest.raises(ParameterError, match="device"):
+        evaluate_batched(["dpr/Navigation-v0"], "wave", [0], steps=5, env_kwargs=SMALL, device="cuda")
