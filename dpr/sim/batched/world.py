@@ -36,7 +36,7 @@ import torch
 from dpr.checks import ParameterError, check_int, check_number
 from dpr.sim import constants as C
 from dpr.sim.batched.neighbours import all_pairs, carry_over, cell_list
-from dpr.sim.batched.solver import MUTABLE, physics
+from dpr.sim.batched.solver import MUTABLE, physics, solve_round
 from dpr.sim.batched.walls import disk_wall_distance, wall_geometry
 from dpr.sim.swarm import REACHED_FRACTION
 
@@ -166,8 +166,8 @@ class BatchedDiskWorld:
             "object_mass": self.object_mass,
             "_object_moment": getattr(self, "_object_moment", None),
         }
-        # compiled, the whole control step's physics fuses into a few loops (minutes to compile, once per shape)
-        self._physics = torch.compile(physics, dynamic=False) if compile else physics
+        # compiled, one solver round fuses into a few loops (seconds to compile, once per shape and case)
+        self._solve = torch.compile(solve_round, dynamic=False) if compile else solve_round
         self._rod_impulse = zeros(k, n, m)
         self._normal_impulse = zeros(k, n, m)
         self._tangent_impulse = zeros(k, n, m)
@@ -318,7 +318,7 @@ class BatchedDiskWorld:
         self._update_neighbours()
         rod_length, rod_max_impulse = self._grow(radius_target)
         state = {name: getattr(self, name) for name in MUTABLE + _READ if hasattr(self, name)}
-        for name, value in self._physics(state, self._config, rod_length, rod_max_impulse).items():
+        for name, value in physics(state, self._config, rod_length, rod_max_impulse, self._solve).items():
             setattr(self, name, value)
 
     def _grow(self, radius_target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
