@@ -275,6 +275,8 @@ class _Bodies:
             fixed["wall_bounce"] = torch.zeros_like(fixed["wall_normal_mass"])
             self._wall_impulse = self._wall_impulse * touching["wall"][..., None]
         self._rod_constants(fixed, rod_length, rod_max_impulse)
+        for name in [name for name in fixed if name.endswith("_mass") and name != "object_inv_mass"]:
+            fixed[name] = fixed[name] * self.relaxation
         return fixed
 
     def _pair_geometry(self, fixed: dict) -> torch.Tensor:

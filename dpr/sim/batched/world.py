@@ -41,9 +41,12 @@ from dpr.sim.batched.walls import disk_wall_distance, wall_geometry
 from dpr.sim.swarm import REACHED_FRACTION
 
 # Solver rounds per substep. Chipmunk does 10, one constraint after another; simultaneous (Jacobi) rounds
-# converge more slowly, and with 10 the wave moves the swarm 0.8x as far as pymunk's, with 30 0.97x
-# (tools/batched_agreement.py, Navigation N=9).
-ITERATIONS = 30
+# converge more slowly: plain, 10 rounds move the wave's swarm 0.67x as far as pymunk's, 30 rounds 1.04x
+# (tools/batched_agreement.py, Navigation N=9, 40 seeds). Over-relaxed by 1.3 (each round's impulse updates
+# scaled up, free: it only scales the effective masses), 20 rounds give the same 1.04x; 15 rounds at 1.5 give
+# 0.96x on 20 seeds but 1.08x on 40, too close to the 0.9-1.1 band's edge.
+ITERATIONS = 20
+RELAXATION = 1.3
 # chipmunk's (pymunk's) defaults, which the pymunk disk model keeps
 ERROR_BIAS = (1.0 - 0.1) ** 60  # both contacts' and joints' share of error left after one second
 SUBSTEPS = 2  # DiskSwarm.substeps
@@ -97,6 +100,7 @@ class BatchedDiskWorld:
         object_mass: float = 100.0,
         iterations: int = ITERATIONS,
         substeps: int = SUBSTEPS,
+        relaxation: float = RELAXATION,
         compile: bool = False,
     ):
         self.num_envs = k = check_int("num_envs", num_envs, minimum=1)
@@ -104,6 +108,7 @@ class BatchedDiskWorld:
         self.n_walls = check_int("n_walls", n_walls, minimum=0)
         self.iterations = check_int("iterations", iterations, minimum=1)
         self.substeps = check_int("substeps", substeps, minimum=1)
+        self.relaxation = check_number("relaxation", relaxation, above=0.0)
         try:
             self.device = torch.device(device)
         except (RuntimeError, TypeError) as error:
@@ -160,6 +165,7 @@ class BatchedDiskWorld:
             "_bias": self._bias,
             "iterations": self.iterations,
             "substeps": self.substeps,
+            "relaxation": self.relaxation,
             "use_cells": self.use_cells,
             "n_walls": self.n_walls,
             "object_radius": self.object_radius,
