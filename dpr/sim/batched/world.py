@@ -172,7 +172,8 @@ class BatchedDiskWorld:
             "object_mass": self.object_mass,
             "_object_moment": getattr(self, "_object_moment", None),
         }
-        # compiled, one solver round fuses into a few loops (seconds to compile, once per shape and case)
+        # compiled, one solver round is one graph (seconds to compile, once per shape and case); off by default:
+        # on CPU (torch 2.13, 2 threads) the compiled round ran 2-6x slower than eager, and K=4096 took minutes
         self._solve = torch.compile(solve_round, dynamic=False) if compile else solve_round
         self._rod_impulse = zeros(k, n, m)
         self._normal_impulse = zeros(k, n, m)
