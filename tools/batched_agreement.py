@@ -170,11 +170,14 @@ def main() -> int:
     parser.add_argument("--overlap-every", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=None, help="batched solver iterations (default: its own)")
+    parser.add_argument("--relaxation", type=float, default=None, help="batched over-relaxation (default: its own)")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/batched_agreement_pymunk.jsonl"))
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     torch.set_num_threads(args.workers)
     world_kwargs = {} if args.iterations is None else {"iterations": args.iterations}
+    if args.relaxation is not None:
+        world_kwargs["relaxation"] = args.relaxation
     cache = _load_cache(args.cache)
     rows = []
     for case in args.cases:

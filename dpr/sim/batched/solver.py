@@ -1,8 +1,13 @@
 """One control step's physics substeps for K swarms: chipmunk's sequential impulses as Jacobi rounds.
 
-:func:`physics` is a pure function of tensors (``state`` in, ``state`` out) so that it can be handed to
-``torch.compile`` whole; :class:`_Bodies` is the namespace it works on. See :mod:`dpr.sim.batched.world` for the
+Each substep measures its constraints once (:class:`_Bodies`: normals, effective masses, biases, all fixed
+within the substep), then runs ``iterations`` rounds of :func:`solve_round`, a pure function of two dicts of
+plain tensors (what the rounds change, what they only read). That one round is what ``torch.compile`` fuses:
+small enough to compile in seconds, called 60 times a control step. See :mod:`dpr.sim.batched.world` for the
 method and the reasons.
+
+Constraints that do not act (pairs not touching, slots without a rod) carry an effective mass of 0 and an
+impulse of 0, so a round needs no masks: every clamp of a 0 update lands on 0.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from dpr.sim.batched.walls import disk_wall_distance
 ROBOT_ELASTICITY = C.BODY_ELASTICITY * C.BODY_ELASTICITY  # chipmunk multiplies the two shapes' values
 COLLISION_SLOP = 0.1  # chipmunk's default
 DISK_MOMENT = C.DISK_MASS * C.DISK_CONTRACTED_RADIUS**2 / 2  # fixed at creation, as pymunk's body keeps it
+INV_MASS, INV_MOMENT = 1.0 / C.DISK_MASS, 1.0 / DISK_MOMENT
 
 # what the physics changes; the rest of ``state`` (radii, neighbour table, walls) it only reads
 MUTABLE = (
@@ -37,6 +43,8 @@ MUTABLE = (
     "_object_friction",
     "_object_spin_friction",
 )
+# (normal, tangent) accumulated impulses kept stacked in the world's state and split for the rounds
+_STACKED = {"_wall_impulse": "wall", "_ball_impulse": "ball", "_ball_wall_impulse": "ball_wall"}
 
 
 def _perp(v: torch.Tensor) -> torch.Tensor:
@@ -47,307 +55,349 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(-1)
 
 
-def physics(state: dict, config: dict, rod_length: torch.Tensor, rod_max_impulse: torch.Tensor) -> dict:
+def _neighbours(value: torch.Tensor, fixed: dict) -> torch.Tensor:
+    """Each neighbour slot's value of a per-robot tensor ``[K, N, ...]``: ``[K, N, M, ...]``."""
+    k, n = value.shape[:2]
+    flat = fixed.get("flat")
+    if flat is None:  # all pairs: slot m is robot m, a broadcast without a copy
+        return value[:, None].expand(k, n, *value.shape[1:])
+    return value.reshape(k * n, *value.shape[2:])[flat].reshape(k, n, -1, *value.shape[2:])
+
+
+def physics(state: dict, config: dict, rod_length: torch.Tensor, rod_max_impulse: torch.Tensor, solve=None) -> dict:
     """``config["substeps"]`` substeps from ``state`` (tensors by attribute name) with constant ``config``
-    (python numbers and flags); returns the changed tensors."""
+    (python numbers and flags); ``solve`` is :func:`solve_round` or its compiled twin. Returns the changed
+    tensors."""
+    solve = solve_round if solve is None else solve
     bodies = _Bodies(state, config)
     for _ in range(config["substeps"]):
-        bodies._substep(rod_length, rod_max_impulse)
+        bodies.move()
+        fixed = bodies.measure(rod_length, rod_max_impulse)
+        live = bodies.warm_start(fixed)
+        for _ in range(config["iterations"]):
+            live = solve(live, fixed)
+        bodies.keep(live)
     return {name: getattr(bodies, name) for name in MUTABLE if name in state}
 
 
+# -- one solver round -------------------------------------------------------------------------------------
+def solve_round(live: dict, fixed: dict) -> dict:
+    """One round in chipmunk's order: all contacts at once, then ground friction, then the rods. ``live`` holds
+    the velocities and accumulated impulses (returned updated, a new dict), ``fixed`` this substep's constants."""
+    live = dict(live)
+    velocity, spin, bias = live["velocity"], live["angular_velocity"], live["_bias_velocity"]
+    changes = [_pair_contacts(live, fixed, velocity, spin, bias)]
+    if "wall_normal" in fixed:
+        changes.append(_wall_contacts(live, fixed, velocity, spin, bias))
+    if "ball_normal" in fixed:
+        ball = _ball_contacts(live, fixed, velocity, spin, bias)
+        changes.append(ball[:3])
+        ball_changes = [ball[3:]]
+        if "ball_wall_normal" in fixed:
+            ball_changes.append(_ball_wall_contacts(live, fixed))
+        for name, total in zip(("object_velocity", "object_angular_velocity", "_object_bias_velocity"), zip(*ball_changes)):
+            live[name] = live[name] + sum(total)
+    for name, total in zip(("velocity", "angular_velocity", "_bias_velocity"), zip(*changes)):
+        live[name] = live[name] + sum(total)
+    _ground_friction(live, fixed)
+    _rods(live, fixed)
+    return live
+
+
+def _contact(normal_speed, tangent_speed, bias_speed, old: tuple, fixed: dict, name: str):
+    """One contact group's new impulses (normal >= 0 with restitution; friction within the normal impulse; the
+    separate bias impulse >= 0) and their changes: ``(new normal, tangent, bias), (changes)``."""
+    old_normal, old_tangent, old_bias = old
+    mass = fixed[name + "_normal_mass"]  # 0 where not touching: the impulses stay 0
+    normal = (old_normal - (fixed[name + "_bounce"] + normal_speed) * mass).clamp(min=0.0)
+    tangent = torch.clamp(old_tangent - tangent_speed * fixed[name + "_tangent_mass"], -normal, normal)
+    bias = (old_bias + (fixed[name + "_bias"] - bias_speed) * mass).clamp(min=0.0)
+    return (normal, tangent, bias), (normal - old_normal, tangent - old_tangent, bias - old_bias)
+
+
+def _pair_contacts(live: dict, fixed: dict, velocity, spin, bias) -> tuple:
+    """Robot-robot contacts; returns the robots' velocity, spin and bias velocity changes."""
+    normal, tangent = fixed["normal"], fixed["tangent"]
+    relative = _neighbours(velocity, fixed) - velocity[:, :, None]
+    rim_speed = _neighbours(spin, fixed) * fixed["other_radius"] + (spin * fixed["radius"])[:, :, None]
+    bias_speed = _dot(_neighbours(bias, fixed) - bias[:, :, None], normal)
+    old = (live["_normal_impulse"], live["_tangent_impulse"], live["pair_bias_impulse"])
+    new, (d_normal, d_tangent, d_bias) = _contact(
+        _dot(relative, normal), _dot(relative, tangent) - rim_speed, bias_speed, old, fixed, "pair"
+    )
+    live["_normal_impulse"], live["_tangent_impulse"], live["pair_bias_impulse"] = new
+    # slot values are the impulse on the neighbour; the robot gets the opposite
+    return _pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["radius"], 2)
+
+
+def _pushed(normal, tangent, d_normal, d_tangent, d_bias, radius, dim: int) -> tuple:
+    """A robot's velocity, spin and bias velocity changes from impulses ``-(normal, tangent)`` summed over
+    ``dim`` (the slots; None: one contact per robot)."""
+    impulse = normal * d_normal[..., None] + tangent * d_tangent[..., None]
+    bias_impulse = normal * d_bias[..., None]
+    if dim is not None:
+        impulse, d_tangent, bias_impulse = impulse.sum(dim), d_tangent.sum(dim), bias_impulse.sum(dim)
+    return -impulse * INV_MASS, -radius * d_tangent * INV_MOMENT, -bias_impulse * INV_MASS
+
+
+def _wall_contacts(live: dict, fixed: dict, velocity, spin, bias) -> tuple:
+    normal, tangent = fixed["wall_normal"], fixed["wall_tangent"]  # from the robot into the wall
+    normal_speed = -_dot(velocity[:, :, None], normal)
+    tangent_speed = -_dot(velocity[:, :, None], tangent) - (spin * fixed["radius"])[..., None]
+    bias_speed = -_dot(bias[:, :, None], normal)
+    old = (live["wall_normal_impulse"], live["wall_tangent_impulse"], live["wall_bias_impulse"])
+    new, (d_normal, d_tangent, d_bias) = _contact(normal_speed, tangent_speed, bias_speed, old, fixed, "wall")
+    live["wall_normal_impulse"], live["wall_tangent_impulse"], live["wall_bias_impulse"] = new
+    return _pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["radius"], 2)
+
+
+def _ball_contacts(live: dict, fixed: dict, velocity, spin, bias) -> tuple:
+    """Robot-ball contacts: the robots' changes, then the ball's (velocity, spin, bias velocity)."""
+    normal, tangent = fixed["ball_normal"], fixed["ball_tangent"]  # from the robot to the ball
+    relative = live["object_velocity"][:, None] - velocity
+    ball_spin = live["object_angular_velocity"][:, None] * fixed["object_radius"]
+    tangent_speed = _dot(relative, tangent) - ball_spin - spin * fixed["radius"]
+    bias_speed = _dot(live["_object_bias_velocity"][:, None] - bias, normal)
+    old = (live["ball_normal_impulse"], live["ball_tangent_impulse"], live["ball_bias_impulse"])
+    new, (d_normal, d_tangent, d_bias) = _contact(
+        _dot(relative, normal), tangent_speed, bias_speed, old, fixed, "ball"
+    )
+    live["ball_normal_impulse"], live["ball_tangent_impulse"], live["ball_bias_impulse"] = new
+    robots = _pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["radius"], None)
+    on_ball = _pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["object_radius"], 1)
+    return robots + _ball_share(on_ball, fixed, -1.0)
+
+
+def _ball_wall_contacts(live: dict, fixed: dict) -> tuple:
+    normal, tangent = fixed["ball_wall_normal"], fixed["ball_wall_tangent"]
+    velocity, spin = live["object_velocity"][:, None], live["object_angular_velocity"][:, None]
+    normal_speed = -_dot(velocity, normal)
+    tangent_speed = -_dot(velocity, tangent) - spin * fixed["object_radius"]
+    bias_speed = -_dot(live["_object_bias_velocity"][:, None], normal)
+    old = (live["ball_wall_normal_impulse"], live["ball_wall_tangent_impulse"], live["ball_wall_bias_impulse"])
+    new, (d_normal, d_tangent, d_bias) = _contact(normal_speed, tangent_speed, bias_speed, old, fixed, "ball_wall")
+    live["ball_wall_normal_impulse"], live["ball_wall_tangent_impulse"], live["ball_wall_bias_impulse"] = new
+    return _ball_share(_pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["object_radius"], 1), fixed, 1.0)
+
+
+def _ball_share(disk_changes: tuple, fixed: dict, sign: float) -> tuple:
+    """Changes computed with a disk's mass and moment rescaled to the ball's (``sign`` -1: the ball's velocity
+    takes the opposite of what the robots' takes; friction turns both the same way)."""
+    velocity, spin, bias = disk_changes
+    mass_scale = sign * C.DISK_MASS * fixed["object_inv_mass"]
+    moment_scale = DISK_MOMENT * fixed["object_inv_moment"]
+    return velocity * mass_scale, spin * moment_scale, bias * mass_scale
+
+
+def _ground_friction(live: dict, fixed: dict) -> None:
+    """pymunk's pivot and gear joints to the static body (max_bias 0): each body's own, solved exactly."""
+    linear_max, angular_max = fixed["linear_friction"], fixed["angular_friction"]
+    live["_ground"], live["velocity"] = _stop(live["_ground"], live["velocity"], C.DISK_MASS, linear_max)
+    live["_ground_spin"], live["angular_velocity"] = _stop_spin(
+        live["_ground_spin"], live["angular_velocity"], DISK_MOMENT, angular_max
+    )
+    if "object_inv_mass" in fixed:
+        mass, moment = 1.0 / fixed["object_inv_mass"], 1.0 / fixed["object_inv_moment"]
+        live["_object_friction"], live["object_velocity"] = _stop(
+            live["_object_friction"], live["object_velocity"], mass, linear_max
+        )
+        live["_object_spin_friction"], live["object_angular_velocity"] = _stop_spin(
+            live["_object_spin_friction"], live["object_angular_velocity"], moment, angular_max
+        )
+
+
+def _rods(live: dict, fixed: dict) -> None:
+    """Rods hold their length, pushing or pulling with at most their force limit (0 in slots without a rod)."""
+    velocity, normal = live["velocity"], fixed["normal"]
+    normal_speed = _dot(_neighbours(velocity, fixed) - velocity[:, :, None], normal)
+    old, limit = live["_rod_impulse"], fixed["rod_max_impulse"]
+    new = torch.clamp(old + (fixed["rod_bias"] - normal_speed) * fixed["rod_mass"], -limit, limit)
+    live["_rod_impulse"] = new
+    live["velocity"] = velocity - (normal * (new - old)[..., None]).sum(2) * INV_MASS
+
+
+def _stop(accumulated: torch.Tensor, velocity: torch.Tensor, mass, max_impulse):
+    """One pivot-joint round: the accumulated impulse (opposing the velocity) that stops the body, clamped in
+    length to ``max_impulse``; returns it and the new velocity."""
+    wanted = accumulated + velocity * mass
+    length = torch.linalg.vector_norm(wanted, dim=-1, keepdim=True)
+    clamped = wanted * (max_impulse / torch.maximum(length, max_impulse))
+    return clamped, velocity - (clamped - accumulated) / mass
+
+
+def _stop_spin(accumulated: torch.Tensor, spin: torch.Tensor, moment, max_impulse):
+    clamped = torch.clamp(accumulated + spin * moment, -max_impulse, max_impulse)
+    return clamped, spin - (clamped - accumulated) / moment
+
+
+# -- a substep's constraints ------------------------------------------------------------------------------
 class _Bodies:
     """The tensors and constants of one physics call, as attributes (the names :class:`BatchedDiskWorld` uses)."""
 
     def __init__(self, state: dict, config: dict):
         self.__dict__.update(state)
         self.__dict__.update(config)
+        self.has_ball, self.has_walls = self.object_radius is not None, self.n_walls > 0
+        self.flat = None
+        if self.use_cells:  # the neighbour table is fixed for the whole control step
+            k, n = self.position.shape[:2]
+            self.flat = (self._index + torch.arange(k, device=self.position.device)[:, None, None] * n).reshape(-1)
 
-    def _gather(self, value: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
-        """Each neighbour slot's value of a per-robot tensor ``[K, N, ...]``: ``[K, N, M, ...]``."""
-        index = self._index if index is None else index
-        k, n = value.shape[:2]
-        if not self.use_cells:  # slot m is robot m: a broadcast, no copy
-            return value[:, None].expand(k, n, *value.shape[1:])
-        flat = (index + torch.arange(k, device=value.device)[:, None, None] * n).reshape(-1)
-        return value.reshape(k * n, *value.shape[2:])[flat].reshape(*index.shape, *value.shape[2:])
-
-    # -- physics ------------------------------------------------------------------------------------------
-    def _substep(self, rod_length: torch.Tensor, rod_max_impulse: torch.Tensor) -> None:
-        dt, bias, mass = self.dt, self._bias, C.DISK_MASS
-        has_ball, has_walls = self.object_radius is not None, self.n_walls > 0
-        # 1. positions move with the last solve's velocities and bias velocities
-        self.position = self.position + (self.velocity + self._bias_velocity) * dt
+    def move(self) -> None:
+        """Positions move with the last solve's velocities and bias velocities."""
+        self.position = self.position + (self.velocity + self._bias_velocity) * self.dt
         self._bias_velocity = torch.zeros_like(self._bias_velocity)
-        if has_ball:
-            self.object_position = self.object_position + (self.object_velocity + self._object_bias_velocity) * dt
+        if self.has_ball:
+            self.object_position = self.object_position + (self.object_velocity + self._object_bias_velocity) * self.dt
             self._object_bias_velocity = torch.zeros_like(self._object_bias_velocity)
 
-        # 2. geometry at the new positions
-        radius = self.radius
-        delta = self._gather(self.position) - self.position[:, :, None]  # [K, N, M, 2] from robot to neighbour
+    def measure(self, rod_length: torch.Tensor, rod_max_impulse: torch.Tensor) -> dict:
+        """Every constraint's geometry and effective mass at the current positions: the rounds' ``fixed``."""
+        fixed = {"radius": self.radius, "flat": self.flat} if self.flat is not None else {"radius": self.radius}
+        fixed["linear_friction"] = torch.tensor(C.GROUND_LINEAR_FRICTION * self.dt, device=self.position.device)
+        fixed["angular_friction"] = torch.tensor(C.GROUND_ANGULAR_FRICTION * self.dt, device=self.position.device)
+        touching = {"pair": self._pair_geometry(fixed)}
+        if self.has_walls:
+            touching["wall"] = self._wall_geometry(fixed, "wall", self.position, self.radius[..., None])
+        contacts = sum(t.sum(-1) for t in touching.values()).float()
+        if self.has_ball:
+            touching["ball"], touching["ball_wall"] = self._ball_geometry(fixed)
+            contacts = contacts + touching["ball"]
+            ball_contacts = touching["ball"].sum(-1).float()
+            if self.has_walls:
+                ball_contacts = ball_contacts + touching["ball_wall"].sum(-1)
+            self._ball_masses(fixed, touching, contacts.clamp(min=1.0), ball_contacts.clamp(min=1.0))
+        share = contacts.clamp(min=1.0)  # mass splitting: the contacts acting on each robot
+        self._pair_masses(fixed, touching["pair"], share)
+        if self.has_walls:
+            fixed["wall_normal_mass"] = (C.DISK_MASS / share[..., None]) * touching["wall"]
+            fixed["wall_tangent_mass"] = 1.0 / (share[..., None] * (INV_MASS + self.radius[..., None] ** 2 * INV_MOMENT))
+            fixed["wall_bounce"] = torch.zeros_like(fixed["wall_normal_mass"])
+            self._wall_impulse = self._wall_impulse * touching["wall"][..., None]
+        self._rod_constants(fixed, rod_length, rod_max_impulse)
+        for name in [name for name in fixed if name.endswith("_mass") and name != "object_inv_mass"]:
+            fixed[name] = fixed[name] * self.relaxation
+        return fixed
+
+    def _pair_geometry(self, fixed: dict) -> torch.Tensor:
+        delta = _neighbours(self.position, fixed) - self.position[:, :, None]
         distance = torch.linalg.vector_norm(delta, dim=-1)
-        normal = delta / distance.clamp(min=1e-12)[..., None]  # (0, 0) for coincident centres: no push
-        tangent = _perp(normal)
-        other_radius = self._gather(radius)
-        depth = distance - radius[:, :, None] - other_radius  # < 0: overlapping
-        touching = self._valid & (depth < 0)
+        fixed["distance"] = distance
+        fixed["normal"] = delta / distance.clamp(min=1e-12)[..., None]  # (0, 0) for coincident centres: no push
+        fixed["tangent"] = _perp(fixed["normal"])
+        fixed["other_radius"] = _neighbours(self.radius, fixed)
+        depth = distance - self.radius[:, :, None] - fixed["other_radius"]  # < 0: overlapping
+        fixed["pair_bias"] = -self._bias * (depth + COLLISION_SLOP).clamp(max=0.0) / self.dt
+        return self._valid & (depth < 0)
+
+    def _wall_geometry(self, fixed: dict, name: str, centre: torch.Tensor, radius) -> torch.Tensor:
+        """Disks ``centre [K, P, 2]`` of ``radius`` against the walls: normals into the wall, bias; touching."""
+        distance, out = disk_wall_distance(centre, self.walls, self._wall_edge, self._wall_normal)
+        depth = distance - radius
+        fixed[name + "_normal"] = -out
+        fixed[name + "_tangent"] = _perp(-out)
+        fixed[name + "_bias"] = -self._bias * (depth + COLLISION_SLOP).clamp(max=0.0) / self.dt
+        return (depth < 0) & self._wall_present[:, None]
+
+    def _ball_geometry(self, fixed: dict) -> tuple:
+        fixed["object_radius"] = torch.tensor(self.object_radius, device=self.position.device)
+        fixed["object_inv_mass"] = torch.tensor(1.0 / self.object_mass, device=self.position.device)
+        fixed["object_inv_moment"] = torch.tensor(1.0 / self._object_moment, device=self.position.device)
+        delta = self.object_position[:, None] - self.position
+        distance = torch.linalg.vector_norm(delta, dim=-1)
+        fixed["ball_normal"] = delta / distance.clamp(min=1e-12)[..., None]
+        fixed["ball_tangent"] = _perp(fixed["ball_normal"])
+        depth = distance - self.radius - self.object_radius
+        fixed["ball_bias"] = -self._bias * (depth + COLLISION_SLOP).clamp(max=0.0) / self.dt
+        fixed["ball_bounce"] = torch.zeros_like(depth)
+        if not self.has_walls:
+            return depth < 0, None
+        touching = self._wall_geometry(fixed, "ball_wall", self.object_position[:, None], self.object_radius)
+        for name in ("ball_wall_normal", "ball_wall_tangent"):
+            fixed[name] = fixed[name][:, 0]
+        fixed["ball_wall_bias"] = fixed["ball_wall_bias"][:, 0]
+        return depth < 0, touching[:, 0]
+
+    def _pair_masses(self, fixed: dict, touching: torch.Tensor, share: torch.Tensor) -> None:
+        other_share, radius = _neighbours(share, fixed), self.radius[:, :, None]
+        fixed["pair_normal_mass"] = touching / ((share[:, :, None] + other_share) * INV_MASS)
+        fixed["pair_tangent_mass"] = 1.0 / (
+            (share[:, :, None] + other_share) * INV_MASS
+            + (share[:, :, None] * radius**2 + other_share * fixed["other_radius"] ** 2) * INV_MOMENT
+        )
+        relative = _neighbours(self.velocity, fixed) - self.velocity[:, :, None]
+        fixed["pair_bounce"] = _dot(relative, fixed["normal"]) * ROBOT_ELASTICITY
+        # persistent contacts keep their impulses (chipmunk's warm start); the rest start from 0
+        self._normal_impulse = self._normal_impulse * touching
+        self._tangent_impulse = self._tangent_impulse * touching
+
+    def _ball_masses(self, fixed: dict, touching: dict, share: torch.Tensor, ball_share: torch.Tensor) -> None:
+        inv_mass, inv_moment, radius = 1.0 / self.object_mass, 1.0 / self._object_moment, self.object_radius
+        fixed["ball_normal_mass"] = touching["ball"] / (share * INV_MASS + ball_share[:, None] * inv_mass)
+        fixed["ball_tangent_mass"] = 1.0 / (
+            share * (INV_MASS + self.radius**2 * INV_MOMENT) + ball_share[:, None] * (inv_mass + radius**2 * inv_moment)
+        )
+        self._ball_impulse = self._ball_impulse * touching["ball"][..., None]
+        if self.has_walls:
+            fixed["ball_wall_normal_mass"] = touching["ball_wall"] * self.object_mass / ball_share[:, None]
+            fixed["ball_wall_tangent_mass"] = 1.0 / (ball_share[:, None] * (inv_mass + radius**2 * inv_moment))
+            fixed["ball_wall_bounce"] = torch.zeros_like(fixed["ball_wall_normal_mass"])
+            self._ball_wall_impulse = self._ball_wall_impulse * touching["ball_wall"][..., None]
+
+    def _rod_constants(self, fixed: dict, rod_length: torch.Tensor, rod_max_impulse: torch.Tensor) -> None:
         rods = self._valid
-        rod_bias = -bias * (distance - rod_length) / dt
-
-        if has_walls:
-            wall_distance, wall_out = disk_wall_distance(self.position, self.walls, self._wall_edge, self._wall_normal)
-            wall_touching = (wall_distance < radius[..., None]) & self._wall_present[:, None]
-            wall_depth = wall_distance - radius[..., None]
-            wall_normal = -wall_out  # from the robot into the wall
-        if has_ball:
-            ball_delta = self.object_position[:, None] - self.position
-            ball_distance = torch.linalg.vector_norm(ball_delta, dim=-1)
-            ball_normal = ball_delta / ball_distance.clamp(min=1e-12)[..., None]
-            ball_depth = ball_distance - radius - self.object_radius
-            ball_touching = ball_depth < 0
-            if has_walls:
-                bw_distance, bw_out = disk_wall_distance(
-                    self.object_position[:, None], self.walls, self._wall_edge, self._wall_normal
-                )
-                bw_distance, bw_out = bw_distance[:, 0], bw_out[:, 0]
-                ball_wall_touching = (bw_distance < self.object_radius) & self._wall_present
-                ball_wall_depth = bw_distance - self.object_radius
-                ball_wall_normal = -bw_out
-
-        # mass splitting: how many contacts, and how many rods, act on each body
-        contacts = touching.sum(-1).float()
-        if has_walls:
-            contacts = contacts + wall_touching.sum(-1)
-        if has_ball:
-            contacts = contacts + ball_touching
-            ball_contacts = ball_touching.sum(-1).float()
-            if has_walls:
-                ball_contacts = ball_contacts + ball_wall_touching.sum(-1)
-            ball_share = ball_contacts.clamp(min=1.0)
-        share = contacts.clamp(min=1.0)
         rod_share = rods.sum(-1).float().clamp(min=1.0)
-        inv_mass, inv_moment = 1.0 / mass, 1.0 / DISK_MOMENT
+        fixed["rod_mass"] = rods / ((rod_share[:, :, None] + _neighbours(rod_share, fixed)) * INV_MASS)
+        fixed["rod_max_impulse"] = rod_max_impulse * rods  # 0 without a rod: its impulse stays 0
+        fixed["rod_bias"] = -self._bias * (fixed.pop("distance") - rod_length) / self.dt
+        self._rod_impulse = self._rod_impulse * rods
 
-        # robot-robot contacts
-        other_share = self._gather(share)
-        normal_mass = 1.0 / ((share[:, :, None] + other_share) * inv_mass)
-        tangent_mass = 1.0 / (
-            (share[:, :, None] + other_share) * inv_mass
-            + (share[:, :, None] * radius[:, :, None] ** 2 + other_share * other_radius**2) * inv_moment
-        )
-        contact_bias = -bias * (depth + COLLISION_SLOP).clamp(max=0.0) / dt
-        relative = self._gather(self.velocity) - self.velocity[:, :, None]
-        bounce = _dot(relative, normal) * ROBOT_ELASTICITY
-        rod_mass = 1.0 / ((rod_share[:, :, None] + self._gather(rod_share)) * inv_mass)
-
-        # persistent contacts and rods keep their impulses (chipmunk's warm start); the rest start from 0
-        self._normal_impulse = torch.where(touching, self._normal_impulse, 0.0)
-        self._tangent_impulse = torch.where(touching, self._tangent_impulse, 0.0)
-        self._rod_impulse = torch.where(rods, self._rod_impulse, 0.0)
-        normal_bias_impulse = torch.zeros_like(depth)
-        if has_walls:
-            wall_tangent = _perp(wall_normal)
-            wall_normal_mass = mass / share[..., None]
-            wall_tangent_mass = 1.0 / (share[..., None] * (inv_mass + radius[..., None] ** 2 * inv_moment))
-            wall_bias = -bias * (wall_depth + COLLISION_SLOP).clamp(max=0.0) / dt
-            self._wall_impulse = torch.where(wall_touching[..., None], self._wall_impulse, 0.0)
-            wall_bias_impulse = torch.zeros_like(wall_depth)
-        if has_ball:
-            ball_tangent = _perp(ball_normal)
-            ball_inv_moment = 1.0 / self._object_moment
-            ball_normal_mass = 1.0 / (share * inv_mass + ball_share[:, None] / self.object_mass)
-            ball_tangent_mass = 1.0 / (
-                share * (inv_mass + radius**2 * inv_moment)
-                + ball_share[:, None] * (1.0 / self.object_mass + self.object_radius**2 * ball_inv_moment)
+    def warm_start(self, fixed: dict) -> dict:
+        """Apply every accumulated impulse again (chipmunk's warm start); returns the rounds' ``live`` state."""
+        live = {name: getattr(self, name) for name in MUTABLE if hasattr(self, name) and "position" not in name}
+        live["pair_bias_impulse"] = torch.zeros_like(self._normal_impulse)
+        for stacked, name in _STACKED.items():
+            if name + "_normal_mass" in fixed:
+                live[name + "_normal_impulse"], live[name + "_tangent_impulse"] = live.pop(stacked).unbind(-1)
+                live[name + "_bias_impulse"] = torch.zeros_like(live[name + "_normal_impulse"])
+            else:
+                live.pop(stacked, None)
+        zero = torch.zeros_like(self._normal_impulse)
+        # the warm start is one round's application of the whole accumulated impulses, with no bias
+        impulses = {"pair": (live["_normal_impulse"] + live["_rod_impulse"], live["_tangent_impulse"], zero)}
+        changes = [_pushed(fixed["normal"], fixed["tangent"], *impulses["pair"], self.radius, 2)]
+        if "wall_normal" in fixed:
+            n, t = live["wall_normal_impulse"], live["wall_tangent_impulse"]
+            changes.append(_pushed(fixed["wall_normal"], fixed["wall_tangent"], n, t, torch.zeros_like(n), self.radius, 2))
+        ball_changes = []
+        if "ball_normal" in fixed:
+            n, t = live["ball_normal_impulse"], live["ball_tangent_impulse"]
+            args = (fixed["ball_normal"], fixed["ball_tangent"], n, t, torch.zeros_like(n))
+            changes.append(_pushed(*args, self.radius, None))
+            ball_changes.append(_ball_share(_pushed(*args, fixed["object_radius"], 1), fixed, -1.0))
+            if "ball_wall_normal" in fixed:
+                n, t = live["ball_wall_normal_impulse"], live["ball_wall_tangent_impulse"]
+                args = (fixed["ball_wall_normal"], fixed["ball_wall_tangent"], n, t, torch.zeros_like(n))
+                ball_changes.append(_ball_share(_pushed(*args, fixed["object_radius"], 1), fixed, 1.0))
+        for name, total in zip(("velocity", "angular_velocity"), zip(*changes)):
+            live[name] = live[name] + sum(total)
+        live["velocity"] = live["velocity"] - live["_ground"] * INV_MASS
+        live["angular_velocity"] = live["angular_velocity"] - live["_ground_spin"] * INV_MOMENT
+        if ball_changes:
+            for name, total in zip(("object_velocity", "object_angular_velocity"), zip(*ball_changes)):
+                live[name] = live[name] + sum(total)
+            live["object_velocity"] = live["object_velocity"] - live["_object_friction"] * fixed["object_inv_mass"]
+            live["object_angular_velocity"] = (
+                live["object_angular_velocity"] - live["_object_spin_friction"] * fixed["object_inv_moment"]
             )
-            ball_bias = -bias * (ball_depth + COLLISION_SLOP).clamp(max=0.0) / dt
-            self._ball_impulse = torch.where(ball_touching[..., None], self._ball_impulse, 0.0)
-            ball_bias_impulse = torch.zeros_like(ball_depth)
-            if has_walls:
-                bw_tangent = _perp(ball_wall_normal)
-                bw_normal_mass = self.object_mass / ball_share[:, None]
-                bw_tangent_mass = 1.0 / (
-                    ball_share[:, None] * (1.0 / self.object_mass + self.object_radius**2 * ball_inv_moment)
-                )
-                bw_bias = -bias * (ball_wall_depth + COLLISION_SLOP).clamp(max=0.0) / dt
-                self._ball_wall_impulse = torch.where(ball_wall_touching[..., None], self._ball_wall_impulse, 0.0)
-                bw_bias_impulse = torch.zeros_like(ball_wall_depth)
+        return live
 
-        # 3. warm start: each accumulated impulse applied again
-        self._apply_pairs(
-            normal, tangent, self._normal_impulse + self._rod_impulse, self._tangent_impulse, radius, other_radius
-        )
-        if has_walls:
-            self._apply_walls(wall_normal, wall_tangent, self._wall_impulse[..., 0], self._wall_impulse[..., 1], radius)
-        if has_ball:
-            self._apply_ball(ball_normal, ball_tangent, self._ball_impulse[..., 0], self._ball_impulse[..., 1], radius)
-            if has_walls:
-                self._apply_ball_walls(
-                    ball_wall_normal, bw_tangent, self._ball_wall_impulse[..., 0], self._ball_wall_impulse[..., 1]
-                )
-        self.velocity = self.velocity - self._ground / mass
-        self.angular_velocity = self.angular_velocity - self._ground_spin / DISK_MOMENT
-        if has_ball:
-            self.object_velocity = self.object_velocity - self._object_friction / self.object_mass
-            self.object_angular_velocity = (
-                self.object_angular_velocity - self._object_spin_friction / self._object_moment
-            )
-
-        # 4. iterations in chipmunk's order: contacts, then the joints as they were added: ground friction, then rods
-        for _ in range(self.iterations):
-            # robot-robot contacts
-            v, w = self.velocity, self.angular_velocity
-            relative = self._gather(v) - v[:, :, None]
-            normal_speed = _dot(relative, normal)
-            tangent_speed = (
-                _dot(relative, tangent) - self._gather(w) * other_radius - w[:, :, None] * radius[:, :, None]
-            )
-            new_normal = (self._normal_impulse - (bounce + normal_speed) * normal_mass).clamp(min=0.0)
-            new_normal = torch.where(touching, new_normal, 0.0)
-            limit = new_normal  # friction coefficient 1 * 1
-            new_tangent = torch.minimum(
-                torch.maximum(self._tangent_impulse - tangent_speed * tangent_mass, -limit), limit
-            )
-            bias_speed = _dot(self._gather(self._bias_velocity) - self._bias_velocity[:, :, None], normal)
-            new_bias = torch.where(
-                touching, (normal_bias_impulse + (contact_bias - bias_speed) * normal_mass).clamp(min=0.0), 0.0
-            )
-            d_normal, d_tangent = new_normal - self._normal_impulse, new_tangent - self._tangent_impulse
-            d_bias = new_bias - normal_bias_impulse
-            self._normal_impulse, self._tangent_impulse, normal_bias_impulse = new_normal, new_tangent, new_bias
-            if has_walls:
-                normal_speed = -_dot(v[:, :, None], wall_normal)
-                tangent_speed = -_dot(v[:, :, None], wall_tangent) - w[..., None] * radius[..., None]
-                old = self._wall_impulse
-                new_n = torch.where(wall_touching, (old[..., 0] - normal_speed * wall_normal_mass).clamp(min=0.0), 0.0)
-                new_t = torch.minimum(torch.maximum(old[..., 1] - tangent_speed * wall_tangent_mass, -new_n), new_n)
-                bias_speed = -_dot(self._bias_velocity[:, :, None], wall_normal)
-                new_wb = torch.where(
-                    wall_touching, (wall_bias_impulse + (wall_bias - bias_speed) * wall_normal_mass).clamp(min=0.0), 0.0
-                )
-                wall_dn, wall_dt, wall_db = new_n - old[..., 0], new_t - old[..., 1], new_wb - wall_bias_impulse
-                self._wall_impulse, wall_bias_impulse = torch.stack([new_n, new_t], dim=-1), new_wb
-            if has_ball:
-                bv, bw = self.object_velocity, self.object_angular_velocity
-                relative = bv[:, None] - v
-                normal_speed = _dot(relative, ball_normal)
-                tangent_speed = _dot(relative, ball_tangent) - bw[:, None] * self.object_radius - w * radius
-                old = self._ball_impulse
-                new_n = torch.where(ball_touching, (old[..., 0] - normal_speed * ball_normal_mass).clamp(min=0.0), 0.0)
-                new_t = torch.minimum(torch.maximum(old[..., 1] - tangent_speed * ball_tangent_mass, -new_n), new_n)
-                bias_speed = _dot(self._object_bias_velocity[:, None] - self._bias_velocity, ball_normal)
-                new_bb = torch.where(
-                    ball_touching, (ball_bias_impulse + (ball_bias - bias_speed) * ball_normal_mass).clamp(min=0.0), 0.0
-                )
-                ball_dn, ball_dt, ball_db = new_n - old[..., 0], new_t - old[..., 1], new_bb - ball_bias_impulse
-                self._ball_impulse, ball_bias_impulse = torch.stack([new_n, new_t], dim=-1), new_bb
-                if has_walls:
-                    normal_speed = -_dot(bv[:, None], ball_wall_normal)
-                    tangent_speed = -_dot(bv[:, None], bw_tangent) - bw[:, None] * self.object_radius
-                    old = self._ball_wall_impulse
-                    new_n = torch.where(
-                        ball_wall_touching, (old[..., 0] - normal_speed * bw_normal_mass).clamp(min=0.0), 0.0
-                    )
-                    new_t = torch.minimum(torch.maximum(old[..., 1] - tangent_speed * bw_tangent_mass, -new_n), new_n)
-                    bias_speed = -_dot(self._object_bias_velocity[:, None], ball_wall_normal)
-                    new_bwb = torch.where(
-                        ball_wall_touching,
-                        (bw_bias_impulse + (bw_bias - bias_speed) * bw_normal_mass).clamp(min=0.0),
-                        0.0,
-                    )
-                    bw_dn, bw_dt, bw_db = new_n - old[..., 0], new_t - old[..., 1], new_bwb - bw_bias_impulse
-                    self._ball_wall_impulse, bw_bias_impulse = torch.stack([new_n, new_t], dim=-1), new_bwb
-            # apply all contact impulses of this round at once
-            self._apply_pairs(normal, tangent, d_normal, d_tangent, radius, other_radius, d_bias)
-            if has_walls:
-                self._apply_walls(wall_normal, wall_tangent, wall_dn, wall_dt, radius, wall_db)
-            if has_ball:
-                self._apply_ball(ball_normal, ball_tangent, ball_dn, ball_dt, radius, ball_db)
-                if has_walls:
-                    self._apply_ball_walls(ball_wall_normal, bw_tangent, bw_dn, bw_dt, bw_db)
-
-            # ground friction: each body's own pivot and gear, solved exactly
-            self._ground_friction()
-
-            # rods: hold their length, pushing or pulling with at most their force limit
-            v = self.velocity
-            normal_speed = _dot(self._gather(v) - v[:, :, None], normal)
-            new_rod = torch.minimum(
-                torch.maximum(self._rod_impulse + (rod_bias - normal_speed) * rod_mass, -rod_max_impulse),
-                rod_max_impulse,
-            )
-            new_rod = torch.where(rods, new_rod, 0.0)
-            d_rod = new_rod - self._rod_impulse
-            self._rod_impulse = new_rod
-            self.velocity = self.velocity - (normal * d_rod[..., None]).sum(2) * inv_mass
-
-    def _apply_pairs(self, normal, tangent, d_normal, d_tangent, radius, other_radius, d_bias=None) -> None:
-        """Robot-robot impulses (slot values are the impulse on the neighbour; the robot gets the opposite)."""
-        impulse = normal * d_normal[..., None] + tangent * d_tangent[..., None]
-        self.velocity = self.velocity - impulse.sum(2) / C.DISK_MASS
-        self.angular_velocity = self.angular_velocity - radius * d_tangent.sum(2) / DISK_MOMENT
-        if d_bias is not None:
-            self._bias_velocity = self._bias_velocity - (normal * d_bias[..., None]).sum(2) / C.DISK_MASS
-
-    def _apply_walls(self, normal, tangent, d_normal, d_tangent, radius, d_bias=None) -> None:
-        impulse = normal * d_normal[..., None] + tangent * d_tangent[..., None]
-        self.velocity = self.velocity - impulse.sum(2) / C.DISK_MASS
-        self.angular_velocity = self.angular_velocity - radius * d_tangent.sum(2) / DISK_MOMENT
-        if d_bias is not None:
-            self._bias_velocity = self._bias_velocity - (normal * d_bias[..., None]).sum(2) / C.DISK_MASS
-
-    def _apply_ball(self, normal, tangent, d_normal, d_tangent, radius, d_bias=None) -> None:
-        impulse = normal * d_normal[..., None] + tangent * d_tangent[..., None]  # on the ball; robots get -
-        self.velocity = self.velocity - impulse / C.DISK_MASS
-        self.angular_velocity = self.angular_velocity - radius * d_tangent / DISK_MOMENT
-        self.object_velocity = self.object_velocity + impulse.sum(1) / self.object_mass
-        self.object_angular_velocity = (
-            self.object_angular_velocity - self.object_radius * d_tangent.sum(1) / self._object_moment
-        )
-        if d_bias is not None:
-            bias_impulse = normal * d_bias[..., None]
-            self._bias_velocity = self._bias_velocity - bias_impulse / C.DISK_MASS
-            self._object_bias_velocity = self._object_bias_velocity + bias_impulse.sum(1) / self.object_mass
-
-    def _apply_ball_walls(self, normal, tangent, d_normal, d_tangent, d_bias=None) -> None:
-        impulse = normal * d_normal[..., None] + tangent * d_tangent[..., None]
-        self.object_velocity = self.object_velocity - impulse.sum(1) / self.object_mass
-        self.object_angular_velocity = (
-            self.object_angular_velocity - self.object_radius * d_tangent.sum(1) / self._object_moment
-        )
-        if d_bias is not None:
-            self._object_bias_velocity = (
-                self._object_bias_velocity - (normal * d_bias[..., None]).sum(1) / self.object_mass
-            )
-
-    def _ground_friction(self) -> None:
-        """pymunk's pivot and gear joints to the static body (max_bias 0): each body's accumulated friction
-        impulse moves toward stopping it, clamped to the friction force times dt (a disk, not a cone)."""
-        linear_max = C.GROUND_LINEAR_FRICTION * self.dt
-        angular_max = C.GROUND_ANGULAR_FRICTION * self.dt
-        self._ground, self.velocity = _stop(self._ground, self.velocity, C.DISK_MASS, linear_max)
-        self._ground_spin, self.angular_velocity = _stop_spin(
-            self._ground_spin, self.angular_velocity, DISK_MOMENT, angular_max
-        )
-        if self.object_radius is not None:
-            self._object_friction, self.object_velocity = _stop(
-                self._object_friction, self.object_velocity, self.object_mass, linear_max
-            )
-            self._object_spin_friction, self.object_angular_velocity = _stop_spin(
-                self._object_spin_friction, self.object_angular_velocity, self._object_moment, angular_max
-            )
-
-
-def _stop(accumulated: torch.Tensor, velocity: torch.Tensor, mass: float, max_impulse: float):
-    """One pivot-joint round: the accumulated impulse (opposing the velocity) that stops the body, clamped in
-    length to ``max_impulse``; returns it and the new velocity."""
-    wanted = accumulated + velocity * mass
-    length = torch.linalg.vector_norm(wanted, dim=-1, keepdim=True)
-    clamped = wanted * (max_impulse / length.clamp(min=max_impulse))
-    return clamped, velocity - (clamped - accumulated) / mass
-
-
-def _stop_spin(accumulated: torch.Tensor, spin: torch.Tensor, moment: float, max_impulse: float):
-    clamped = (accumulated + spin * moment).clamp(-max_impulse, max_impulse)
-    return clamped, spin - (clamped - accumulated) / moment
+    def keep(self, live: dict) -> None:
+        """The rounds' results back into the bodies; the stacked impulses stacked again."""
+        for stacked, name in _STACKED.items():
+            if name + "_normal_impulse" in live:
+                impulses = [live[name + "_normal_impulse"], live[name + "_tangent_impulse"]]
+                setattr(self, stacked, torch.stack(impulses, dim=-1))
+        for name in MUTABLE:
+            if name in live:
+                setattr(self, name, live[name])

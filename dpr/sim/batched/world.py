@@ -36,14 +36,17 @@ import torch
 from dpr.checks import ParameterError, check_int, check_number
 from dpr.sim import constants as C
 from dpr.sim.batched.neighbours import all_pairs, carry_over, cell_list
-from dpr.sim.batched.solver import MUTABLE, physics
+from dpr.sim.batched.solver import MUTABLE, physics, solve_round
 from dpr.sim.batched.walls import disk_wall_distance, wall_geometry
 from dpr.sim.swarm import REACHED_FRACTION
 
 # Solver rounds per substep. Chipmunk does 10, one constraint after another; simultaneous (Jacobi) rounds
-# converge more slowly, and with 10 the wave moves the swarm 0.8x as far as pymunk's, with 30 0.97x
-# (tools/batched_agreement.py, Navigation N=9).
-ITERATIONS = 30
+# converge more slowly: plain, 10 rounds move the wave's swarm 0.67x as far as pymunk's, 30 rounds 1.04x
+# (tools/batched_agreement.py, Navigation N=9, 40 seeds). Over-relaxed by 1.3 (each round's impulse updates
+# scaled up, free: it only scales the effective masses), 20 rounds give the same 1.04x; 15 rounds at 1.5 give
+# 0.96x on 20 seeds but 1.08x on 40, too close to the 0.9-1.1 band's edge.
+ITERATIONS = 20
+RELAXATION = 1.3
 # chipmunk's (pymunk's) defaults, which the pymunk disk model keeps
 ERROR_BIAS = (1.0 - 0.1) ** 60  # both contacts' and joints' share of error left after one second
 SUBSTEPS = 2  # DiskSwarm.substeps
@@ -97,6 +100,7 @@ class BatchedDiskWorld:
         object_mass: float = 100.0,
         iterations: int = ITERATIONS,
         substeps: int = SUBSTEPS,
+        relaxation: float = RELAXATION,
         compile: bool = False,
     ):
         self.num_envs = k = check_int("num_envs", num_envs, minimum=1)
@@ -104,6 +108,7 @@ class BatchedDiskWorld:
         self.n_walls = check_int("n_walls", n_walls, minimum=0)
         self.iterations = check_int("iterations", iterations, minimum=1)
         self.substeps = check_int("substeps", substeps, minimum=1)
+        self.relaxation = check_number("relaxation", relaxation, above=0.0)
         try:
             self.device = torch.device(device)
         except (RuntimeError, TypeError) as error:
@@ -160,14 +165,16 @@ class BatchedDiskWorld:
             "_bias": self._bias,
             "iterations": self.iterations,
             "substeps": self.substeps,
+            "relaxation": self.relaxation,
             "use_cells": self.use_cells,
             "n_walls": self.n_walls,
             "object_radius": self.object_radius,
             "object_mass": self.object_mass,
             "_object_moment": getattr(self, "_object_moment", None),
         }
-        # compiled, the whole control step's physics fuses into a few loops (minutes to compile, once per shape)
-        self._physics = torch.compile(physics, dynamic=False) if compile else physics
+        # compiled, one solver round is one graph (seconds to compile, once per shape and case); off by default:
+        # on CPU (torch 2.13, 2 threads) the compiled round ran 2-6x slower than eager, and K=4096 took minutes
+        self._solve = torch.compile(solve_round, dynamic=False) if compile else solve_round
         self._rod_impulse = zeros(k, n, m)
         self._normal_impulse = zeros(k, n, m)
         self._tangent_impulse = zeros(k, n, m)
@@ -318,7 +325,7 @@ class BatchedDiskWorld:
         self._update_neighbours()
         rod_length, rod_max_impulse = self._grow(radius_target)
         state = {name: getattr(self, name) for name in MUTABLE + _READ if hasattr(self, name)}
-        for name, value in self._physics(state, self._config, rod_length, rod_max_impulse).items():
+        for name, value in physics(state, self._config, rod_length, rod_max_impulse, self._solve).items():
             setattr(self, name, value)
 
     def _grow(self, radius_target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
