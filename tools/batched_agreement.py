@@ -123,13 +123,13 @@ class BatchedWave:
 
 def batched_episodes(starts: list[dict], steps: int, overlap_every: int, **world_kwargs) -> dict:
     """Every start as one swarm of one batched world, stepped together under the wave."""
-    from dpr.sim.batched import BatchedDiskWorld
+    from dpr.sim.batched import BatchedDiskWorld, SolverSettings
 
     k, n = len(starts), len(starts[0]["centres"])
     walls = [s["walls"] for s in starts]
     n_walls = len(walls[0])
     radius = starts[0]["object_radius"]
-    world = BatchedDiskWorld(k, n, n_walls=n_walls, object_radius=radius, **world_kwargs)
+    world = BatchedDiskWorld(k, n, n_walls=n_walls, object_radius=radius, solver=SolverSettings(**world_kwargs))
     world.reset(
         torch.ones(k, dtype=torch.bool),
         torch.tensor([s["centres"] for s in starts]),
@@ -175,9 +175,10 @@ def main() -> int:
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     torch.set_num_threads(args.workers)
-    world_kwargs = {} if args.iterations is None else {"iterations": args.iterations}
+    solver = {} if args.iterations is None else {"iterations": args.iterations}
     if args.relaxation is not None:
-        world_kwargs["relaxation"] = args.relaxation
+        solver["relaxation"] = args.relaxation
+    world_kwargs = solver
     cache = _load_cache(args.cache)
     rows = []
     for case in args.cases:

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import torch
 
-from dpr.sim.batched import BatchedDiskWorld
+from dpr.sim.batched import BatchedDiskWorld, SolverSettings
 from dpr.sim.world import grid_centres
 
 
@@ -80,7 +80,7 @@ def main() -> int:
     parser.add_argument("--compile", action="store_true", help="torch.compile the physics (minutes of compiling)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    kwargs = {"device": args.device, "compile": args.compile}
+    kwargs = {"device": args.device, "solver": SolverSettings(compile=args.compile)}
     print(f"torch {torch.__version__}, {args.threads} threads, device {args.device}, compile {args.compile}")
     print(
         "| N | K | pymunk env steps/s | batched env steps/s | batched / pymunk | robot-steps/s (batched) "

@@ -95,7 +95,9 @@ def solve_round(live: dict, fixed: dict) -> dict:
         ball_changes = [ball[3:]]
         if "ball_wall_normal" in fixed:
             ball_changes.append(_ball_wall_contacts(live, fixed))
-        for name, total in zip(("object_velocity", "object_angular_velocity", "_object_bias_velocity"), zip(*ball_changes)):
+        for name, total in zip(
+            ("object_velocity", "object_angular_velocity", "_object_bias_velocity"), zip(*ball_changes)
+        ):
             live[name] = live[name] + sum(total)
     for name, total in zip(("velocity", "angular_velocity", "_bias_velocity"), zip(*changes)):
         live[name] = live[name] + sum(total)
@@ -159,9 +161,7 @@ def _ball_contacts(live: dict, fixed: dict, velocity, spin, bias) -> tuple:
     tangent_speed = _dot(relative, tangent) - ball_spin - spin * fixed["radius"]
     bias_speed = _dot(live["_object_bias_velocity"][:, None] - bias, normal)
     old = (live["ball_normal_impulse"], live["ball_tangent_impulse"], live["ball_bias_impulse"])
-    new, (d_normal, d_tangent, d_bias) = _contact(
-        _dot(relative, normal), tangent_speed, bias_speed, old, fixed, "ball"
-    )
+    new, (d_normal, d_tangent, d_bias) = _contact(_dot(relative, normal), tangent_speed, bias_speed, old, fixed, "ball")
     live["ball_normal_impulse"], live["ball_tangent_impulse"], live["ball_bias_impulse"] = new
     robots = _pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["radius"], None)
     on_ball = _pushed(normal, tangent, d_normal, d_tangent, d_bias, fixed["object_radius"], 1)
@@ -271,7 +271,9 @@ class _Bodies:
         self._pair_masses(fixed, touching["pair"], share)
         if self.has_walls:
             fixed["wall_normal_mass"] = (C.DISK_MASS / share[..., None]) * touching["wall"]
-            fixed["wall_tangent_mass"] = 1.0 / (share[..., None] * (INV_MASS + self.radius[..., None] ** 2 * INV_MOMENT))
+            fixed["wall_tangent_mass"] = 1.0 / (
+                share[..., None] * (INV_MASS + self.radius[..., None] ** 2 * INV_MOMENT)
+            )
             fixed["wall_bounce"] = torch.zeros_like(fixed["wall_normal_mass"])
             self._wall_impulse = self._wall_impulse * touching["wall"][..., None]
         self._rod_constants(fixed, rod_length, rod_max_impulse)
@@ -368,7 +370,9 @@ class _Bodies:
         changes = [_pushed(fixed["normal"], fixed["tangent"], *impulses["pair"], self.radius, 2)]
         if "wall_normal" in fixed:
             n, t = live["wall_normal_impulse"], live["wall_tangent_impulse"]
-            changes.append(_pushed(fixed["wall_normal"], fixed["wall_tangent"], n, t, torch.zeros_like(n), self.radius, 2))
+            changes.append(
+                _pushed(fixed["wall_normal"], fixed["wall_tangent"], n, t, torch.zeros_like(n), self.radius, 2)
+            )
         ball_changes = []
         if "ball_normal" in fixed:
             n, t = live["ball_normal_impulse"], live["ball_tangent_impulse"]

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass
 
 import torch
 
@@ -40,11 +41,9 @@ from dpr.sim.batched.solver import MUTABLE, physics, solve_round
 from dpr.sim.batched.walls import disk_wall_distance, wall_geometry
 from dpr.sim.swarm import REACHED_FRACTION
 
-# Solver rounds per substep. Chipmunk does 10, one constraint after another; simultaneous (Jacobi) rounds
-# converge more slowly: plain, 10 rounds move the wave's swarm 0.67x as far as pymunk's, 30 rounds 1.04x
-# (tools/batched_agreement.py, Navigation N=9, 40 seeds). Over-relaxed by 1.3 (each round's impulse updates
-# scaled up, free: it only scales the effective masses), 20 rounds give the same 1.04x; 15 rounds at 1.5 give
-# 0.96x on 20 seeds but 1.08x on 40, too close to the 0.9-1.1 band's edge.
+# Solver rounds per substep. Chipmunk does 10, one constraint after another; rounds that solve every constraint
+# of a kind at once converge more slowly, and each round's impulse updates are over-relaxed (scaled up, which only
+# scales the effective masses) so that 20 of them reach chipmunk's answer (docs/research/batched-engine.md).
 ITERATIONS = 20
 RELAXATION = 1.3
 # chipmunk's (pymunk's) defaults, which the pymunk disk model keeps
@@ -68,6 +67,17 @@ def _bias_coefficient(dt: float) -> float:
     return 1.0 - ERROR_BIAS**dt
 
 
+def _checked_device(device) -> torch.device:
+    """``device`` as a torch device that this machine has (a ParameterError naming it otherwise)."""
+    try:
+        checked = torch.device(device)
+    except (RuntimeError, TypeError) as error:
+        raise ParameterError("device", f"not a torch device: {device!r} ({error})") from None
+    if checked.type == "cuda" and not torch.cuda.is_available():
+        raise ParameterError("device", f"{device!r} asked for, but torch sees no CUDA device on this machine")
+    return checked
+
+
 def _available_memory(device: torch.device) -> int:
     if device.type == "cuda":
         return torch.cuda.get_device_properties(device).total_memory
@@ -78,6 +88,25 @@ def estimated_memory(num_envs: int, n_robots: int) -> int:
     """Bytes a :class:`BatchedDiskWorld` of ``num_envs`` swarms of ``n_robots`` needs while stepping (estimate)."""
     slots = n_robots if n_robots <= ALL_PAIRS_LIMIT else 9 * CELL_CAP + MAX_NEIGHBOURS
     return num_envs * n_robots * (slots * _BYTES_PER_SLOT + _BYTES_PER_ROBOT)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """How a :class:`BatchedDiskWorld` solves its impulses: ``iterations`` rounds per substep, ``substeps`` per
+    control step, each round's updates over-relaxed by ``relaxation``, and whether one round is compiled by
+    ``torch.compile`` (off: on CPU the compiled round ran slower than eager)."""
+
+    iterations: int = ITERATIONS
+    substeps: int = SUBSTEPS
+    relaxation: float = RELAXATION
+    compile: bool = False
+
+    def __post_init__(self):
+        check_int("iterations", self.iterations, minimum=1)
+        check_int("substeps", self.substeps, minimum=1)
+        check_number("relaxation", self.relaxation, above=0.0)
+        if not isinstance(self.compile, bool):
+            raise ParameterError("compile", f"expected True or False, got {self.compile!r}")
 
 
 class BatchedDiskWorld:
@@ -98,23 +127,15 @@ class BatchedDiskWorld:
         n_walls: int = 0,
         object_radius: float | None = None,
         object_mass: float = 100.0,
-        iterations: int = ITERATIONS,
-        substeps: int = SUBSTEPS,
-        relaxation: float = RELAXATION,
-        compile: bool = False,
+        solver: SolverSettings = SolverSettings(),
     ):
         self.num_envs = k = check_int("num_envs", num_envs, minimum=1)
         self.n_robots = n = check_int("n_robots", n_robots, minimum=1)
         self.n_walls = check_int("n_walls", n_walls, minimum=0)
-        self.iterations = check_int("iterations", iterations, minimum=1)
-        self.substeps = check_int("substeps", substeps, minimum=1)
-        self.relaxation = check_number("relaxation", relaxation, above=0.0)
-        try:
-            self.device = torch.device(device)
-        except (RuntimeError, TypeError) as error:
-            raise ParameterError("device", f"not a torch device: {device!r} ({error})") from None
-        if self.device.type == "cuda" and not torch.cuda.is_available():
-            raise ParameterError("device", f"{device!r} asked for, but torch sees no CUDA device on this machine")
+        if not isinstance(solver, SolverSettings):
+            raise ParameterError("solver", f"expected SolverSettings, got {type(solver).__name__}")
+        self.iterations, self.substeps, self.relaxation = solver.iterations, solver.substeps, solver.relaxation
+        self.device = _checked_device(device)
         if object_radius is not None:
             object_radius = check_number("object_radius", object_radius, above=0.0)
         self.object_radius = object_radius
@@ -130,8 +151,17 @@ class BatchedDiskWorld:
         self._bias = _bias_coefficient(self.dt)
         self.use_cells = n > ALL_PAIRS_LIMIT
         self.cell_cap, self.max_neighbours = CELL_CAP, MAX_NEIGHBOURS
+        self._allocate_state(k, n)
+        self._allocate_solver_state(k, n)
+        # compiled, one solver round is one graph (seconds to compile, once per shape and case)
+        self._solve = torch.compile(solve_round, dynamic=False) if solver.compile else solve_round
 
-        zeros = lambda *shape, dtype=torch.float32: torch.zeros(*shape, dtype=dtype, device=self.device)  # noqa: E731
+    def _zeros(self, *shape, dtype=torch.float32) -> torch.Tensor:
+        return torch.zeros(*shape, dtype=dtype, device=self.device)
+
+    def _allocate_state(self, k: int, n: int) -> None:
+        """The swarms', walls' and ball's state, all contracted and at rest until :meth:`reset`."""
+        zeros = self._zeros
         self.position = zeros(k, n, 2)
         self.velocity = zeros(k, n, 2)
         self.angular_velocity = zeros(k, n)
@@ -143,15 +173,19 @@ class BatchedDiskWorld:
         self.alive = torch.ones(k, n, dtype=torch.bool, device=self.device)
         self.walls = zeros(k, self.n_walls, 4, 2)
         self._set_wall_geometry()
-        if object_radius is not None:
+        if self.object_radius is not None:
             self.object_position = zeros(k, 2)
             self.object_velocity = zeros(k, 2)
             self.object_angular_velocity = zeros(k)
             self._object_bias_velocity = zeros(k, 2)
-            self._object_moment = self.object_mass * object_radius**2 / 2
+            self._object_moment = self.object_mass * self.object_radius**2 / 2
             self._object_friction = zeros(k, 2)  # accumulated ground-friction impulses (pivot, gear)
             self._object_spin_friction = zeros(k)
-        # solver state kept between substeps and steps (chipmunk's accumulated impulses, for warm starts)
+
+    def _allocate_solver_state(self, k: int, n: int) -> None:
+        """What the solver keeps between substeps and steps: the neighbour table and chipmunk's accumulated
+        impulses (its warm starts)."""
+        zeros = self._zeros
         self._bias_velocity = zeros(k, n, 2)
         self._ground = zeros(k, n, 2)
         self._ground_spin = zeros(k, n)
@@ -172,9 +206,6 @@ class BatchedDiskWorld:
             "object_mass": self.object_mass,
             "_object_moment": getattr(self, "_object_moment", None),
         }
-        # compiled, one solver round is one graph (seconds to compile, once per shape and case); off by default:
-        # on CPU (torch 2.13, 2 threads) the compiled round ran 2-6x slower than eager, and K=4096 took minutes
-        self._solve = torch.compile(solve_round, dynamic=False) if compile else solve_round
         self._rod_impulse = zeros(k, n, m)
         self._normal_impulse = zeros(k, n, m)
         self._tangent_impulse = zeros(k, n, m)
