@@ -58,20 +58,35 @@ def task_env_kwarg(text: str) -> tuple[str, str, object]:
     return (task, *env_kwarg(rest, "--training-env-kwarg"))
 
 
+class _SettingFlag:
+    """Adds to ``parser`` a flag that overrides one setting of the config (None when not given), its help ending
+    with every shipped preset's value of it."""
+
+    def __init__(self, parser: argparse.ArgumentParser, presets: dict[str, dict]):
+        self.parser, self.presets = parser, presets
+
+    def __call__(self, flag: str, what: str, type: Callable = positive_int, show: Callable = shown, **kwargs) -> None:
+        name = flag[2:].replace("-", "_")
+        values = ", ".join(f"{preset} {show(config[name])}" for preset, config in self.presets.items())
+        self.parser.add_argument(flag, dest=name, type=type, default=None, help=f"{what} (preset: {values})", **kwargs)
+
+
 def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
-    from dpr.cli.learn import hyperparam
-    from dpr.envs import EARLIER_ENV_IDS
-    from dpr.pipeline.config import ACTORS, DEFAULT_PRESET, PRESETS, SCRATCH_ALGOS, preset_path, read_settings
-    from dpr.pipeline.stages import BACKENDS
-    from dpr.policies.sb3 import FINETUNE_ALGOS
+    """`dpr pipeline`'s flags, in the order --help lists them: where the settings come from and the tasks, the
+    budgets and seeds, the learners, then where the stages run."""
+    from dpr.pipeline.config import PRESETS, preset_path, read_settings
 
     presets = {name: read_settings(preset_path(name)) for name in PRESETS}
+    preset_argument = _SettingFlag(parser, presets)
+    _source_arguments(parser, preset_argument, presets)
+    _budget_arguments(preset_argument)
+    _learner_arguments(parser, preset_argument, presets)
+    _run_arguments(parser)
 
-    def preset_argument(flag: str, what: str, type: Callable = positive_int, show: Callable = shown, **kwargs) -> None:
-        """A flag that overrides one setting of the config (None when not given); its help lists every preset's."""
-        name = flag[2:].replace("-", "_")
-        values = ", ".join(f"{preset} {show(config[name])}" for preset, config in presets.items())
-        parser.add_argument(flag, dest=name, type=type, default=None, help=f"{what} (preset: {values})", **kwargs)
+
+def _source_arguments(parser: argparse.ArgumentParser, preset_argument: _SettingFlag, presets: dict) -> None:
+    from dpr.envs import EARLIER_ENV_IDS
+    from dpr.pipeline.config import DEFAULT_PRESET, PRESETS
 
     parser.add_argument("--out", default=PIPELINE_OUT, help=f"run folder (default {PIPELINE_OUT}; resumed if present)")
     source = parser.add_mutually_exclusive_group()
@@ -123,6 +138,12 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         choices=ENV_IDS,
         show=lambda tasks: shown(tasks) or "none",
     )
+
+
+def _budget_arguments(preset_argument: _SettingFlag) -> None:
+    from dpr.pipeline.config import SCRATCH_ALGOS
+    from dpr.policies.sb3 import FINETUNE_ALGOS
+
     preset_argument("--n-robots", "swarm size N")
     preset_argument("--episodes", "demonstration episodes per task")
     preset_argument("--demo-seed", "first demonstration seed", type=non_negative_int)
@@ -166,6 +187,12 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         type=lambda text: parse_seeds(text, "--test-seeds"),
         show=seeds_text,
     )
+
+
+def _learner_arguments(parser: argparse.ArgumentParser, preset_argument: _SettingFlag, presets: dict) -> None:
+    from dpr.cli.learn import hyperparam
+    from dpr.pipeline.config import ACTORS
+
     for name, flag in HYPERPARAM_FLAGS.items():
         what = "fine-tuning" if name.startswith("finetune") else "from-scratch"
         entry = "the yaml's `finetune` entry" if name.startswith("finetune") else "the yaml's entry of the env id"
@@ -218,6 +245,11 @@ def pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         type=non_negative_int,
         metavar="K",
     )
+
+
+def _run_arguments(parser: argparse.ArgumentParser) -> None:
+    from dpr.pipeline.stages import BACKENDS
+
     parser.add_argument(
         "--reuse",
         action="append",
