@@ -405,6 +405,93 @@ def warm_up_critic(model, steps: int, show_progress: bool, unit: StepUnit = SB3_
             parameter.requires_grad_(True)
 
 
+def _check_inputs(config: TrainConfig, hyper: Hyperparams, env_kwargs: dict[str, Any]) -> Demonstrations | None:
+    """Every input checked on one env of the task before the run folder exists: the env kwargs, the training env
+    kwargs, the model to start from, the demonstrations to anchor to and the values SB3 refuses; the
+    demonstrations, loaded."""
+    probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
+    try:
+        if config.training_env_kwargs:
+            check_training_env_kwargs(config.env_id, env_kwargs, config.training_env_kwargs, task_env=probe)
+        if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
+            initial, source = load_model(config.init_from, parameter=INIT_PARAMETER)
+            if source.per_robot is not None:
+                raise ParameterError(
+                    INIT_PARAMETER,
+                    f"{config.init_from} is a per-robot model (one robot's local observation in, its action out); "
+                    "it trains on every robot of a PettingZoo swarm, not on the centralised env: fine-tune it with "
+                    "`dpr finetune-decentralised` (dpr.rl.finetune_per_robot)",
+                )
+            check_initial_spaces(config.init_from, initial, source, probe)  # e.g. a model of another task
+        demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
+        check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
+    finally:
+        probe.close()
+    return demonstrations
+
+
+def _run_record(config, hyper, env_kwargs, timesteps, budget, demonstrations, tensorboard_log) -> dict[str, Any]:
+    """What a run's config.yaml says at its start: the settings it resolved and the software it ran on."""
+    return {
+        "algo": config.algo,
+        "env_id": config.env_id,
+        "env_kwargs": env_kwargs,
+        "training_env_kwargs": dict(config.training_env_kwargs),
+        "steps_per_episode": config.steps_per_episode,
+        "hyperparameters": hyper.as_dict(),
+        "hyperparameter_overrides": dict(config.hyperparams),
+        "seed": config.seed,
+        "n_envs": config.n_envs,
+        "timesteps": timesteps,
+        "steps": budget.record(),  # what the run makes: SB3 collects whole rollouts (dpr.rl.budget)
+        "eval_episodes": config.eval_episodes,
+        "init_from": None if config.init_from is None else str(Path(config.init_from).resolve()),
+        "critic_warmup": config.critic_warmup,
+        "anchor": None if demonstrations is None else demonstrations.record(config.anchor_weight, config.anchor_decay),
+        "tensorboard_log": tensorboard_log,
+        "versions": runs.package_versions(),
+        "config": asdict(config),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def _resumed_record(config_path: Path, tensorboard_log: str | None, snapshot) -> dict[str, Any]:
+    """The stopped run's record, with this resume added."""
+    record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
+    resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_timesteps": snapshot.reached}
+    record["resumed"] = [*record.get("resumed", []), resumed]
+    return record
+
+
+def _finish_record(record: dict, config_path: Path, seconds: float, timesteps_done: int, interrupted: bool) -> None:
+    record.update(
+        finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        seconds=round(seconds, 1),
+        timesteps_done=timesteps_done,
+        interrupted=interrupted,
+    )
+    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+
+
+def _start_line(config: TrainConfig, env_kwargs: dict[str, Any], timesteps: int, snapshot, run_dir: Path) -> str:
+    start = f" from {config.init_from} ({config.critic_warmup} critic warm-up steps first)" if config.init_from else ""
+    again = f", resumed at step {snapshot.reached}" if snapshot is not None else ""
+    return (
+        f"dpr {config.command}: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, "
+        f"seed {config.seed}{again} -> {run_dir}"
+    )
+
+
+def _new_or_resumed_model(config: TrainConfig, hyper: Hyperparams, env, tensorboard_log: str | None, snapshot):
+    """A new model (with the initial policy of ``config.init_from``), or the stopped run's from its snapshot."""
+    if snapshot is not None:
+        return resume_model(snapshot, hyper, env, config.seed, tensorboard_log)
+    model = build_model(hyper, env, config.seed, tensorboard_log)
+    if config.init_from is not None:
+        load_initial_policy(model, config.init_from)
+    return model
+
+
 def train(
     config: TrainConfig,
     out: str | Path | None = None,
@@ -426,25 +513,8 @@ def train(
     hyper, budget = fit_budget(hyper, config.n_envs, timesteps, config.critic_warmup, config.command)
     if resume:
         check_resumable(out, config)
-    probe = gym.make(config.env_id, **env_kwargs)  # a bad env kwarg fails here, before the run folder exists
     training_kwargs = config.training_kwargs(env_kwargs)
-    try:
-        if config.training_env_kwargs:
-            check_training_env_kwargs(config.env_id, env_kwargs, config.training_env_kwargs, task_env=probe)
-        if config.init_from is not None:  # so does a missing, foreign, corrupt or crafted model file
-            initial, source = load_model(config.init_from, parameter=INIT_PARAMETER)
-            if source.per_robot is not None:
-                raise ParameterError(
-                    INIT_PARAMETER,
-                    f"{config.init_from} is a per-robot model (one robot's local observation in, its action out); "
-                    "it trains on every robot of a PettingZoo swarm, not on the centralised env: fine-tune it with "
-                    "`dpr finetune-decentralised` (dpr.rl.finetune_per_robot)",
-                )
-            check_initial_spaces(config.init_from, initial, source, probe)  # e.g. a model of another task
-        demonstrations = _demonstrations(config, probe, env_kwargs)  # and a dataset that does not fit the env
-        check_hyperparameters(hyper, probe, config.seed)  # and values SB3 refuses
-    finally:
-        probe.close()
+    demonstrations = _check_inputs(config, hyper, env_kwargs)
     run_dir = Path(out) if resume else prepare_run_dir(out, config)
     try:
         snapshot = resume_state.load_snapshot(run_dir) if resume else None
@@ -456,39 +526,12 @@ def train(
     tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
     if tensorboard_log is None:
         log(f"dpr {config.command}: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
-    record = {
-        "algo": config.algo,
-        "env_id": config.env_id,
-        "env_kwargs": env_kwargs,
-        "training_env_kwargs": dict(config.training_env_kwargs),
-        "steps_per_episode": config.steps_per_episode,
-        "hyperparameters": hyper.as_dict(),
-        "hyperparameter_overrides": dict(config.hyperparams),
-        "seed": config.seed,
-        "n_envs": config.n_envs,
-        "timesteps": timesteps,
-        "steps": budget.record(),  # what the run makes: SB3 collects whole rollouts (dpr.rl.budget)
-        "eval_episodes": config.eval_episodes,
-        "init_from": None if config.init_from is None else str(Path(config.init_from).resolve()),
-        "critic_warmup": config.critic_warmup,
-        "anchor": None if demonstrations is None else demonstrations.record(config.anchor_weight, config.anchor_decay),
-        "tensorboard_log": tensorboard_log,
-        "versions": runs.package_versions(),
-        "config": asdict(config),
-        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
+    record = _run_record(config, hyper, env_kwargs, timesteps, budget, demonstrations, tensorboard_log)
     config_path = run_dir / "config.yaml"
     if snapshot is not None:  # the stopped run's record, with this resume added
-        record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
-        resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_timesteps": snapshot.reached}
-        record["resumed"] = [*record.get("resumed", []), resumed]
+        record = _resumed_record(config_path, tensorboard_log, snapshot)
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    start = f" from {config.init_from} ({config.critic_warmup} critic warm-up steps first)" if config.init_from else ""
-    again = f", resumed at step {snapshot.reached}" if snapshot is not None else ""
-    log(
-        f"dpr {config.command}: {config.algo} on {config.env_id} {env_kwargs}{start}, {timesteps} steps, "
-        f"seed {config.seed}{again} -> {run_dir}"
-    )
+    log(_start_line(config, env_kwargs, timesteps, snapshot, run_dir))
     if budget.note:
         log(budget.note)
 
@@ -503,12 +546,7 @@ def train(
     eval_env = None
     started = time.perf_counter()
     try:
-        if snapshot is None:
-            model = build_model(hyper, env, config.seed, tensorboard_log)
-            if config.init_from is not None:
-                load_initial_policy(model, config.init_from)
-        else:
-            model = resume_model(snapshot, hyper, env, config.seed, tensorboard_log)
+        model = _new_or_resumed_model(config, hyper, env, tensorboard_log, snapshot)
         training = budget.training_learn
         callbacks, eval_env = _callbacks(config, run_dir, info, env_kwargs, training, show_progress, snapshot)
         if demonstrations is not None:
@@ -545,13 +583,7 @@ def train(
         for vec_env in (env, eval_env):
             _close_quietly(vec_env)
     seconds = time.perf_counter() - started
-    record.update(
-        finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        seconds=round(seconds, 1),
-        timesteps_done=int(model.num_timesteps),
-        interrupted=interrupted,
-    )
-    config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    _finish_record(record, config_path, seconds, int(model.num_timesteps), interrupted)
     if not interrupted:
         resume_state.drop_snapshot(run_dir)
     best = run_dir / "best_model.zip"
