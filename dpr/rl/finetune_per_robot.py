@@ -380,6 +380,73 @@ def _config_record(config: PerRobotFinetuneConfig) -> dict[str, Any]:
     return {**asdict(config), "n_robots": list(config.n_robots)}
 
 
+def _model_for(config: PerRobotFinetuneConfig, resolved, venv, snapshot):
+    """The model to fine-tune: built for the swarms with the initial policy's weights, or the stopped run's."""
+    try:
+        model = build_model(resolved.hyper, venv, config.seed, None)
+    except (AssertionError, ValueError, TypeError) as error:
+        raise ParameterError("hyperparams", f"{resolved.algo} refuses them: {error}") from None
+    if snapshot is None:
+        load_initial_policy(model, config.init_from)  # another network than the finetune preset's
+    else:
+        snapshot.restore_model(model)
+        snapshot.restore_vec_env(venv.venv, "train")  # building the model seeded the swarms anew
+        for name in MONITOR:
+            setattr(venv, name, snapshot.extra["monitor"][name])
+    return model
+
+
+def _run_record(config: PerRobotFinetuneConfig, resolved, unit, validation, tensorboard_log) -> dict[str, Any]:
+    """What the run's config.yaml says at its start."""
+    return {
+        "algo": resolved.algo,
+        "env_id": config.env_id,
+        "env_kwargs": resolved.env_kwargs,
+        "per_robot": resolved.spec.as_dict(),
+        "parallel_env_kwargs": resolved.spec.parallel_env_kwargs(),
+        "n_robots": list(resolved.sizes),
+        "shared_reward": config.shared_reward,
+        "steps_per_episode": resolved.steps_per_episode,
+        "hyperparameters": resolved.hyper.as_dict(),
+        "hyperparameter_overrides": dict(config.hyperparams),
+        "seed": config.seed,
+        "timesteps": resolved.timesteps,
+        "critic_warmup": resolved.critic_warmup,
+        "step_unit": "swarm steps, summed over the training swarms (SB3's num_timesteps counts robot steps)",
+        "sb3_timesteps": unit.to_sb3(resolved.timesteps),
+        "eval_episodes": config.eval_episodes,
+        "validation_seeds": validation.seeds,
+        "init_from": str(Path(config.init_from).resolve()),
+        "tensorboard_log": tensorboard_log,
+        "versions": runs.package_versions(),
+        "config": _config_record(config),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def _resumed_record(config_path: Path, tensorboard_log: str | None, from_swarm_steps: int) -> dict[str, Any]:
+    record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
+    resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_swarm_steps": from_swarm_steps}
+    record["resumed"] = [*record.get("resumed", []), resumed]
+    return record
+
+
+def _start_line(config: PerRobotFinetuneConfig, resolved, unit, snapshot, run_dir: Path) -> str:
+    sizes = " + ".join(str(n) for n in resolved.sizes)
+    again = ""
+    if snapshot is not None:  # counted as the checkpoints' names count (warm-up included) and as the bar does
+        after_warmup = unit.from_sb3(snapshot.reached - snapshot.origin)
+        again = (
+            f", resumed at swarm step {unit.from_sb3(snapshot.reached)} "
+            f"({after_warmup} of {resolved.timesteps} after the warm-up)"
+        )
+    return (
+        f"dpr finetune-decentralised: per-robot {resolved.algo} on {config.env_id} swarms of {sizes} robots "
+        f"{resolved.env_kwargs}, from {config.init_from} ({resolved.critic_warmup} critic warm-up steps first), "
+        f"{resolved.timesteps} swarm steps, seed {config.seed}{again} -> {run_dir}"
+    )
+
+
 def finetune_per_robot(
     config: PerRobotFinetuneConfig,
     out: str | Path | None = None,
@@ -408,17 +475,7 @@ def finetune_per_robot(
     try:
         swarms = venv.venv
         unit = StepUnit(swarms.num_envs, len(swarms.swarms))
-        try:
-            model = build_model(resolved.hyper, venv, config.seed, None)
-        except (AssertionError, ValueError, TypeError) as error:
-            raise ParameterError("hyperparams", f"{resolved.algo} refuses them: {error}") from None
-        if snapshot is None:
-            load_initial_policy(model, config.init_from)  # another network than the finetune preset's
-        else:
-            snapshot.restore_model(model)
-            snapshot.restore_vec_env(swarms, "train")  # building the model seeded the swarms anew
-            for name in MONITOR:
-                setattr(venv, name, snapshot.extra["monitor"][name])
+        model = _model_for(config, resolved, venv, snapshot)
         run_dir = Path(out) if out is not None else default_run_dir(config.env_id, resolved.algo, config.seed)
         run_dir.mkdir(parents=True, exist_ok=True)
         tensorboard_log = str(run_dir / "tb") if tensorboard_available() else None
@@ -426,49 +483,12 @@ def finetune_per_robot(
         if tensorboard_log is None:
             log("dpr finetune-decentralised: tensorboard is not installed; no TensorBoard logs")
         validation = _Validation(run_dir, config, resolved, log, snapshot and snapshot.extra["validation"])
-        record: dict[str, Any] = {
-            "algo": resolved.algo,
-            "env_id": config.env_id,
-            "env_kwargs": resolved.env_kwargs,
-            "per_robot": resolved.spec.as_dict(),
-            "parallel_env_kwargs": resolved.spec.parallel_env_kwargs(),
-            "n_robots": list(resolved.sizes),
-            "shared_reward": config.shared_reward,
-            "steps_per_episode": resolved.steps_per_episode,
-            "hyperparameters": resolved.hyper.as_dict(),
-            "hyperparameter_overrides": dict(config.hyperparams),
-            "seed": config.seed,
-            "timesteps": resolved.timesteps,
-            "critic_warmup": resolved.critic_warmup,
-            "step_unit": "swarm steps, summed over the training swarms (SB3's num_timesteps counts robot steps)",
-            "sb3_timesteps": unit.to_sb3(resolved.timesteps),
-            "eval_episodes": config.eval_episodes,
-            "validation_seeds": validation.seeds,
-            "init_from": str(Path(config.init_from).resolve()),
-            "tensorboard_log": tensorboard_log,
-            "versions": runs.package_versions(),
-            "config": _config_record(config),
-            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        }
+        record = _run_record(config, resolved, unit, validation, tensorboard_log)
         config_path = run_dir / "config.yaml"
         if snapshot is not None:  # the stopped run's record, with this resume added
-            record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
-            resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_swarm_steps": unit.from_sb3(snapshot.reached)}
-            record["resumed"] = [*record.get("resumed", []), resumed]
+            record = _resumed_record(config_path, tensorboard_log, unit.from_sb3(snapshot.reached))
         atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
-        sizes = " + ".join(str(n) for n in resolved.sizes)
-        again = ""
-        if snapshot is not None:  # counted as the checkpoints' names count (warm-up included) and as the bar does
-            after_warmup = unit.from_sb3(snapshot.reached - snapshot.origin)
-            again = (
-                f", resumed at swarm step {unit.from_sb3(snapshot.reached)} "
-                f"({after_warmup} of {resolved.timesteps} after the warm-up)"
-            )
-        log(
-            f"dpr finetune-decentralised: per-robot {resolved.algo} on {config.env_id} swarms of {sizes} robots "
-            f"{resolved.env_kwargs}, from {config.init_from} ({resolved.critic_warmup} critic warm-up steps first), "
-            f"{resolved.timesteps} swarm steps, seed {config.seed}{again} -> {run_dir}"
-        )
+        log(_start_line(config, resolved, unit, snapshot, run_dir))
         started = time.perf_counter()
         if snapshot is None:
             validation(model, 0, "start")
@@ -509,13 +529,8 @@ def finetune_per_robot(
     finally:
         venv.close()
     seconds = time.perf_counter() - started
-    record.update(
-        finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        seconds=round(seconds, 1),
-        timesteps_done=done,
-        interrupted=interrupted,
-        best_evaluation=validation.best,
-    )
+    record.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=round(seconds, 1), timesteps_done=done)
+    record.update(interrupted=interrupted, best_evaluation=validation.best)
     atomic_write_text(config_path, yaml.safe_dump(record, sort_keys=False))
     if not interrupted:
         resume_state.drop_snapshot(run_dir)
