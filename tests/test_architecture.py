@@ -86,3 +86,23 @@ def test_no_import_cycles_in_dpr():
 
 def test_cycle_finder_finds_a_cycle():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+# The envs' constructors take the public gym.make keyword arguments, as Gymnasium's own envs do.
+ENV_CONSTRUCTORS = {("dpr/envs/particle_env.py", "__init__")}
+
+
+def test_functions_stay_short_and_take_few_parameters():
+    from helpers import load_tool
+
+    rows = list(load_tool("function_sizes").functions(PACKAGE))
+    over_100 = [(where, name, lines) for lines, _, where, name in rows if lines > 100]
+    over_60 = [(where, name, lines) for lines, _, where, name in rows if lines > 60]
+    many = [
+        (where, name, count)
+        for _, count, where, name in rows
+        if count > 8 and (str(Path(where.split(":")[0]).relative_to(PACKAGE.parent)), name) not in ENV_CONSTRUCTORS
+    ]
+    assert over_100 == [], f"functions over 100 lines: {over_100}"
+    assert len(over_60) <= 8, f"{len(over_60)} functions over 60 lines, at most 8 allowed: {over_60}"
+    assert many == [], f"functions over 8 parameters: {many}"

@@ -15,6 +15,7 @@ from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
 from dpr.pipeline.campaign import run_pipeline, task_stages
 from dpr.pipeline.config import PipelineConfig, learner_env_kwargs
+from dpr.pipeline.stages import Backend
 from dpr.policies.sb3 import load_model, read_model_info
 
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
@@ -427,6 +428,6 @@ def test_a_bad_out_or_shipped_model_is_refused_before_any_work(tmp_path):
     with pytest.raises(ParameterError, match="out: .* is not a folder"):
         run_pipeline(PipelineConfig(**PIPELINE), afile, **QUIET)
     with pytest.raises(ParameterError, match="backend: expected one of"):
-        run_pipeline(PipelineConfig(**PIPELINE), tmp_path / "run", backend="slurm", **QUIET)
+        run_pipeline(PipelineConfig(**PIPELINE), tmp_path / "run", backend=Backend("slurm"), **QUIET)
     with pytest.raises(ParameterError, match="address: joins a Ray cluster"):
-        run_pipeline(PipelineConfig(**PIPELINE), tmp_path / "run2", address="127.0.0.1:1", **QUIET)
+        run_pipeline(PipelineConfig(**PIPELINE), tmp_path / "run2", backend=Backend(address="127.0.0.1:1"), **QUIET)

@@ -312,6 +312,7 @@ def cmd_pipeline(args, parser) -> int:
 
     from dpr.evaluation.model_card import load_model_card
     from dpr.pipeline.campaign import run_pipeline
+    from dpr.pipeline.stages import Backend
 
     try:
         config = pipeline_config(args)
@@ -325,9 +326,7 @@ def cmd_pipeline(args, parser) -> int:
             config,
             args.out,
             shipped=shipped,
-            backend=args.backend,
-            workers=args.workers,
-            address=args.address,
+            backend=Backend(args.backend, args.workers, args.address),
             reuse=reuse,
         )
     except (TypeError, ValueError) as error:

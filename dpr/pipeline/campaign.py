@@ -58,7 +58,7 @@ from dpr.pipeline.run_folder import (
     save_choices,
     tested_runs,
 )
-from dpr.pipeline.stages import Stage, StageStore, backend_session, run_stages
+from dpr.pipeline.stages import Backend, Stage, StageStore, backend_session, run_stages
 
 STORE = "stages"
 SETTINGS_LOCK = ".dpr-settings.lock"  # held while pipeline.yaml or choices.yaml is read and written
@@ -205,15 +205,14 @@ def run_pipeline(
     out: str | Path,
     *,
     shipped: Sequence[ShippedModel] = (),
-    backend: str = "local",
-    workers: int = 1,
-    address: str | None = None,
+    backend: Backend = Backend(),
     reuse: Sequence[str | Path] = (),
     show_progress: bool = True,
     log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
 ) -> Path:
-    """Run (or resume) the pipeline into the run folder ``out`` and return its report folder. ``workers`` stages
-    run at once, on ``backend`` ("local" processes, or "ray": a new local cluster, or the one at ``address``).
+    """Run (or resume) the pipeline into the run folder ``out`` and return its report folder. ``backend.workers``
+    stages run at once, on ``backend.name`` ("local" processes, or "ray": a new local cluster, or the one at
+    ``backend.address``).
     ``reuse``: run folders whose stored stages are taken when they match (read, never written). ``shipped`` (a
     model card's entries) are evaluated on the test seeds too, beside the wave, and reported as ``shipped
     <method>``. The same settings give the same report whatever the backend and the number of workers."""
@@ -227,7 +226,7 @@ def run_pipeline(
     for folder in reuse:
         if not (Path(folder) / STORE).is_dir():
             raise ParameterError("reuse", f"{folder} holds no {STORE}/ folder; expected a `dpr pipeline` run folder")
-    with backend_session(backend, workers, address):  # a bad backend setting is refused before any work
+    with backend_session(backend.name, backend.workers, backend.address):  # a bad one is refused before any work
         out.mkdir(parents=True, exist_ok=True)
         _join_folder(config, out)
         started = time.perf_counter()
@@ -243,9 +242,9 @@ def run_pipeline(
         run_stages(
             [*targets, *(stage for stage, _, _ in extra)],
             store,
-            backend=backend,
-            workers=workers,
-            address=address,
+            backend=backend.name,
+            workers=backend.workers,
+            address=backend.address,
             show_progress=show_progress,
             log=log,
         )

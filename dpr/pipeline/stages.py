@@ -42,6 +42,18 @@ from dpr.checks import ParameterError, check_choice, check_int
 from dpr.locks import FolderLock, LockHeld
 
 BACKENDS = ("local", "ray")
+
+
+@dataclass(frozen=True)
+class Backend:
+    """Where a campaign's stages run: ``name`` "local" (this machine's processes) or "ray" (a new local cluster, or
+    the one at ``address``), ``workers`` stages at once. Checked when a session starts (:func:`backend_session`)."""
+
+    name: str = "local"
+    workers: int = 1
+    address: str | None = None
+
+
 MANIFEST = "stage.json"
 WORK = "work"  # beside the store: what a stage stopped part-way resumes from
 
