@@ -46,23 +46,17 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_bench(args, parser) -> int:
-    from dpr.bench import format_batched_table, format_table, run_batched_benchmarks, run_benchmarks
-
     check_output(args.json, parser, "--json")
-    if args.engine == "batched":
-        rows = run_batched_benchmarks(
-            args.ks,
-            args.batched_sizes,
-            device=args.device,
-            progress=lambda r: print(
-                f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
-                file=sys.stderr,
-            ),
-        )
-        print(format_batched_table(rows))
-        if args.json:
-            write_json(args.json, rows)
-        return 0
+    rows, table = _batched_rows(args) if args.engine == "batched" else _pymunk_rows(args)
+    print(table)
+    if args.json:
+        write_json(args.json, rows)
+    return 0
+
+
+def _pymunk_rows(args) -> tuple[list[dict], str]:
+    from dpr.bench import format_table, run_benchmarks
+
     rows = run_benchmarks(
         models=args.models,
         sizes=args.sizes,
@@ -74,10 +68,22 @@ def cmd_bench(args, parser) -> int:
             file=sys.stderr,
         ),
     )
-    print(format_table(rows))
-    if args.json:
-        write_json(args.json, rows)
-    return 0
+    return rows, format_table(rows)
+
+
+def _batched_rows(args) -> tuple[list[dict], str]:
+    from dpr.bench import format_batched_table, run_batched_benchmarks
+
+    rows = run_batched_benchmarks(
+        args.ks,
+        args.batched_sizes,
+        device=args.device,
+        progress=lambda r: print(
+            f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
+            file=sys.stderr,
+        ),
+    )
+    return rows, format_batched_table(rows)
 
 
 COMMANDS = (
