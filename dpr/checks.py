@@ -65,10 +65,20 @@ def check_number(
     return value
 
 
-def check_seeds(name: str, seeds: Iterable[Any], *, allow_empty: bool = False) -> list[int]:
-    """``seeds`` as ints >= 0, each once (a repeated seed would count its episode twice in every statistic), and
-    at least one unless ``allow_empty``."""
-    seeds = [check_int(name, seed, 0) for seed in seeds]
+def check_seeds(
+    name: str,
+    seeds: Iterable[Any],
+    *,
+    allow_empty: bool = False,
+    maximum: int | None = None,
+    max_count: int | None = None,
+) -> list[int]:
+    """``seeds`` as ints in [0, maximum], each once (a repeated seed would count its episode twice in every
+    statistic), at most ``max_count`` of them, and at least one unless ``allow_empty``."""
+    seeds = list(seeds)
+    if max_count is not None and len(seeds) > max_count:
+        raise ParameterError(name, f"must name at most {max_count} seeds, got {len(seeds)}")
+    seeds = [check_int(name, seed, 0, maximum) for seed in seeds]
     if not seeds and not allow_empty:
         raise ParameterError(name, "must name at least one seed")
     repeated = sorted(seed for seed, count in Counter(seeds).items() if count > 1)

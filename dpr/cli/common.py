@@ -22,7 +22,20 @@ from pathlib import Path
 from typing import Any
 
 from dpr.envs import BUILT_IN_TASKS, ENV_IDS
-from dpr.envs.particle_env import SWARM_KWARGS, ParticleSwarmEnv
+from dpr.envs.particle_env import IMAGE_SIZE_RANGE, SWARM_KWARGS, ParticleSwarmEnv
+from dpr.limits import (
+    MAX_BATCH_SIZE,
+    MAX_EPISODE_SEED,
+    MAX_EPISODES,
+    MAX_EPOCHS,
+    MAX_MODEL_SEED,
+    MAX_N_ENVS,
+    MAX_N_ROBOTS,
+    MAX_ROUNDS,
+    MAX_SEEDS,
+    MAX_STEPS_PER_EPISODE,
+    MAX_TIMESTEPS,
+)
 from dpr.sim.models import ROBOT_MODELS
 
 ALL_ENVS = "all"  # --env all / --tasks all: every task
@@ -99,7 +112,6 @@ def shown(value: Any) -> str:
 
 
 # -- argument types ----------------------------------------------------------------------------------------------
-MAX_SEEDS = 1_000_000  # episodes in one command: far beyond any run, and a list that fits in memory
 
 
 def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
@@ -134,24 +146,93 @@ def seeds_text(seeds: Iterable[int]) -> str:
     return ",".join(map(str, seeds))
 
 
+INT_FLAG_LIMIT = 2**63 - 1  # any integer flag, before its own bound (FLAG_BOUNDS) says more precisely
+
+
 def positive_int(text: str) -> int:
+    """An integer in [1, :data:`INT_FLAG_LIMIT`] (each flag's own bound: :data:`FLAG_BOUNDS`)."""
     try:
         value = int(text)
     except ValueError:
         value = 0
-    if value < 1:
+    if not 1 <= value <= INT_FLAG_LIMIT:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
     return value
 
 
 def non_negative_int(text: str) -> int:
+    """An integer in [0, :data:`INT_FLAG_LIMIT`] (each flag's own bound: :data:`FLAG_BOUNDS`)."""
     try:
         value = int(text)
     except ValueError:
         value = -1
-    if value < 0:
+    if not 0 <= value <= INT_FLAG_LIMIT:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return value
+
+
+# The bounds of every integer flag of every command, by the flag's dest: (minimum, maximum), checked on the parsed
+# arguments before a command starts (:func:`check_bounds`); a list flag's every value is checked. A flag of a
+# setting of `dpr pipeline` is checked again, with the config file's value, by dpr.pipeline.config.PipelineConfig.
+FLAG_BOUNDS = {
+    "episodes": (1, MAX_EPISODES),
+    "episode": (0, MAX_EPISODES),
+    "eval_episodes": (0, MAX_EPISODES),
+    "dagger_episodes": (1, MAX_EPISODES),
+    "steps": (1, MAX_STEPS_PER_EPISODE),
+    "steps_per_episode": (1, MAX_STEPS_PER_EPISODE),
+    "hold_steps": (1, MAX_STEPS_PER_EPISODE),
+    "n_phases": (1, MAX_STEPS_PER_EPISODE),
+    "action_repeat": (0, MAX_STEPS_PER_EPISODE),
+    "timesteps": (1, MAX_TIMESTEPS),
+    "finetune_steps": (1, MAX_TIMESTEPS),
+    "critic_warmup": (0, MAX_TIMESTEPS),
+    "epochs": (1, MAX_EPOCHS),
+    "bc_epochs": (1, MAX_EPOCHS),
+    "patience": (1, MAX_EPOCHS),
+    "batch_size": (1, MAX_BATCH_SIZE),
+    "n_envs": (1, MAX_N_ENVS),
+    "ks": (1, MAX_N_ENVS),
+    "n_robots": (1, MAX_N_ROBOTS),
+    "sizes": (1, MAX_N_ROBOTS),
+    "batched_sizes": (1, MAX_N_ROBOTS),
+    "max_neighbours": (1, MAX_N_ROBOTS),
+    "seed": (0, MAX_EPISODE_SEED),
+    "seeds": (0, MAX_EPISODE_SEED),
+    "dagger_seed": (0, MAX_EPISODE_SEED),
+    "demo_seed": (0, MAX_EPISODE_SEED - MAX_EPISODES),
+    "train_seeds": (0, MAX_MODEL_SEED),
+    "validation_seeds": (0, MAX_EPISODE_SEED),
+    "test_seeds": (0, MAX_EPISODE_SEED),
+    "teacher_seeds": (0, MAX_EPISODE_SEED),
+    "dagger_rounds": (0, MAX_ROUNDS),
+    "repeats": (1, MAX_ROUNDS),
+    "image_size": IMAGE_SIZE_RANGE,
+}
+
+
+def check_bounds(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """A parser error (exit 2) naming the flag, the value and the allowed range for an integer flag outside its
+    :data:`FLAG_BOUNDS`, a number that is not finite (NaN, inf), or more worker processes than
+    :func:`dpr.limits.workers_limit` allows: before the command does anything."""
+    import math
+
+    from dpr.checks import ParameterError
+    from dpr.limits import check_workers
+
+    for dest, value in vars(args).items():
+        flag = "--" + dest.replace("_", "-")
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, float) and not math.isfinite(item):
+                parser.error(f"{flag}: must be a finite number, got {item}")
+            bounds = FLAG_BOUNDS.get(dest, (-INT_FLAG_LIMIT, INT_FLAG_LIMIT))
+            if bounds and isinstance(item, int) and not isinstance(item, bool) and not bounds[0] <= item <= bounds[1]:
+                parser.error(f"{flag}: must be in [{bounds[0]}, {bounds[1]}], got {item}")
+    if isinstance(getattr(args, "workers", None), int):
+        try:
+            check_workers("--workers", args.workers, getattr(args, "backend", "local"))
+        except ParameterError as error:
+            parser.error(str(error))
 
 
 def name_and_value(text: str, flag: str) -> tuple[str, str]:
@@ -298,8 +379,9 @@ def check_rerun_output(args: argparse.Namespace, parser: argparse.ArgumentParser
 
 
 def check_seed(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
-    if args.seed < 0:
-        parser.error(f"--seed must be >= 0, got {args.seed}")
+    """--seed of a model: numpy's global seed, which stable-baselines3 sets from it, takes [0, 2^32 - 1]."""
+    if not 0 <= args.seed <= MAX_MODEL_SEED:
+        parser.error(f"--seed must be in [0, {MAX_MODEL_SEED}], got {args.seed}")
 
 
 def check_env_kwargs(env_ids: list[str], env_kwargs: dict, parser: argparse.ArgumentParser) -> None:

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from dpr import interrupts
 from dpr.cli import bc, bench, compare, data, evaluate, learn, pipeline, view
-from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, unwritable_destination
+from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, check_bounds, unwritable_destination
 from dpr.envs import TASKS, load_env_packages
 
 COMMANDS = (
@@ -97,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     parser = args.command_parser  # errors are the command's, with its usage: "dpr pipeline: error: ..."
     interrupts.install()  # a Ctrl-C is never lost in a callback from C code (dpr.interrupts)
+    check_bounds(args, parser)  # every count within its bound, before any work (dpr.limits)
     if getattr(args, "env", None) and args.env != [ALL_ENVS]:
         requested = [args.env] if isinstance(args.env, str) else args.env
         unknown = [e for e in requested if e not in TASKS]

@@ -12,6 +12,7 @@ import numpy as np
 from gymnasium import spaces
 
 from dpr.checks import ParameterError, check_int, check_number
+from dpr.limits import MAX_N_ROBOTS
 from dpr.metrics import SUCCESS_RADIUS, MetricTracker
 from dpr.sim import ROBOT_MODELS, World, swarm_class
 from dpr.sim import constants as C
@@ -21,7 +22,7 @@ MAX_DISTANCE = 1e5  # bound of length kwargs (start radius, reward threshold): f
 GOAL_CLEARANCE = 100.0  # the least gap between the goal and the front of the swarm (or its object) at the start
 START_ANGLES = 720  # start angles checked for the clearances (their worst case gets a unit of rounding margin)
 MAX_EPISODE_STEPS = 2500  # every registered task's TimeLimit, and the default episode length everywhere
-MAX_ROBOTS = 10_000  # a paddle swarm of 1000 takes seconds to build; far more would look like a hang
+MAX_ROBOTS = MAX_N_ROBOTS  # a paddle swarm of 1000 takes seconds to build; far more would look like a hang
 SLOW_PADDLE_SWARM = 1000  # from this size on, a paddle swarm's build is announced (about 7 s at 1000, per reset)
 IMAGE_SIZE_RANGE = (16, 2048)  # pixels per side of observations and renders (2048^2 RGB is 12 MiB a frame)
 

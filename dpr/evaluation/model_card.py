@@ -35,6 +35,7 @@ from pathlib import Path
 import yaml
 
 from dpr.atomic import file_sha256
+from dpr.bounded_io import YamlRefused, load_yaml
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, TASKS
 from dpr.policies.sb3 import ModelInfo, load_model
@@ -92,7 +93,9 @@ def _load(card: str | Path, parameter: str) -> tuple[list[ShippedModel], list[Sh
     if not card.is_file():
         raise ParameterError(parameter, f"no model card at {card}")
     try:
-        data = yaml.safe_load(card.read_text())
+        data = load_yaml(card, parameter)
+    except YamlRefused:
+        raise
     except yaml.YAMLError as error:
         raise ParameterError(parameter, f"{card} is not YAML: {error}") from None
     keys = set(data) if isinstance(data, dict) else set()

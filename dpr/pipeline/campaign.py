@@ -44,8 +44,10 @@ from typing import Any
 import yaml
 
 from dpr.atomic import atomic_write_text, file_sha256
+from dpr.bounded_io import load_yaml
 from dpr.checks import ParameterError
 from dpr.evaluation.model_card import ShippedModel
+from dpr.limits import MAX_RECORD_BYTES
 from dpr.locks import FolderLock
 from dpr.pipeline import stage_builders as build
 from dpr.pipeline.config import BASELINE, BC_ALGO, PIPELINE_ENV_KWARGS, TEACHER, PipelineConfig
@@ -266,7 +268,7 @@ def _join_folder(config: PipelineConfig, out: Path) -> None:
     with FolderLock(out / SETTINGS_LOCK, wait=True):
         settings = asdict(config)
         if path.exists():
-            record = yaml.safe_load(path.read_text()) or {}
+            record = load_yaml(path, "out", MAX_RECORD_BYTES) or {}
             earlier = record.get("config") if isinstance(record.get("config"), dict) else {}
             earlier = {**asdict(PipelineConfig()), **earlier}  # a setting added since that run had its default
             differ = [
@@ -293,7 +295,7 @@ def _join_folder(config: PipelineConfig, out: Path) -> None:
 
 def _folder_config(config: PipelineConfig, out: Path) -> PipelineConfig:
     """``config`` with the tasks recorded in ``out/pipeline.yaml``: those of every run into the folder so far."""
-    return replace(config, tasks=list(yaml.safe_load((out / "pipeline.yaml").read_text())["config"]["tasks"]))
+    return replace(config, tasks=list(load_yaml(out / "pipeline.yaml", "out", MAX_RECORD_BYTES)["config"]["tasks"]))
 
 
 def _record_task(
@@ -304,7 +306,7 @@ def _record_task(
     before = load_choices(out)
     choices = dict(before)
     if len(config.teachers()) > 1:
-        chosen = yaml.safe_load((store.path(stages.teacher) / build.TEACHER_FILE).read_text())
+        chosen = load_yaml(store.path(stages.teacher) / build.TEACHER_FILE, "out", MAX_RECORD_BYTES)
         choices[f"{task}-{TEACHER}"] = chosen
     for stem, stage in stages.candidates.items():
         _name(

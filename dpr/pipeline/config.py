@@ -10,9 +10,25 @@ from typing import Any
 
 import yaml
 
+from dpr.bounded_io import YamlRefused, load_yaml
 from dpr.checks import ParameterError, check_choice, check_int, check_number, check_seeds
 from dpr.envs import ENV_IDS, MAX_EPISODE_STEPS, TASKS
-from dpr.envs.particle_env import HELD_STEPS_CAP
+from dpr.envs.manipulation import APPROACH_REWARD_RANGE
+from dpr.envs.particle_env import HELD_STEPS_CAP, MAX_DISTANCE
+from dpr.limits import (
+    MAX_EPISODE_SEED,
+    MAX_EPISODES,
+    MAX_EPOCHS,
+    MAX_MODEL_SEED,
+    MAX_N_ENVS,
+    MAX_N_ROBOTS,
+    MAX_SEEDS,
+    MAX_STEPS_PER_EPISODE,
+    MAX_TIMESTEPS,
+    check_memory,
+    env_bytes,
+    frames_bytes,
+)
 from dpr.policies.hyperparams import DEFAULT_PRESET as DEFAULT_ENTRY
 from dpr.policies.hyperparams import FINETUNE_PRESET, load_hyperparams
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
@@ -20,6 +36,18 @@ from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POL
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
 from dpr.rl.recipe import FINETUNE_AT_REPEAT
 
+# The bounds of the counts among the settings: name -> (minimum, maximum) (dpr.limits).
+COUNT_BOUNDS = {
+    "n_robots": (1, MAX_N_ROBOTS),
+    "episodes": (1, MAX_EPISODES),
+    "bc_epochs": (1, MAX_EPOCHS),
+    "finetune_steps": (1, MAX_TIMESTEPS),
+    "n_envs": (1, MAX_N_ENVS),
+    "steps": (1, MAX_STEPS_PER_EPISODE),
+    "critic_warmup": (0, MAX_TIMESTEPS),
+    "demo_seed": (0, MAX_EPISODE_SEED - MAX_EPISODES),
+}
+MAX_TEACHER_CHOICES = 1_000  # teacher holds, and teacher bin widths, to choose among
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}  # the Markov wave needs it; every learner gets it too
 EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
 BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
@@ -126,35 +154,37 @@ class PipelineConfig:
             bad = [algo for algo in getattr(self, name) if algo not in allowed]
             if bad:
                 raise ParameterError(name, f"expected some of {list(allowed)}, got {bad}")
-        for name in ("n_robots", "episodes", "bc_epochs", "finetune_steps", "n_envs", "steps"):
-            check_int(name, getattr(self, name), 1)
-        for name in ("critic_warmup", "demo_seed"):
-            check_int(name, getattr(self, name), 0)
+        for name, (minimum, maximum) in COUNT_BOUNDS.items():
+            check_int(name, getattr(self, name), minimum, maximum)
         for name, what in (("teacher_holds", "holds"), ("teacher_bin_widths", "widths > 0")):
             values = getattr(self, name)  # every pair is a candidate teacher: a repeat would score one twice
-            if not values or len(set(values)) < len(values):
-                raise ParameterError(name, f"expected a list of different {what}, got {values!r}")
+            if not values or len(set(values)) < len(values) or len(values) > MAX_TEACHER_CHOICES:
+                raise ParameterError(
+                    name, f"expected a list of at most {MAX_TEACHER_CHOICES} different {what}, got {values!r}"
+                )
         holds = [check_int("teacher_holds", hold, 1, HELD_STEPS_CAP) for hold in self.teacher_holds]
         self.teacher_bin_widths = [
-            check_number("teacher_bin_widths", width, above=0) for width in self.teacher_bin_widths
+            check_number("teacher_bin_widths", width, maximum=MAX_DISTANCE, above=0)
+            for width in self.teacher_bin_widths
         ]
         if len(self.teachers()) > 1 and not (self.validation_seeds or self.teacher_seeds):
             raise ParameterError(
                 "validation_seeds", "several teacher_holds or teacher_bin_widths need validation seeds to choose one"
             )
-        repeat = check_int("action_repeat", self.action_repeat, PER_PHASE)
+        repeat = check_int("action_repeat", self.action_repeat, PER_PHASE, MAX_STEPS_PER_EPISODE)
         if repeat != PER_PHASE and any(hold % repeat for hold in holds):
             raise ParameterError(
                 "action_repeat",
                 f"must divide every teacher hold {holds}, so that the demonstrations are the teacher's gait "
                 f"(or be {PER_PHASE}: once per phase); got {repeat}",
             )
-        check_number("approach_reward", self.approach_reward, minimum=0)
+        check_number("approach_reward", self.approach_reward, *APPROACH_REWARD_RANGE)
         if self.episodes < 2:
             raise ParameterError(
                 "episodes", f"must be >= 2 (behaviour cloning holds one out for validation), got {self.episodes}"
             )
         self._check_seed_sets()
+        self._check_memory()
         for task in self.tasks:  # a misspelt name or value is refused now, not hours later at training
             for algo in self.finetune_algos:
                 try:
@@ -186,10 +216,23 @@ class PipelineConfig:
                     ours = isinstance(error, ParameterError) and error.parameter == "training_env_kwargs"
                     raise ParameterError("training_env_kwargs", f"{task}: {error.problem if ours else error}") from None
 
+    def _check_memory(self, workers: int = 1) -> None:
+        """Refuse settings whose envs (``n_envs`` of ``n_robots`` per RL run, ``workers`` runs at once) or whose
+        demonstrations (``episodes`` of ``steps``, which behaviour cloning holds in memory) cannot fit this machine's
+        memory, saying the estimate."""
+        envs = workers * self.n_envs
+        check_memory("n_envs", f"{envs} envs of {self.n_robots} robots", envs * env_bytes(self.n_robots))
+        repeat = self.action_repeat or max(self.teacher_holds)
+        frames = self.episodes * max(1, self.steps // repeat)
+        what = f"{self.episodes} demonstrations of {self.steps} steps of {self.n_robots} robots ({frames} frames)"
+        check_memory("episodes", what, frames_bytes(frames, self.n_robots))
+
     def _check_seed_sets(self) -> None:
         """Training, demonstration, choosing (validation, teacher) and scoring (test) seeds never meet."""
         for name in ("test_seeds", "validation_seeds", "teacher_seeds", "train_seeds"):
-            check_seeds(name, getattr(self, name), allow_empty=name in ("validation_seeds", "teacher_seeds"))
+            maximum = MAX_MODEL_SEED if name == "train_seeds" else MAX_EPISODE_SEED
+            empty = name in ("validation_seeds", "teacher_seeds")
+            check_seeds(name, getattr(self, name), allow_empty=empty, maximum=maximum, max_count=MAX_SEEDS)
         if len(self.train_seeds) > 1 and not self.validation_seeds:
             raise ParameterError(
                 "validation_seeds", "several train_seeds need validation seeds to choose each method's median run"
@@ -277,7 +320,9 @@ def read_settings(path: str | Path) -> dict[str, Any]:
     ParameterError naming the key and the file."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml(path, "config")
+    except YamlRefused:
+        raise
     except (OSError, yaml.YAMLError) as error:
         raise ParameterError("config", f"cannot read {path} as yaml: {error}") from None
     if isinstance(data, dict) and isinstance(data.get("config"), dict):  # a run folder's pipeline.yaml

@@ -19,6 +19,8 @@ from typing import Any
 import yaml
 
 from dpr.atomic import atomic_write_text
+from dpr.bounded_io import load_yaml
+from dpr.limits import MAX_RECORD_BYTES
 from dpr.pipeline.config import BASELINE, TEACHER, PipelineConfig
 from dpr.runs import attempt_paths, fresh_path
 
@@ -49,13 +51,13 @@ def read_run_settings(run: Path) -> dict[str, Any]:
     path = run / "pipeline.yaml"
     if not path.is_file():
         raise ValueError(f"{run}: no pipeline.yaml; expected a `dpr pipeline` run folder")
-    return yaml.safe_load(path.read_text())
+    return load_yaml(path, "config", MAX_RECORD_BYTES)
 
 
 def load_choices(out: Path) -> dict[str, Any]:
     """``choices.yaml``: every choice made on the validation seeds so far."""
     path = out / "choices.yaml"
-    return yaml.safe_load(path.read_text()) if path.exists() else {}
+    return load_yaml(path, "out", MAX_RECORD_BYTES, missing={})
 
 
 def save_choices(out: Path, choices: dict[str, Any]) -> None:

@@ -16,7 +16,9 @@ from typing import Any
 import yaml
 
 from dpr.atomic import atomic_write_text
+from dpr.bounded_io import load_yaml
 from dpr.envs import episode_steps
+from dpr.limits import MAX_RECORD_BYTES
 from dpr.pipeline.config import TEACHER, Teacher, learner_env_kwargs
 from dpr.rl.recipe import physics_discount
 
@@ -28,7 +30,7 @@ DATASET = "dataset"
 
 def read_teacher(folder: Path) -> Teacher:
     """The teacher a ``teacher`` stage chose."""
-    chosen = yaml.safe_load((folder / TEACHER_FILE).read_text())
+    chosen = load_yaml(folder / TEACHER_FILE, "out", MAX_RECORD_BYTES)
     return Teacher(int(chosen["hold_steps"]), float(chosen["bin_width"]))
 
 

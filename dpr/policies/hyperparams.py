@@ -22,11 +22,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from dpr.checks import ParameterError, check_int
+from dpr.bounded_io import load_yaml
+from dpr.checks import ParameterError, check_int, check_number
 from dpr.envs import TASKS
 from dpr.envs.tasks import HYPERPARAMS_OF
+from dpr.limits import (
+    MAX_BATCH_SIZE,
+    MAX_BUFFER_SIZE,
+    MAX_EPISODES,
+    MAX_EPOCHS,
+    MAX_LAYER_SIZE,
+    MAX_LAYERS,
+    MAX_TIMESTEPS,
+)
 from dpr.policies.sb3 import ALGOS, SWARM_POLICY, algo_class
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
@@ -41,6 +49,28 @@ ACTIVATIONS = ("tanh", "relu")
 POLICY_KWARGS = ("net_arch", "activation_fn", "features_extractor", "robot_net", "critic")
 SWARM_CRITICS = ("mlp", "swarm")  # dpr.policies.swarm_policy.CRITICS (not imported here: torch)
 FEATURES_EXTRACTORS = ("flatten", "swarm")  # SB3's default; dpr.policies.features.SwarmFeatures
+# Bounds of the numeric keyword arguments of the SB3 classes (None: SB3's own default), so that a typo is refused
+# when the entry is read, naming the value, and not by SB3 after a run folder is written: name -> (minimum, maximum).
+INT_HYPERPARAMS = {
+    "n_steps": (1, MAX_BATCH_SIZE),
+    "batch_size": (1, MAX_BATCH_SIZE),
+    "n_epochs": (1, MAX_EPOCHS),
+    "buffer_size": (1, MAX_BUFFER_SIZE),
+    "learning_starts": (0, MAX_TIMESTEPS),
+    "gradient_steps": (-1, MAX_BATCH_SIZE),
+    "target_update_interval": (1, MAX_TIMESTEPS),
+    "stats_window_size": (1, MAX_EPISODES),
+}
+UNIT_HYPERPARAMS = (
+    "gamma",
+    "gae_lambda",
+    "tau",
+    "exploration_fraction",
+    "exploration_initial_eps",
+    "exploration_final_eps",
+)  # numbers in [0, 1]
+POSITIVE_HYPERPARAMS = ("clip_range", "clip_range_vf", "target_kl", "max_grad_norm", "rms_prop_eps")  # > 0
+NON_NEGATIVE_HYPERPARAMS = ("ent_coef", "vf_coef")
 # Set by the trainer itself, never by a yaml entry.
 RESERVED = ("env", "seed", "verbose", "tensorboard_log", "device", "_init_setup_model")
 
@@ -104,7 +134,7 @@ def _linear_start(value: str, where: str) -> float:
         start = float(value.removeprefix(LINEAR_PREFIX)) if value.startswith(LINEAR_PREFIX) else None
     except ValueError:
         start = None
-    if start is None or not start > 0:
+    if start is None or not 0 < start < float("inf"):
         raise ValueError(f"{where}: expected a number > 0 or 'lin_X' with X > 0, got {value!r}")
     return start
 
@@ -118,7 +148,7 @@ def hyperparams_file(algo: str) -> Path:
 def read_entries(algo: str) -> dict[str, dict]:
     """All entries of ``algo``'s yaml file, by env id or preset name."""
     path = hyperparams_file(algo)
-    entries = yaml.safe_load(path.read_text())
+    entries = load_yaml(path, "hyperparams")
     if not isinstance(entries, dict):
         raise ValueError(f"{path}: expected a mapping of env ids and presets to entries")
     return entries
@@ -149,18 +179,37 @@ def load_hyperparams(
     return _validate(algo, env_id, preset, entry, f"{path} [{key}]" + (" with overrides" if overrides else ""))
 
 
-def _check_int(where: str, name: str, value: Any, minimum: int) -> None:
+def _check_int(where: str, name: str, value: Any, minimum: int, maximum: int | None = None) -> None:
     """:func:`dpr.checks.check_int`, its message prefixed by the yaml entry ``where`` the value was read from."""
     try:
-        check_int(name, value, minimum)
+        check_int(name, value, minimum, maximum)
     except ParameterError as error:
         raise ValueError(f"{where}: {error}") from None
+
+
+def _check_numbers(where: str, entry: dict[str, Any]) -> None:
+    """The bounds of :data:`INT_HYPERPARAMS` and of the numbers that must lie in [0, 1], be > 0 or >= 0 (a value of
+    None is SB3's default, and a DQN ``train_freq`` of [N, "step"] is SB3's to check)."""
+    for name, (low, high) in INT_HYPERPARAMS.items():
+        if entry.get(name) is not None:
+            _check_int(where, name, entry[name], low, high)
+    if isinstance(entry.get("train_freq"), int) or isinstance(entry.get("train_freq"), float):
+        _check_int(where, "train_freq", entry["train_freq"], 1, MAX_TIMESTEPS)
+    bounds = [(name, {"minimum": 0, "maximum": 1}) for name in UNIT_HYPERPARAMS]
+    bounds += [(name, {"above": 0}) for name in POSITIVE_HYPERPARAMS]
+    bounds += [(name, {"minimum": 0}) for name in NON_NEGATIVE_HYPERPARAMS]
+    for name, bound in bounds:
+        if entry.get(name) is not None:
+            try:
+                check_number(name, entry[name], **bound)
+            except ParameterError as error:
+                raise ValueError(f"{where}: {error}") from None
 
 
 def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where: str) -> Hyperparams:
     entry = dict(entry)
     n_timesteps = entry.pop("n_timesteps", None)
-    _check_int(where, "n_timesteps", n_timesteps, 1)
+    _check_int(where, "n_timesteps", n_timesteps, 1, MAX_TIMESTEPS)
     policy = entry.pop("policy", "MlpPolicy")
     env_kwargs = entry.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
@@ -169,11 +218,12 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
     unknown = sorted(set(entry) - allowed)
     if unknown:
         raise ValueError(f"{where}: unknown hyperparameter(s) {unknown} for {algo}; choose from {sorted(allowed)}")
+    _check_numbers(where, entry)
     if "learning_rate" in entry:
         value = entry["learning_rate"]
         if isinstance(value, str):
             _linear_start(value, f"{where}: learning_rate")
-        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
             raise ValueError(f"{where}: learning_rate must be a number > 0 or 'lin_X', got {value!r}")
     policy_kwargs = entry.get("policy_kwargs") or {}
     if not isinstance(policy_kwargs, dict) or set(policy_kwargs) - set(POLICY_KWARGS):
@@ -182,10 +232,12 @@ def _validate(algo: str, env_id: str, preset: str, entry: dict[str, Any], where:
         ("net_arch", policy_kwargs.get("net_arch", [64])),
         ("robot_net", policy_kwargs.get("robot_net", [64])),
     ):
-        if not isinstance(layers, list) or (name == "robot_net" and not layers):
-            raise ValueError(f"{where}: policy_kwargs.{name} must be a list of layer sizes, got {layers!r}")
+        if not isinstance(layers, list) or (name == "robot_net" and not layers) or len(layers) > MAX_LAYERS:
+            raise ValueError(
+                f"{where}: policy_kwargs.{name} must be a list of at most {MAX_LAYERS} layer sizes, got {layers!r}"
+            )
         for size in layers:
-            _check_int(where, f"policy_kwargs.{name} (layer sizes)", size, 1)
+            _check_int(where, f"policy_kwargs.{name} (layer sizes)", size, 1, MAX_LAYER_SIZE)
     if policy_kwargs.get("features_extractor", "flatten") not in FEATURES_EXTRACTORS:
         raise ValueError(
             f"{where}: policy_kwargs.features_extractor must be one of {FEATURES_EXTRACTORS}, "

@@ -44,9 +44,11 @@ import yaml
 
 from dpr import runs
 from dpr.atomic import atomic_write_json, atomic_write_text
+from dpr.bounded_io import load_yaml
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.envs import TASKS
 from dpr.envs.particle_env import MAX_EPISODE_STEPS
+from dpr.limits import MAX_RECORD_BYTES
 from dpr.policies.hyperparams import FINETUNE_PRESET, Hyperparams, load_hyperparams
 from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env
 from dpr.policies.sb3 import (
@@ -425,7 +427,7 @@ def _run_record(config: PerRobotFinetuneConfig, resolved, unit, validation, tens
 
 
 def _resumed_record(config_path: Path, tensorboard_log: str | None, from_swarm_steps: int) -> dict[str, Any]:
-    record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
+    record = {**load_yaml(config_path, "out", MAX_RECORD_BYTES), "tensorboard_log": tensorboard_log}
     resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_swarm_steps": from_swarm_steps}
     record["resumed"] = [*record.get("resumed", []), resumed]
     return record

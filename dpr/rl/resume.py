@@ -31,7 +31,9 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from dpr.bounded_io import load_yaml
 from dpr.checks import ParameterError
+from dpr.limits import MAX_RECORD_BYTES
 from dpr.rl.plain_state import read_state, write_state
 
 SNAPSHOT_ALGOS = ("ppo", "a2c")  # on-policy: nothing but the model and the envs carries over between rollouts
@@ -113,7 +115,7 @@ def check_resumable(out: str | Path | None, config: dict[str, Any]) -> None:
     if out is None or not has_snapshot(out):
         raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
     config_path = Path(out) / "config.yaml"
-    recorded = yaml.safe_load(config_path.read_text()).get("config") if config_path.is_file() else None
+    recorded = load_yaml(config_path, "out", MAX_RECORD_BYTES).get("config") if config_path.is_file() else None
     wanted = yaml.safe_load(yaml.safe_dump(config))
     if recorded != wanted:
         differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"

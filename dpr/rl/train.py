@@ -27,9 +27,22 @@ import gymnasium as gym
 import yaml
 
 from dpr import runs
+from dpr.bounded_io import load_yaml
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
+from dpr.limits import (
+    MAX_EPISODES,
+    MAX_MODEL_SEED,
+    MAX_N_ENVS,
+    MAX_N_ROBOTS,
+    MAX_RECORD_BYTES,
+    MAX_STEPS_PER_EPISODE,
+    MAX_TIMESTEPS,
+    WORKER_BYTES,
+    check_memory,
+    env_bytes,
+)
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     ALGOS,
@@ -101,13 +114,7 @@ class TrainConfig:
             raise ValueError(f"env must be one of {tuple(TASKS)}, got {self.env_id!r}")
         if self.steps_per_episode is None:
             self.steps_per_episode = episode_steps(self.env_kwargs)
-        for name in ("n_robots", "n_envs", "steps_per_episode"):
-            check_int(name, getattr(self, name), 1)
-        check_int("eval_episodes", self.eval_episodes, 0)
-        if self.timesteps is not None:
-            check_int("timesteps", self.timesteps, 1)
-        check_int("seed", self.seed, 0)
-        check_int("critic_warmup", self.critic_warmup, 0)
+        self._check_counts()
         if self.critic_warmup and self.init_from is None:
             raise ValueError("critic_warmup needs init_from: a critic warm-up keeps a trained actor unchanged")
         if self.init_from is not None and self.algo not in FINETUNE_ALGOS:
@@ -123,6 +130,31 @@ class TrainConfig:
             reserved = sorted(set(RESERVED_ENV_KWARGS) & set(getattr(self, name)))
             if reserved:
                 raise ValueError(f"{name} must not set {reserved}: use n_robots, robot_model and steps_per_episode")
+
+    def _check_counts(self) -> None:
+        """Every count within its bound (dpr.limits), and the envs within this machine's memory: on the pymunk
+        engine each of several envs is a process of its own."""
+        bounds = {
+            "n_robots": MAX_N_ROBOTS,
+            "n_envs": MAX_N_ENVS,
+            "steps_per_episode": MAX_STEPS_PER_EPISODE,
+            "timesteps": MAX_TIMESTEPS,
+        }
+        for name, maximum in bounds.items():
+            if name != "timesteps" or self.timesteps is not None:
+                check_int(name, getattr(self, name), 1, maximum)
+        check_int("eval_episodes", self.eval_episodes, 0, MAX_EPISODES)
+        check_int("seed", self.seed, 0, MAX_MODEL_SEED)
+        check_int("critic_warmup", self.critic_warmup, 0, MAX_TIMESTEPS)
+        if self.engine == "pymunk":
+            per_env = env_bytes(self.n_robots, self.robot_model) + (WORKER_BYTES if self.n_envs > 1 else 0)
+            what = f"{self.n_envs} envs of {self.n_robots} robots" + (" (a process each)" if self.n_envs > 1 else "")
+            check_memory("n_envs", what, self.n_envs * per_env)
+        elif str(self.device).startswith("cpu"):  # on a GPU, the batched world compares with the GPU's memory
+            from dpr.sim.batched.world import estimated_memory
+
+            what = f"{self.n_envs} swarms of {self.n_robots} robots on the batched engine"
+            check_memory("n_envs", what, estimated_memory(self.n_envs, self.n_robots))
 
     def _check_engine(self) -> None:
         check_choice("engine", self.engine, ENGINES)
@@ -457,7 +489,7 @@ def _run_record(config, hyper, env_kwargs, timesteps, budget, demonstrations, te
 
 def _resumed_record(config_path: Path, tensorboard_log: str | None, snapshot) -> dict[str, Any]:
     """The stopped run's record, with this resume added."""
-    record = {**yaml.safe_load(config_path.read_text()), "tensorboard_log": tensorboard_log}
+    record = {**load_yaml(config_path, "out", MAX_RECORD_BYTES), "tensorboard_log": tensorboard_log}
     resumed = {"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "from_timesteps": snapshot.reached}
     record["resumed"] = [*record.get("resumed", []), resumed]
     return record
