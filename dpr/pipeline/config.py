@@ -158,10 +158,10 @@ class PipelineConfig:
             check_int(name, getattr(self, name), minimum, maximum)
         for name, what in (("teacher_holds", "holds"), ("teacher_bin_widths", "widths > 0")):
             values = getattr(self, name)  # every pair is a candidate teacher: a repeat would score one twice
-            if not values or len(set(values)) < len(values) or len(values) > MAX_TEACHER_CHOICES:
-                raise ParameterError(
-                    name, f"expected a list of at most {MAX_TEACHER_CHOICES} different {what}, got {values!r}"
-                )
+            if not values or len(set(values)) < len(values):
+                raise ParameterError(name, f"expected a list of different {what}, got {values!r}")
+            if len(values) > MAX_TEACHER_CHOICES:
+                raise ParameterError(name, f"must list at most {MAX_TEACHER_CHOICES}, got {len(values)}")
         holds = [check_int("teacher_holds", hold, 1, HELD_STEPS_CAP) for hold in self.teacher_holds]
         self.teacher_bin_widths = [
             check_number("teacher_bin_widths", width, maximum=MAX_DISTANCE, above=0)

@@ -19,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from dpr.bounded_io import read_zip_member
 from dpr.checks import ParameterError
+from dpr.limits import MAX_MODEL_JSON_BYTES
 
 # The entries of a model file's `data` that SB3 pickles, and what dpr supplies in their place: a model file may
 # hold nothing else pickled (models/README.md, "What a model file may contain"). Rollout state is dropped.
@@ -36,7 +38,9 @@ def _model_data(path: Path, parameter: str) -> dict[str, Any]:
     """The model file's ``data`` member as JSON (pickled entries stay base64 text, never loaded)."""
     try:
         with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
+            data = json.loads(read_zip_member(archive, "data", MAX_MODEL_JSON_BYTES, path, parameter))
+    except ParameterError:
+        raise
     except (zipfile.BadZipFile, KeyError, ValueError) as error:
         raise ParameterError(parameter, f"{path}: its 'data' member is not SB3's JSON ({error})") from None
     if not isinstance(data, dict):

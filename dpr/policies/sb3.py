@@ -24,7 +24,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dpr.bounded_io import read_zip_member, stream_zip_member
 from dpr.checks import ParameterError
+from dpr.limits import MAX_MODEL_JSON_BYTES, MAX_MODEL_MEMBER_BYTES
 
 MODEL_SUFFIX = ".zip"
 METADATA_MEMBER = "dpr_env.json"
@@ -135,6 +137,30 @@ def write_model_info(path: str | Path, info: ModelInfo) -> None:
         archive.writestr(METADATA_MEMBER, info.as_json())
 
 
+def model_member_limit(name: str) -> int | None:
+    """The most bytes dpr or stable-baselines3 reads of the model zip member ``name`` (None: never read)."""
+    if name in ("data", METADATA_MEMBER, "_stable_baselines3_version"):
+        return MAX_MODEL_JSON_BYTES
+    return MAX_MODEL_MEMBER_BYTES if name.endswith(".pth") else None
+
+
+def check_model_members(archive: zipfile.ZipFile, path: str | Path, parameter: str, *, stream: bool = False) -> None:
+    """A :class:`ParameterError` about ``parameter`` when a member of the model zip that is read declares more bytes
+    than :func:`model_member_limit`; with ``stream``, each is also read through (a chunk at a time) to check that it
+    inflates to what it declares, and its CRC, before stable-baselines3 reads it whole."""
+    for info in archive.infolist():
+        limit = model_member_limit(info.filename)
+        if limit is None:
+            continue
+        if stream:
+            for _ in stream_zip_member(archive, info.filename, limit, path, parameter):
+                pass
+        elif info.file_size > limit:
+            raise ParameterError(
+                parameter, f"{path}: its member {info.filename!r} declares {info.file_size} bytes, more than {limit}"
+            )
+
+
 def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> ModelInfo:
     """The :class:`ModelInfo` of the model file at ``path``; a :class:`ParameterError` about ``parameter`` (the
     caller's parameter that named the file) when the file is missing, not a zip, or not a model written by
@@ -153,7 +179,8 @@ def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> Mode
                     f"{path} is an SB3 model without {METADATA_MEMBER}, so its env id and env kwargs are "
                     "unknown; use a model saved by `dpr train` (dpr.policies.sb3.save_model)",
                 )
-            raw = archive.read(METADATA_MEMBER)
+            check_model_members(archive, path, parameter)
+            raw = read_zip_member(archive, METADATA_MEMBER, MAX_MODEL_JSON_BYTES, path, parameter)
     except zipfile.BadZipFile as error:
         raise ParameterError(parameter, f"{path} is not a readable .zip model file ({error})") from None
     try:
@@ -231,7 +258,7 @@ def describe_space(space) -> str:
 def has_swarm_actor(path: str | Path) -> bool:
     """Whether the model file at ``path`` holds a :data:`SWARM_POLICY`, whose actor acts at any swarm size."""
     with zipfile.ZipFile(path) as archive:
-        data = json.loads(archive.read("data"))
+        data = json.loads(read_zip_member(archive, "data", MAX_MODEL_JSON_BYTES, path, POLICY_PARAMETER))
     return data.get("policy_class", {}).get("__module__") == SWARM_POLICY_MODULE
 
 
@@ -298,6 +325,11 @@ def load_model(
     from dpr.policies.model_objects import model_objects
 
     custom = model_objects(path, info, for_training, parameter)
+    try:
+        with zipfile.ZipFile(path) as archive:  # every member SB3 reads, within its bound, before it reads them
+            check_model_members(archive, path, parameter, stream=True)
+    except zipfile.BadZipFile as error:
+        raise ParameterError(parameter, f"{path} is not a readable .zip model file ({error})") from None
     try:
         model = algo_class(info.algo).load(path, device="cpu", custom_objects=custom)
     except (KeyError, ValueError, RuntimeError, TypeError, zipfile.BadZipFile, EOFError) as error:

@@ -22,8 +22,46 @@ import inspect
 from dataclasses import dataclass
 from typing import Any
 
+from dpr.limits import (
+    MAX_EPISODES,
+    MAX_MODEL_SEED,
+    MAX_N_ENVS,
+    MAX_N_ROBOTS,
+    MAX_STEPS_PER_EPISODE,
+    MAX_TIMESTEPS,
+    WORKER_BYTES,
+    check_memory,
+    env_bytes,
+)
 from dpr.policies.hyperparams import Hyperparams
 from dpr.policies.sb3 import PPO, algo_class
+
+# The bounds of a training run's counts (dpr.rl.train.TrainConfig): name -> (minimum, maximum).
+TRAIN_COUNT_BOUNDS = {
+    "n_robots": (1, MAX_N_ROBOTS),
+    "n_envs": (1, MAX_N_ENVS),
+    "steps_per_episode": (1, MAX_STEPS_PER_EPISODE),
+    "timesteps": (1, MAX_TIMESTEPS),
+    "eval_episodes": (0, MAX_EPISODES),
+    "seed": (0, MAX_MODEL_SEED),
+    "critic_warmup": (0, MAX_TIMESTEPS),
+}
+
+
+def check_training_memory(n_envs: int, n_robots: int, robot_model: str, engine: str, device: str) -> None:
+    """A ParameterError about n_envs, saying the estimate, when the envs of a training run cannot fit this machine's
+    memory: on the pymunk engine each of several envs is a process of its own; on the batched engine on the CPU its
+    world's tensors (on a GPU, the batched world compares with the GPU's memory itself)."""
+    if engine == "pymunk":
+        per_env = env_bytes(n_robots, robot_model) + (WORKER_BYTES if n_envs > 1 else 0)
+        what = f"{n_envs} envs of {n_robots} robots" + (" (a process each)" if n_envs > 1 else "")
+        check_memory("n_envs", what, n_envs * per_env)
+    elif str(device).startswith("cpu"):
+        from dpr.sim.batched.world import estimated_memory
+
+        what = f"{n_envs} swarms of {n_robots} robots on the batched engine"
+        check_memory("n_envs", what, estimated_memory(n_envs, n_robots))
+
 
 ON_POLICY = ("ppo", "a2c")
 

@@ -31,18 +31,7 @@ from dpr.bounded_io import load_yaml
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
-from dpr.limits import (
-    MAX_EPISODES,
-    MAX_MODEL_SEED,
-    MAX_N_ENVS,
-    MAX_N_ROBOTS,
-    MAX_RECORD_BYTES,
-    MAX_STEPS_PER_EPISODE,
-    MAX_TIMESTEPS,
-    WORKER_BYTES,
-    check_memory,
-    env_bytes,
-)
+from dpr.limits import MAX_RECORD_BYTES
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     ALGOS,
@@ -62,7 +51,7 @@ from dpr.policies.sb3 import (
     write_model_info,
 )
 from dpr.rl import resume as resume_state
-from dpr.rl.budget import fit_budget
+from dpr.rl.budget import TRAIN_COUNT_BOUNDS, check_training_memory, fit_budget
 
 if TYPE_CHECKING:  # the anchor imports torch and the BC loss: only runs that anchor load it
     from dpr.rl.anchor import Demonstrations
@@ -132,29 +121,11 @@ class TrainConfig:
                 raise ValueError(f"{name} must not set {reserved}: use n_robots, robot_model and steps_per_episode")
 
     def _check_counts(self) -> None:
-        """Every count within its bound (dpr.limits), and the envs within this machine's memory: on the pymunk
-        engine each of several envs is a process of its own."""
-        bounds = {
-            "n_robots": MAX_N_ROBOTS,
-            "n_envs": MAX_N_ENVS,
-            "steps_per_episode": MAX_STEPS_PER_EPISODE,
-            "timesteps": MAX_TIMESTEPS,
-        }
-        for name, maximum in bounds.items():
+        """Every count within its bound (dpr.limits), and the envs within this machine's memory."""
+        for name, (minimum, maximum) in TRAIN_COUNT_BOUNDS.items():
             if name != "timesteps" or self.timesteps is not None:
-                check_int(name, getattr(self, name), 1, maximum)
-        check_int("eval_episodes", self.eval_episodes, 0, MAX_EPISODES)
-        check_int("seed", self.seed, 0, MAX_MODEL_SEED)
-        check_int("critic_warmup", self.critic_warmup, 0, MAX_TIMESTEPS)
-        if self.engine == "pymunk":
-            per_env = env_bytes(self.n_robots, self.robot_model) + (WORKER_BYTES if self.n_envs > 1 else 0)
-            what = f"{self.n_envs} envs of {self.n_robots} robots" + (" (a process each)" if self.n_envs > 1 else "")
-            check_memory("n_envs", what, self.n_envs * per_env)
-        elif str(self.device).startswith("cpu"):  # on a GPU, the batched world compares with the GPU's memory
-            from dpr.sim.batched.world import estimated_memory
-
-            what = f"{self.n_envs} swarms of {self.n_robots} robots on the batched engine"
-            check_memory("n_envs", what, estimated_memory(self.n_envs, self.n_robots))
+                check_int(name, getattr(self, name), minimum, maximum)
+        check_training_memory(self.n_envs, self.n_robots, self.robot_model, self.engine, self.device)
 
     def _check_engine(self) -> None:
         check_choice("engine", self.engine, ENGINES)

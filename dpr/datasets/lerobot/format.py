@@ -22,6 +22,9 @@ import pyarrow.parquet as pq
 from PIL import Image
 
 from dpr.atomic import atomic_write_parquet
+from dpr.bounded_io import read_bounded
+from dpr.checks import ParameterError
+from dpr.limits import MAX_METADATA_BYTES
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000  # files per chunk folder, LeRobot's default
@@ -159,8 +162,12 @@ def live_files(info: Mapping[str, Any]) -> tuple[int, int]:
 
 
 def read_json(path: Path) -> Any:
+    """The JSON file ``path`` of a dataset's metadata, at most :data:`dpr.limits.MAX_METADATA_BYTES`: a DatasetError
+    naming it when it is missing, larger, not a regular file, or not JSON."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_bounded(path, MAX_METADATA_BYTES).decode("utf-8")
+    except ParameterError as exc:
+        raise DatasetError(exc.problem) from None
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
     except OSError as exc:
