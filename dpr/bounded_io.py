@@ -40,7 +40,8 @@ def read_bounded(path: str | Path, limit: int, name: str = "path") -> bytes:
     """The bytes of the regular file ``path``, at most ``limit`` of them: a device, a fifo or a folder, or a file
     over the limit, is a :class:`ParameterError` about ``name`` before anything is read (OSError as ``open``'s)."""
     path = Path(path)
-    with open(path, "rb") as file:
+    descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a fifo must not block the open
+    with os.fdopen(descriptor, "rb") as file:
         mode = os.fstat(file.fileno()).st_mode
         if not stat.S_ISREG(mode):
             raise ParameterError(name, f"{path} is not a regular file")
