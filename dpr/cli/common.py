@@ -175,7 +175,7 @@ def non_negative_int(text: str) -> int:
 # arguments before a command starts (:func:`check_bounds`); a list flag's every value is checked. A flag of a
 # setting of `dpr pipeline` is checked again, with the config file's value, by dpr.pipeline.config.PipelineConfig.
 FLAG_BOUNDS = {
-    "episodes": (1, MAX_EPISODES),
+    "episodes": (0, MAX_EPISODES),  # `dpr replay --episodes` names indices from 0; a count is >= 1 by its type
     "episode": (0, MAX_EPISODES),
     "eval_episodes": (0, MAX_EPISODES),
     "dagger_episodes": (1, MAX_EPISODES),
