@@ -50,6 +50,26 @@ def table_cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
+def bounds_section() -> list[str]:
+    """The bounds every integer flag (and the same setting of a `dpr pipeline` config file) is checked against
+    before a command starts (dpr.cli.common.FLAG_BOUNDS, dpr.limits)."""
+    from dpr.cli.common import FLAG_BOUNDS
+    from dpr.limits import MAX_RAY_WORKERS, MAX_SETTINGS_BYTES, MiB
+
+    rows = [
+        f"| `--{dest.replace('_', '-')}` | {low:,} to {high:,} |" for dest, (low, high) in sorted(FLAG_BOUNDS.items())
+    ]
+    prose = (
+        "Every count a command or a `dpr pipeline` config file takes is checked before any work, and a value out of "
+        "range exits 2 naming the flag, the value and the range (dpr/limits.py). `--workers` may be at most this "
+        f"machine's CPUs (at most {MAX_RAY_WORKERS:,} with `--backend ray`); what depends on several values at once "
+        "(envs x robots, demonstrations x steps) is estimated and refused, with the estimate, when it cannot fit "
+        f"this machine's memory. Settings files are read up to {MAX_SETTINGS_BYTES // MiB} MiB, without duplicate "
+        "keys and with few yaml aliases."
+    )
+    return ["## Bounds", "", *textwrap.wrap(prose, PAGE_WIDTH), "", "| flag | allowed |", "|---|---|", *rows, ""]
+
+
 def reference() -> str:
     """The whole of docs/cli.md."""
     parser = build_parser()
@@ -68,6 +88,7 @@ def reference() -> str:
         "|---|---|",
         *(f"| [`{c.name}`](#{anchor(c.name)}) | {table_cell(c.help)} |" for c in COMMANDS),
         "",
+        *bounds_section(),
         "## `dpr`",
         "",
         "```text",
