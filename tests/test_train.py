@@ -2,6 +2,7 @@
 
 import json
 import zipfile
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -366,10 +367,14 @@ def test_hyperparameters_sb3_refuses_leave_no_run_folder(tmp_path):
         n_robots=4,
         robot_model="disk",
         timesteps=64,
-        hyperparams={"n_steps": -3},
+        hyperparams={"n_steps": 1},  # within its bound (dpr.limits), but SB3 needs n_steps * n_envs > 1
     )
     with pytest.raises(ParameterError, match="hyperparams: ppo refuses them"):
         train(config, tmp_path / "run", show_progress=False)
+    assert not (tmp_path / "run").exists()
+    out_of_bounds = replace(config, hyperparams={"n_steps": -3})  # refused when the entry is read
+    with pytest.raises(ValueError, match="n_steps: must be >= 1, got -3"):
+        train(out_of_bounds, tmp_path / "run", show_progress=False)
     assert not (tmp_path / "run").exists()
 
 
