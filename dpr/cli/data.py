@@ -11,10 +11,12 @@ from dpr.cli.common import (
     ENV_ID_LIST,
     SWARM_DEFAULTS,
     Command,
+    apply_engine_defaults,
     check_output,
     check_seed,
     default_argument,
     defaults,
+    engine_arguments,
     env_kwarg_argument,
     flag_message,
     json_argument,
@@ -78,6 +80,10 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "action_repeat physics steps); exit 2 at the first problem, named",
     )
     workers_argument(parser, "rollout processes")
+    engine_arguments(parser)
+    default_argument(
+        parser, "--batch", workers["batch"], "with --engine batched: episodes stepped together in one vector env"
+    )
     env_kwarg_argument(parser, "object_type=box")
     parser.add_argument(
         "--backend",
@@ -127,6 +133,7 @@ def _collect_spec(args, parser):
             env_kwargs=env_kwargs,
             label_policy=args.label_policy,
             mcap=args.mcap,
+            engine=args.engine,
         )
     except ValueError as error:
         parser.error(flag_message(error))
@@ -164,6 +171,7 @@ def _progress_bar(total: int, description: str):
 def cmd_collect(args, parser) -> int:
     check_output(args.json, parser, "--json")
     check_seed(args, parser)
+    apply_engine_defaults(args)
 
     from dpr.datasets.collect import RolloutWorkers, collect
     from dpr.datasets.collect_summary import format_summary
@@ -175,7 +183,7 @@ def cmd_collect(args, parser) -> int:
     _check_backend(args, parser)
     bar, progress = _progress_bar(args.episodes, f"collect {spec.policy} {spec.env_id}")
     try:
-        workers = RolloutWorkers(args.workers, backend=args.backend, address=args.address)
+        workers = RolloutWorkers(args.workers, args.backend, args.address, batch=args.batch, device=args.device)
         summary = collect(
             out, spec, args.episodes, seed=args.seed, workers=workers, progress=progress, compact=args.compact
         )
