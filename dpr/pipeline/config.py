@@ -20,6 +20,8 @@ from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POL
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
 from dpr.rl.recipe import FINETUNE_AT_REPEAT
 
+ENGINES = ("pymunk", "batched")
+BATCHED_ROBOT_MODEL = "disk"  # the batched engine's only robot model
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}  # the Markov wave needs it; every learner gets it too
 EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
 BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
@@ -97,9 +99,14 @@ class PipelineConfig:
     # tasks whose fine-tuned models are the mean of the policy's weights a quarter, half and three quarters of the way
     # and at the end of fine-tuning, rather than the last weights; a task this run does not run is passed over
     average_checkpoints: list[str] = field(default_factory=list)
+    # "batched": the disk robot model throughout, its demonstrations, evaluations and RL from scratch on the batched
+    # engine (dpr.sim.batched) on ``device``; cloning and fine-tuning run on pymunk's disk model
+    engine: str = "pymunk"
+    device: str = "cpu"
 
     def __post_init__(self):
         check_types(self)
+        check_choice("engine", self.engine, ENGINES)
         unknown = [task for task in self.tasks if task not in ENV_IDS]
         if not self.tasks or unknown:
             raise ParameterError(
@@ -211,6 +218,13 @@ class PipelineConfig:
                 raise ParameterError(
                     "train_seeds", f"{seen} are {name.replace('_', ' ')} too; training must not start from them"
                 )
+
+    def engine_settings(self) -> dict[str, Any]:
+        """What every stage that runs the batched engine adds to its settings (and so to its key); nothing on
+        pymunk, so that the stages of a pymunk run keep their keys."""
+        if self.engine == ENGINES[0]:
+            return {}
+        return {"engine": self.engine, "device": self.device, "robot_model": BATCHED_ROBOT_MODEL}
 
     def env_id(self, task: str) -> str:
         """The registered id ``task`` runs on: its current one, unless ``env_ids`` names another."""

@@ -47,6 +47,15 @@ def _check_resume(config, out) -> None:
         raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
 
 
+def batched_resumable(out, config) -> bool:
+    """Whether ``out`` holds a stopped tensor-PPO run of ``config`` to resume (changes nothing)."""
+    try:
+        _check_resume(config, out)
+    except (ParameterError, OSError, AttributeError):
+        return False
+    return True
+
+
 def _run_record(config, hyper, env_kwargs: dict, timesteps: int) -> dict:
     return {
         "algo": config.algo,
