@@ -34,7 +34,7 @@ import numpy as np
 from dpr.atomic import is_temporary
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
-from dpr.datasets.collect_summary import CollectSummary, folder_bytes, metric_summary
+from dpr.datasets.collect_summary import CollectSummary, EpisodeRecord, folder_bytes, metric_summary
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.datasets.lerobot.format import INFO_PATH, load_info
@@ -107,28 +107,6 @@ class CollectSpec:
         import dpr  # noqa: F401  (registers the ids in worker processes)
 
         return gym.make(self.env_id, **self.make_kwargs())
-
-
-@dataclass
-class EpisodeRecord:
-    """One rolled-out episode as arrays (``T`` frames), with what is needed to replay it."""
-
-    seed: int
-    observations: np.ndarray  # [T, D] float32
-    actions: np.ndarray  # [T, N] float32 or [T, 1] int64
-    rewards: np.ndarray  # [T] float32
-    dones: np.ndarray  # [T] bool
-    successes: np.ndarray  # [T] bool
-    metrics: EpisodeMetrics
-    images: np.ndarray | None = None  # [T, H, W, 3] uint8
-    environment_states: np.ndarray | None = None  # [T, E] float32: the env's environment_state() at each frame
-    physics_error: str | None = None
-    seconds: float = 0.0
-    trajectory: np.ndarray | None = None  # [T + 1, 2] the agent's positions (what the metrics are computed from)
-
-    @property
-    def frames(self) -> int:
-        return len(self.actions)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from dpr.datasets import features as F
+from dpr.datasets.collect_summary import EpisodeRecord
 from dpr.envs.particle_env import PHYSICS_ERROR
 from dpr.metrics import episode_metrics
 from dpr.policies.batched import make_batched_policy
@@ -81,8 +82,6 @@ class _Episode:
     writer: object = None  # its McapEpisodeWriter, when logged
 
     def record(self, env, goal: np.ndarray, seconds: float):
-        from dpr.datasets.collect import EpisodeRecord
-
         frames = len(self.actions)
         discrete = env.template.action_type == "discrete"
         actions = np.array(self.actions, dtype=np.int64 if discrete else np.float32).reshape(frames, -1)
