@@ -79,11 +79,7 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "row, stats.json against the episodes' own stats, and fps against the decision rate (one frame per "
         "action_repeat physics steps); exit 2 at the first problem, named",
     )
-    workers_argument(parser, "rollout processes")
-    engine_arguments(parser)
-    default_argument(
-        parser, "--batch", workers["batch"], "with --engine batched: episodes stepped together in one vector env"
-    )
+    _worker_arguments(parser, workers["batch"])
     env_kwarg_argument(parser, "object_type=box")
     parser.add_argument(
         "--backend",
@@ -96,6 +92,13 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)"
     )
     json_argument(parser, "the summary")
+
+
+def _worker_arguments(parser: argparse.ArgumentParser, batch: int) -> None:
+    """--workers, --engine, --device and --batch: what runs the rollouts."""
+    workers_argument(parser, "rollout processes")
+    engine_arguments(parser)
+    default_argument(parser, "--batch", batch, "with --engine batched: episodes stepped together in one vector env")
 
 
 def _check_backend(args, parser) -> None:

@@ -401,10 +401,7 @@ def collect(
     (:mod:`dpr.datasets.collect_batched`)."""
     check_int("episodes", episodes, 1)
     check_int("seed", seed, 0)
-    if spec.engine == BATCHED and workers.backend == "ray":
-        raise ParameterError("backend", "the batched engine steps its episodes together in this process, not on Ray")
-    if workers.backend == "ray":
-        _import_ray()
+    _check_workers(spec, workers)
     root = Path(root)
     seeds = range(seed, seed + episodes)
     features, task = _probe(spec, workers.device)
@@ -446,6 +443,13 @@ def collect(
         interrupted=interrupted,
         metrics=metric_summary(added),
     )
+
+
+def _check_workers(spec: CollectSpec, workers: RolloutWorkers) -> None:
+    if spec.engine == BATCHED and workers.backend == "ray":
+        raise ParameterError("backend", "the batched engine steps its episodes together in this process, not on Ray")
+    if workers.backend == "ray":
+        _import_ray()
 
 
 def _probe(spec: CollectSpec, device: str = "cpu") -> tuple[dict, str]:

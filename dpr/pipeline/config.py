@@ -106,7 +106,7 @@ class PipelineConfig:
 
     def __post_init__(self):
         check_types(self)
-        check_choice("engine", self.engine, ENGINES)
+        self._check_choices()
         unknown = [task for task in self.tasks if task not in ENV_IDS]
         if not self.tasks or unknown:
             raise ParameterError(
@@ -125,8 +125,6 @@ class PipelineConfig:
             raise ParameterError(
                 "average_checkpoints", f"expected some of {list(ENV_IDS)}, got {self.average_checkpoints!r}"
             )
-        if self.actor not in ACTORS:
-            raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
         if self.actor != "mlp" and DQN in self.scratch_algos:
             raise ParameterError("actor", f"{self.actor!r} is an actor-critic's actor; DQN from scratch has none")
         for name, allowed in (("finetune_algos", FINETUNE_ALGOS), ("scratch_algos", SCRATCH_ALGOS)):
@@ -175,6 +173,12 @@ class PipelineConfig:
                     load_hyperparams(algo, self.env_id(task), DEFAULT_ENTRY, self.scratch_hyperparams_at(WAVE_HOLD))
                 except ValueError as error:
                     raise ParameterError("scratch_hyperparams", str(error)) from None
+
+    def _check_choices(self) -> None:
+        """The actor and the engine are among the known ones."""
+        if self.actor not in ACTORS:
+            raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
+        check_choice("engine", self.engine, ENGINES)
 
     def _check_training_env_kwargs(self) -> None:
         """Each entry names a task and holds kwargs that its env takes without a change of spaces."""
