@@ -11,10 +11,12 @@ from dpr.cli.common import (
     ENV_ID_LIST,
     SWARM_DEFAULTS,
     Command,
+    apply_engine_defaults,
     check_output,
     check_seed,
     default_argument,
     defaults,
+    engine_arguments,
     env_kwarg_argument,
     flag_message,
     json_argument,
@@ -77,7 +79,7 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "row, stats.json against the episodes' own stats, and fps against the decision rate (one frame per "
         "action_repeat physics steps); exit 2 at the first problem, named",
     )
-    workers_argument(parser, "rollout processes")
+    _worker_arguments(parser, workers["batch"])
     env_kwarg_argument(parser, "object_type=box")
     parser.add_argument(
         "--backend",
@@ -90,6 +92,13 @@ def collect_arguments(parser: argparse.ArgumentParser) -> None:
         "--address", help="with --backend ray: the address of a running Ray cluster (default: start a local one)"
     )
     json_argument(parser, "the summary")
+
+
+def _worker_arguments(parser: argparse.ArgumentParser, batch: int) -> None:
+    """--workers, --engine, --device and --batch: what runs the rollouts."""
+    workers_argument(parser, "rollout processes")
+    engine_arguments(parser)
+    default_argument(parser, "--batch", batch, "with --engine batched: episodes stepped together in one vector env")
 
 
 def _check_backend(args, parser) -> None:
@@ -127,6 +136,7 @@ def _collect_spec(args, parser):
             env_kwargs=env_kwargs,
             label_policy=args.label_policy,
             mcap=args.mcap,
+            engine=args.engine,
         )
     except ValueError as error:
         parser.error(flag_message(error))
@@ -164,6 +174,7 @@ def _progress_bar(total: int, description: str):
 def cmd_collect(args, parser) -> int:
     check_output(args.json, parser, "--json")
     check_seed(args, parser)
+    apply_engine_defaults(args)
 
     from dpr.datasets.collect import RolloutWorkers, collect
     from dpr.datasets.collect_summary import format_summary
@@ -175,7 +186,7 @@ def cmd_collect(args, parser) -> int:
     _check_backend(args, parser)
     bar, progress = _progress_bar(args.episodes, f"collect {spec.policy} {spec.env_id}")
     try:
-        workers = RolloutWorkers(args.workers, backend=args.backend, address=args.address)
+        workers = RolloutWorkers(args.workers, args.backend, args.address, batch=args.batch, device=args.device)
         summary = collect(
             out, spec, args.episodes, seed=args.seed, workers=workers, progress=progress, compact=args.compact
         )

@@ -154,7 +154,7 @@ def _training_done(result, args, n_robots: int | None = None) -> int:
 def train_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.policies.hyperparams import BATCHED_PRESET, DEFAULT_PRESET, PAPER_PRESET
     from dpr.policies.sb3 import ALGOS
-    from dpr.rl.train import TrainConfig
+    from dpr.rl.train import LEARNERS, TrainConfig
 
     config = defaults(TrainConfig)
     parser.add_argument("--algo", required=True, choices=ALGOS, help="DQN uses Discrete(2^N) actions")
@@ -182,6 +182,13 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     )
     engine_arguments(parser)
     parser.add_argument(
+        "--learner",
+        choices=LEARNERS,
+        default=config["learner"],
+        help="with --engine batched: torch (PPO with rollouts and updates on the device, dpr.rl.batched_ppo; "
+        "default) or sb3 (stable-baselines3's own learn() through a VecEnv adapter, dpr.rl.sb3_batched: any --algo)",
+    )
+    parser.add_argument(
         "--steps-per-episode",
         type=positive_int,
         help="env steps per episode (default: a whole episode, 2500 physics steps / action_repeat)",
@@ -204,14 +211,15 @@ def _check_resume(args, parser) -> None:
 
 
 def resolve_engine_defaults(args) -> None:
-    """--preset and --n-envs where not given: TrainConfig's on the pymunk engine, the batched entry and
-    :data:`BATCHED_ENVS` envs on the batched one."""
+    """--preset and --n-envs where not given: TrainConfig's on the pymunk engine, the batched entry (for the tensor
+    PPO) and :data:`BATCHED_ENVS` envs on the batched one."""
     from dpr.policies.hyperparams import BATCHED_PRESET
     from dpr.rl.train import TrainConfig
 
     batched = args.engine == "batched"
-    if args.preset is None:
-        args.preset = BATCHED_PRESET if batched else defaults(TrainConfig)["preset"]
+    if args.preset is None:  # (the batched entry is the tensor PPO's: SB3's learner takes the env id's)
+        tensor_ppo = batched and args.learner == defaults(TrainConfig)["learner"]
+        args.preset = BATCHED_PRESET if tensor_ppo else defaults(TrainConfig)["preset"]
     if args.n_envs is None:
         args.n_envs = BATCHED_ENVS if batched else defaults(TrainConfig)["n_envs"]
 
@@ -235,6 +243,7 @@ def cmd_train(args, parser) -> int:
             preset=args.preset,
             engine=args.engine,
             device=args.device,
+            learner=args.learner,
             steps_per_episode=args.steps_per_episode,
             env_kwargs=dict(args.env_kwarg or []),
             training_env_kwargs=dict(args.training_env_kwarg or []),
@@ -244,9 +253,7 @@ def cmd_train(args, parser) -> int:
         if config.engine == "batched":
             from dpr.rl.batched_train import train_batched
 
-            if args.resume:
-                parser.error("--resume: a run on the batched engine does not resume yet; start it again")
-            result = train_batched(config, args.out)
+            result = train_batched(config, args.out, resume=args.resume)
         else:
             result = train(config, args.out, resume=args.resume)
     except (TypeError, ValueError) as error:

@@ -272,6 +272,15 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         "at --address). Either gives the same report (default local)",
     )
     parser.add_argument("--address", help="with --backend ray: host:port of a running Ray cluster to join")
+    parser.add_argument(
+        "--engine",
+        choices=("pymunk", "batched"),
+        default=None,
+        help="pymunk (the reference engine; default) or batched: the disk robot model throughout, its "
+        "demonstrations, evaluations and RL from scratch stepped together on the batched engine (dpr.sim.batched), "
+        "cloning and fine-tuning on pymunk's disk model; part of every such stage's key",
+    )
+    parser.add_argument("--device", default=None, help="with --engine batched: its torch device, cpu or cuda (cpu)")
     workers_argument(
         parser, "stages run at once, each a process on one CPU with one torch thread; never changes a result"
     )

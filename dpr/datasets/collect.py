@@ -34,7 +34,7 @@ import numpy as np
 from dpr.atomic import is_temporary
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
-from dpr.datasets.collect_summary import CollectSummary, folder_bytes, metric_summary
+from dpr.datasets.collect_summary import CollectSummary, EpisodeRecord, folder_bytes, metric_summary
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.datasets.lerobot.format import INFO_PATH, load_info
@@ -47,6 +47,8 @@ from dpr.rollout import roll_out
 from dpr.sim import swarm_class
 
 MCAP_FOLDER = "mcap"
+ENGINES = ("pymunk", "batched")  # the reference engine, one episode per env; the batched disk engine
+BATCHED = ENGINES[1]
 # gym.make kwargs that CollectSpec sets from its own fields
 RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "render_size", "max_episode_steps")
 
@@ -66,9 +68,13 @@ class CollectSpec:
     # DAgger-style data: ``policy`` drives the env and the recorded action is this policy's on each observation
     label_policy: str | None = None
     mcap: bool = False  # also one MCAP log per episode, in the dataset's mcap/ folder
+    engine: str = "pymunk"  # or "batched": the disk model, episodes stepped together (dpr.datasets.collect_batched)
 
     def __post_init__(self):
         check_choice("env_id", self.env_id, TASKS)
+        check_choice("engine", self.engine, ENGINES)
+        if self.engine == BATCHED and self.pixels:
+            raise ParameterError("pixels", "the batched engine does not render: record pixels on the pymunk engine")
         if self.steps is None:
             object.__setattr__(self, "steps", episode_steps(self.env_kwargs))  # (frozen)
         check_policy_name(self.policy)
@@ -101,28 +107,6 @@ class CollectSpec:
         import dpr  # noqa: F401  (registers the ids in worker processes)
 
         return gym.make(self.env_id, **self.make_kwargs())
-
-
-@dataclass
-class EpisodeRecord:
-    """One rolled-out episode as arrays (``T`` frames), with what is needed to replay it."""
-
-    seed: int
-    observations: np.ndarray  # [T, D] float32
-    actions: np.ndarray  # [T, N] float32 or [T, 1] int64
-    rewards: np.ndarray  # [T] float32
-    dones: np.ndarray  # [T] bool
-    successes: np.ndarray  # [T] bool
-    metrics: EpisodeMetrics
-    images: np.ndarray | None = None  # [T, H, W, 3] uint8
-    environment_states: np.ndarray | None = None  # [T, E] float32: the env's environment_state() at each frame
-    physics_error: str | None = None
-    seconds: float = 0.0
-    trajectory: np.ndarray | None = None  # [T + 1, 2] the agent's positions (what the metrics are computed from)
-
-    @property
-    def frames(self) -> int:
-        return len(self.actions)
 
 
 @dataclass(frozen=True)
@@ -318,9 +302,12 @@ class RolloutWorkers:
     count: int = 1
     backend: str = "processes"
     address: str | None = None
+    batch: int = 128  # the batched engine: episodes stepped together in one vector env
+    device: str = "cpu"  # the batched engine's torch device
 
     def __post_init__(self):
         check_choice("backend", self.backend, BACKENDS)
+        check_int("batch", self.batch, 1)
         if self.address is not None and self.backend != "ray":
             raise ParameterError("address", "is for backend='ray' (the Ray cluster to run on)")
 
@@ -365,7 +352,19 @@ def _ray_results(jobs: list, workers: int, address: str | None) -> Iterator[Epis
             ray.shutdown()
 
 
+def _batched_results(jobs: list, workers: RolloutWorkers) -> Iterator[EpisodeRecord]:
+    """The rollouts on the batched engine, ``workers.batch`` seeds at a time, in job order."""
+    from dpr.datasets.collect_batched import rollout_batch
+
+    for start in range(0, len(jobs), workers.batch):
+        specs, seeds, paths = zip(*jobs[start : start + workers.batch], strict=True)
+        yield from rollout_batch(specs[0], list(seeds), workers.device, list(paths))
+
+
 def _results(jobs: list, workers: RolloutWorkers) -> Iterator[EpisodeRecord]:
+    if jobs and jobs[0][0].engine == BATCHED:
+        yield from _batched_results(jobs, workers)
+        return
     if workers.backend == "ray":
         yield from _ray_results(jobs, workers.count, workers.address)
         return
@@ -397,14 +396,15 @@ def collect(
     skipping seeds it already holds, rolled out by ``workers``. ``progress(record, episode_index)`` is called
     after each saved episode. Ctrl-C stops after the episodes already saved (the summary says ``interrupted``).
     ``compact=True`` packs the dataset into LeRobot's ~100 MB files once every episode is recorded (not after
-    Ctrl-C or an error; see :func:`dpr.datasets.lerobot.compact`)."""
+    Ctrl-C or an error; see :func:`dpr.datasets.lerobot.compact`). A spec of the batched engine rolls
+    ``workers.batch`` episodes out at a time on ``workers.device`` in this process
+    (:mod:`dpr.datasets.collect_batched`)."""
     check_int("episodes", episodes, 1)
     check_int("seed", seed, 0)
-    if workers.backend == "ray":
-        _import_ray()
+    _check_workers(spec, workers)
     root = Path(root)
     seeds = range(seed, seed + episodes)
-    features, task = _probe(spec)
+    features, task = _probe(spec, workers.device)
     info_extra = _info_extra(spec)
     if (root / INFO_PATH).is_file():  # a dataset of the wrong fps is named, not resumed with the right one
         info = load_info(root)
@@ -445,9 +445,21 @@ def collect(
     )
 
 
-def _probe(spec: CollectSpec) -> tuple[dict, str]:
+def _check_workers(spec: CollectSpec, workers: RolloutWorkers) -> None:
+    if spec.engine == BATCHED and workers.backend == "ray":
+        raise ParameterError("backend", "the batched engine steps its episodes together in this process, not on Ray")
+    if workers.backend == "ray":
+        _import_ray()
+
+
+def _probe(spec: CollectSpec, device: str = "cpu") -> tuple[dict, str]:
     """The dataset's features and the task's description, from an env of ``spec``; a policy that cannot run on
-    it fails here, before anything is written."""
+    it (or, on the batched engine, a robot model, device or policy it has not) fails here, before anything is
+    written."""
+    if spec.engine == BATCHED:
+        from dpr.datasets.collect_batched import check_batched_spec
+
+        check_batched_spec(spec, device)
     probe = spec.make_env()
     try:
         for name in (spec.policy, spec.label_policy):
@@ -464,6 +476,8 @@ def _info_extra(spec: CollectSpec) -> dict:
     recorded = {F.ENV_ID: spec.env_id, F.POLICY: spec.policy, F.ENV_KWARGS: spec.make_kwargs(), "mcap": spec.mcap}
     if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
         recorded[F.LABEL_POLICY] = spec.label_policy
+    if spec.engine != ENGINES[0]:  # (likewise: a pymunk dataset and a batched one never resume each other)
+        recorded["engine"] = spec.engine
     revision = swarm_class(spec.robot_model).revision
     if revision > 1:  # a dataset of earlier physics is not resumed with these (first revisions record none)
         recorded[F.ROBOT_MODEL_REVISION] = revision

@@ -1,4 +1,5 @@
-"""What a `dpr collect` run did: :class:`CollectSummary` and the text the command prints of it."""
+"""What a `dpr collect` run records and did: :class:`EpisodeRecord` (one rolled-out episode, on either engine),
+:class:`CollectSummary` and the text the command prints of it."""
 
 from __future__ import annotations
 
@@ -9,6 +10,29 @@ from pathlib import Path
 import numpy as np
 
 from dpr.datasets import features as F
+from dpr.metrics import EpisodeMetrics
+
+
+@dataclass
+class EpisodeRecord:
+    """One rolled-out episode as arrays (``T`` frames), with what is needed to replay it."""
+
+    seed: int
+    observations: np.ndarray  # [T, D] float32
+    actions: np.ndarray  # [T, N] float32 or [T, 1] int64
+    rewards: np.ndarray  # [T] float32
+    dones: np.ndarray  # [T] bool
+    successes: np.ndarray  # [T] bool
+    metrics: EpisodeMetrics
+    images: np.ndarray | None = None  # [T, H, W, 3] uint8
+    environment_states: np.ndarray | None = None  # [T, E] float32: the env's environment_state() at each frame
+    physics_error: str | None = None
+    seconds: float = 0.0
+    trajectory: np.ndarray | None = None  # [T + 1, 2] the agent's positions (what the metrics are computed from)
+
+    @property
+    def frames(self) -> int:
+        return len(self.actions)
 
 
 @dataclass

@@ -58,9 +58,37 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
     kwargs = dict(meta[F.ENV_KWARGS])
     kwargs.pop("render_mode", None)  # frames are not compared; skip rendering
     kwargs.pop("render_size", None)
+    frames = len(recorded[F.ACTION])
+    recorded_by = reader.info.get("dpr")
+    if isinstance(recorded_by, dict) and recorded_by.get("engine") == "batched":  # replayed on the engine it ran on
+        from dpr.datasets.collect_batched import replay_batched
+
+        replayed = replay_batched(meta[F.ENV_ID], kwargs, int(meta[F.SEED]), recorded[F.ACTION])
+        if F.ENVIRONMENT_STATE not in compared:
+            del replayed[F.ENVIRONMENT_STATE]
+    else:
+        replayed = _replay_pymunk(reader, meta, kwargs, recorded[F.ACTION], compared)
+    differences, first = {}, None
+    for key in compared:
+        width = int(np.prod(recorded[key].shape[1:], dtype=int))
+        a = recorded[key].reshape(frames, width)
+        b = np.array(replayed[key], dtype=recorded[key].dtype).reshape(-1, width)
+        both = min(len(a), len(b))
+        a_common, b_common = a[:both], b[:both]
+        unequal = np.flatnonzero(~(a_common == b_common).all(axis=1))
+        differences[key] = float(np.abs(a_common.astype(float) - b_common.astype(float)).max()) if len(unequal) else 0.0
+        if len(b) != len(a):  # the replay ended before the recording did (or the recording holds no frame for it)
+            unequal = np.append(unequal, both)
+        if len(unequal):
+            first = int(unequal[0]) if first is None else min(first, int(unequal[0]))
+    return ReplayCheck(index, int(meta[F.SEED]), frames, first is None, differences, first)
+
+
+def _replay_pymunk(reader: LeRobotReader, meta: dict, kwargs: dict, actions: np.ndarray, compared) -> dict[str, list]:
+    """The episode re-run on the pymunk engine from its seed and ``actions``: each compared feature, frame by frame."""
     env = gym.make(meta[F.ENV_ID], **kwargs)
     action_type = env.unwrapped.action_type
-    frames = len(recorded[F.ACTION])
+    frames = len(actions)
     replayed = {key: [] for key in compared}
     environment_states = []  # at the reset and after every step: frame t's is the t-th
     columns = _recorded_columns(reader.features.get(F.ENVIRONMENT_STATE), env.unwrapped.environment_state_names)
@@ -76,27 +104,14 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
         replayed[F.DONE].append(step.done)
         replayed[F.SUCCESS].append(step.info["is_success"])
 
-    policy = ReplayPolicy([_env_action(action, action_type) for action in recorded[F.ACTION]])
+    policy = ReplayPolicy([_env_action(action, action_type) for action in actions])
     try:
         roll_out(env, policy, int(meta[F.SEED]), frames, on_reset=note_environment_state, on_step=on_step)
     finally:
         env.close()
     if F.ENVIRONMENT_STATE in compared:
         replayed[F.ENVIRONMENT_STATE] = environment_states[: len(replayed[F.OBSERVATION])]
-    differences, first = {}, None
-    for key in compared:
-        width = int(np.prod(recorded[key].shape[1:], dtype=int))
-        a = recorded[key].reshape(frames, width)
-        b = np.array(replayed[key], dtype=recorded[key].dtype).reshape(-1, width)
-        both = min(len(a), len(b))
-        a_common, b_common = a[:both], b[:both]
-        unequal = np.flatnonzero(~(a_common == b_common).all(axis=1))
-        differences[key] = float(np.abs(a_common.astype(float) - b_common.astype(float)).max()) if len(unequal) else 0.0
-        if len(b) != len(a):  # the replay ended before the recording did (or the recording holds no frame for it)
-            unequal = np.append(unequal, both)
-        if len(unequal):
-            first = int(unequal[0]) if first is None else min(first, int(unequal[0]))
-    return ReplayCheck(index, int(meta[F.SEED]), frames, first is None, differences, first)
+    return replayed
 
 
 def _recorded_columns(feature: dict | None, names: list[str]) -> list[int] | slice:

@@ -147,6 +147,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
         self.physics_steps = torch.zeros(k, dtype=torch.int64, device=device)
         self.landmarks = zeros(k, len(self.template.landmark_names), 2)
         self.gate_near = zeros(k)  # Gate: the walls' near face, in units from the start along toward_goal
+        self.gate_centre = zeros(k, 2)  # Gate: the opening's centre
         self.contact_step = torch.full((k,), -1, dtype=torch.int64, device=device)
         self.last_targets = zeros(k, self.n_robots)
         self.held_steps = torch.zeros(k, dtype=torch.int64, device=device)
@@ -202,6 +203,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
             centre = (walls[:, 0, 0] + walls[:, 0, 3] + walls[:, 1, 0] + walls[:, 1, 3]) / 4
             near = ((walls[:, 0, 0] + walls[:, 0, 1]) / 2 - self.start) * self.toward_goal
             self.gate_near = torch.where(mask, near.sum(dim=1), self.gate_near)
+            self.gate_centre = torch.where(where, centre, self.gate_centre)
             if self.landmarks.shape[1]:
                 self.landmarks = torch.where(mask[:, None, None], centre[:, None, :], self.landmarks)
 
@@ -232,6 +234,27 @@ class BatchedSwarmVectorEnv(VectorEnv):
         if self.template.obs_last_action:
             held = self.held_steps.clamp(max=HELD_STEPS_CAP).float() / HELD_STEPS_CAP
             parts += [self.last_targets, held[:, None]]
+        return torch.cat(parts, dim=1)
+
+    def environment_state(self) -> torch.Tensor:
+        """The single env's :meth:`~dpr.envs.particle_env.ParticleSwarmEnv.environment_state` of every env, [K, E]
+        float32 (named by ``template.environment_state_names``): the swarm's centre, mean velocity and distance to
+        the goal, the object's, then the task's own values (Gate's opening relative to the swarm's centre,
+        Unresponsive's dead flags)."""
+        world = self.world
+
+        def part(position: torch.Tensor, velocity: torch.Tensor) -> list[torch.Tensor]:
+            offset = position - self.goal
+            return [offset * LENGTH_SCALE, velocity * LENGTH_SCALE, offset.norm(dim=1, keepdim=True) * LENGTH_SCALE]
+
+        centre = world.position.mean(dim=1)
+        parts = part(centre, world.velocity.mean(dim=1))
+        if self.template.has_object:
+            parts += part(world.object_position, world.object_velocity)
+        if self.template.environment_extra_names:
+            parts.append((self.gate_centre - centre) * LENGTH_SCALE)
+        if self.template.has_dead_robots:  # Unresponsive: each robot's dead flag, not scaled
+            parts.append((~world.alive).float())
         return torch.cat(parts, dim=1)
 
     # -- stepping -------------------------------------------------------------------------------------------

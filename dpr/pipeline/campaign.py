@@ -84,6 +84,7 @@ def task_stages(config: PipelineConfig, task: str) -> TaskStages:
         "n_robots": config.n_robots,
         "steps": config.steps,
         "action_repeat": config.action_repeat,
+        **config.engine_settings(),
     }
     stages = _teacher_stages(config, task, env)
     _learner_stages(config, task, env, stages)
@@ -152,7 +153,7 @@ def _learner_stages(config: PipelineConfig, task: str, env: dict[str, Any], stag
 def _evaluation_stages(config: PipelineConfig, task: str, env: dict[str, Any], stages: TaskStages) -> None:
     """Every training run on the validation seeds (when there is a choice) and the test seeds; the wave and the
     teacher on the test seeds."""
-    scoring = {"env_id": env["env_id"], "steps": config.steps}
+    scoring = {"env_id": env["env_id"], "steps": config.steps, **config.engine_settings()}
     for (method, seed), model in stages.models.items():
         for split in evaluation_splits(config):
             seeds = config.test_seeds if split == "test" else config.validation_seeds
@@ -163,6 +164,8 @@ def _evaluation_stages(config: PipelineConfig, task: str, env: dict[str, Any], s
             )
     wave = {**scoring, "seeds": config.test_seeds, "policy": BASELINE, "label": BASELINE}
     wave["env_kwargs"] = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS}
+    if "robot_model" in scoring:
+        wave["env_kwargs"]["robot_model"] = scoring["robot_model"]
     stages.evaluations[BASELINE, None, "test"] = Stage(
         "evaluate", f"{task}: evaluate the wave", wave, build.evaluate_policy
     )

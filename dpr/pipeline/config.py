@@ -48,6 +48,8 @@ COUNT_BOUNDS = {
     "demo_seed": (0, MAX_EPISODE_SEED - MAX_EPISODES),
 }
 MAX_TEACHER_CHOICES = 1_000  # teacher holds, and teacher bin widths, to choose among
+ENGINES = ("pymunk", "batched")
+BATCHED_ROBOT_MODEL = "disk"  # the batched engine's only robot model
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}  # the Markov wave needs it; every learner gets it too
 EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
 BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
@@ -125,9 +127,14 @@ class PipelineConfig:
     # tasks whose fine-tuned models are the mean of the policy's weights a quarter, half and three quarters of the way
     # and at the end of fine-tuning, rather than the last weights; a task this run does not run is passed over
     average_checkpoints: list[str] = field(default_factory=list)
+    # "batched": the disk robot model throughout, its demonstrations, evaluations and RL from scratch on the batched
+    # engine (dpr.sim.batched) on ``device``; cloning and fine-tuning run on pymunk's disk model
+    engine: str = "pymunk"
+    device: str = "cpu"
 
     def __post_init__(self):
         check_types(self)
+        self._check_choices()
         unknown = [task for task in self.tasks if task not in ENV_IDS]
         if not self.tasks or unknown:
             raise ParameterError(
@@ -146,8 +153,6 @@ class PipelineConfig:
             raise ParameterError(
                 "average_checkpoints", f"expected some of {list(ENV_IDS)}, got {self.average_checkpoints!r}"
             )
-        if self.actor not in ACTORS:
-            raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
         if self.actor != "mlp" and DQN in self.scratch_algos:
             raise ParameterError("actor", f"{self.actor!r} is an actor-critic's actor; DQN from scratch has none")
         for name, allowed in (("finetune_algos", FINETUNE_ALGOS), ("scratch_algos", SCRATCH_ALGOS)):
@@ -198,6 +203,12 @@ class PipelineConfig:
                     load_hyperparams(algo, self.env_id(task), DEFAULT_ENTRY, self.scratch_hyperparams_at(WAVE_HOLD))
                 except ValueError as error:
                     raise ParameterError("scratch_hyperparams", str(error)) from None
+
+    def _check_choices(self) -> None:
+        """The actor and the engine are among the known ones."""
+        if self.actor not in ACTORS:
+            raise ParameterError("actor", f"expected one of {list(ACTORS)}, got {self.actor!r}")
+        check_choice("engine", self.engine, ENGINES)
 
     def _check_training_env_kwargs(self) -> None:
         """Each entry names a task and holds kwargs that its env takes without a change of spaces."""
@@ -254,6 +265,13 @@ class PipelineConfig:
                 raise ParameterError(
                     "train_seeds", f"{seen} are {name.replace('_', ' ')} too; training must not start from them"
                 )
+
+    def engine_settings(self) -> dict[str, Any]:
+        """What every stage that runs the batched engine adds to its settings (and so to its key); nothing on
+        pymunk, so that the stages of a pymunk run keep their keys."""
+        if self.engine == ENGINES[0]:
+            return {}
+        return {"engine": self.engine, "device": self.device, "robot_model": BATCHED_ROBOT_MODEL}
 
     def env_id(self, task: str) -> str:
         """The registered id ``task`` runs on: its current one, unless ``env_ids`` names another."""

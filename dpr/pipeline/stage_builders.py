@@ -74,7 +74,7 @@ def record_demonstrations(
     are recorded in the work folder, so that a stopped collection goes on from its saved episodes."""
     from tqdm import tqdm
 
-    from dpr.datasets.collect import CollectSpec, collect
+    from dpr.datasets.collect import CollectSpec, RolloutWorkers, collect
 
     teacher = read_teacher(inputs[TEACHER])
     kwargs = learner_kwargs(settings, teacher)
@@ -82,8 +82,10 @@ def record_demonstrations(
         settings["env_id"],
         policy=teacher.policy,
         n_robots=settings["n_robots"],
+        robot_model=settings.get("robot_model", "paddle"),
         steps=episode_steps(kwargs, settings["steps"]),
         env_kwargs=kwargs,
+        engine=settings.get("engine", "pymunk"),
     )
     partial = work / DATASET
     with tqdm(total=settings["episodes"], desc="collect", unit="episode", disable=not show_progress) as bar:
@@ -92,6 +94,7 @@ def record_demonstrations(
             spec,
             settings["episodes"],
             seed=settings["demo_seed"],
+            workers=RolloutWorkers(device=settings.get("device", "cpu")),
             progress=lambda record, index: bar.update(1),
         )
     if summary.interrupted:
@@ -125,7 +128,7 @@ def train_rl(
     warm-up. Budgets are physics steps, turned into decisions here. A run stopped part-way goes on from its last
     snapshot in the work folder (:mod:`dpr.rl.resume`) to the model it would have made without the stop."""
     from dpr.policies.hyperparams import DEFAULT_PRESET, FINETUNE_PRESET
-    from dpr.rl.train import TrainConfig, averaged_checkpoints, resumable, train
+    from dpr.rl.train import TrainConfig, averaged_checkpoints
 
     teacher = read_teacher(inputs[TEACHER])
     kwargs = learner_kwargs(settings, teacher)
@@ -140,6 +143,7 @@ def train_rl(
         algo=settings["algo"],
         env_id=settings["env_id"],
         n_robots=settings["n_robots"],
+        robot_model=settings.get("robot_model", "paddle"),
         seed=settings["seed"],
         n_envs=settings["n_envs"],
         env_processes=False,  # one CPU per stage
@@ -152,15 +156,39 @@ def train_rl(
         preset=FINETUNE_PRESET if fine_tuning else DEFAULT_PRESET,
         init_from=str(inputs["clone"] / MODEL) if fine_tuning else None,
         critic_warmup=settings["critic_warmup"] // repeat if fine_tuning else 0,
+        **_batched_training(settings, fine_tuning),
     )
-    run = work / "run"
+    result = _train_resuming(config, work / "run", show_progress)
+    if result.interrupted:
+        raise KeyboardInterrupt
+    averaged = averaged_checkpoints(result.run_dir) if settings.get("average_checkpoints") else ()
+    _keep_model(result.model_path, out, averaged)
+
+
+def _batched_training(settings: Mapping[str, Any], fine_tuning: bool) -> dict[str, Any]:
+    """The TrainConfig fields of an RL run from scratch on the batched engine: the tensor PPO for PPO, SB3's own
+    learner for the others. Fine-tuning runs on pymunk (the batched engine trains from scratch)."""
+    if settings.get("engine") != "batched" or fine_tuning:
+        return {}
+    learner = "torch" if settings["algo"] == "ppo" else "sb3"
+    return {"engine": "batched", "device": settings["device"], "learner": learner}
+
+
+def _train_resuming(config, run: Path, show_progress: bool):
+    """Train ``config`` into ``run``, going on from its snapshot when a stopped run of it left one there."""
+    from dpr.rl.train import resumable, train
+
+    if config.engine == "batched":
+        from dpr.rl.batched_train import batched_resumable, train_batched
+
+        resume = run.is_dir() and batched_resumable(run, config)
+        if not resume:
+            _fresh(run)
+        return train_batched(config, run, show_progress=show_progress, resume=resume, log=_quiet)
     resume = run.is_dir() and resumable(run, config)
     if not resume:
         _fresh(run)  # stopped before its first snapshot: nothing to go on from
-    result = train(config, run, show_progress=show_progress, resume=resume, log=_quiet)
-    if result.interrupted:
-        raise KeyboardInterrupt
-    _keep_model(result.model_path, out, averaged_checkpoints(run) if settings.get("average_checkpoints") else ())
+    return train(config, run, show_progress=show_progress, resume=resume, log=_quiet)
 
 
 def evaluate_policy(
@@ -179,19 +207,26 @@ def evaluate_policy(
     elif TEACHER in inputs or "candidate" in settings:  # the chosen teacher, or a candidate: as its learners run
         teacher = read_teacher(inputs[TEACHER]) if TEACHER in inputs else Teacher(*settings["candidate"])
         policy, env_kwargs = teacher.policy, {"n_robots": settings["n_robots"], **learner_kwargs(settings, teacher)}
+        if "robot_model" in settings:
+            env_kwargs["robot_model"] = settings["robot_model"]
     else:
         policy = settings["path"] if "path" in settings else settings["policy"]  # a shipped model file, or by name
     env_id = settings["env_id"]
     kwargs = policy_env_kwargs(policy, env_id, env_kwargs)
-    with tqdm(total=len(settings["seeds"]), desc="evaluate", unit="episode", disable=not show_progress) as bar:
-        results = evaluate(
-            [env_id],
-            policy,
-            settings["seeds"],
-            steps=settings["steps"],
-            env_kwargs=kwargs,
-            progress=lambda r: bar.update(1),
-        )
+    if settings.get("engine") == "batched":
+        from dpr.evaluation.batched import evaluate_batched
+
+        results = evaluate_batched([env_id], policy, settings["seeds"], settings["steps"], kwargs, settings["device"])
+    else:
+        with tqdm(total=len(settings["seeds"]), desc="evaluate", unit="episode", disable=not show_progress) as bar:
+            results = evaluate(
+                [env_id],
+                policy,
+                settings["seeds"],
+                steps=settings["steps"],
+                env_kwargs=kwargs,
+                progress=lambda r: bar.update(1),
+            )
     for result in results:
         result.policy = settings["label"]
     save_evaluation(

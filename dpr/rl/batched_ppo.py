@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -196,30 +196,43 @@ def _means(stats: dict[str, float], batches: int) -> dict[str, float]:
     return {name: total / max(batches, 1) for name, total in stats.items()}
 
 
-def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None) -> list[dict[str, Any]]:
+def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start=None, on_update=None):
     """Train ``model`` (an SB3 PPO model; its policy moves to ``env.device`` for the run and back to the CPU) for at
     least ``timesteps`` env steps of all envs together, in whole rollouts of ``n_steps`` x ``num_envs``; the
-    statistics of each update. ``model.num_timesteps`` counts the steps made."""
+    statistics of each update. ``model.num_timesteps`` counts the steps made.
+
+    ``start`` (a :class:`dpr.rl.batched_resume.LoopState`) goes on from a stopped run's updates, observation and
+    statistics instead of resetting the envs; ``on_update(state)`` is called with the loop's state after each
+    update (where a run keeps its snapshots)."""
+    from dpr.rl.batched_resume import LoopState
+
     check_int("timesteps", timesteps, 1)
     settings = RolloutSettings.of(model)
     policy = model.policy.to(env.device)
     policy.set_training_mode(True)
-    observation = env.reset_tensors(seed)
     per_update = settings.n_steps * env.num_envs
     updates = -(-timesteps // per_update)
+    if start is None:
+        start = LoopState(0, env.reset_tensors(seed), [])
+    observation, history = start.observation, list(start.history)
     action_size = int(np.prod(model.action_space.shape)) if model.action_space.shape else 1
     rollout = Rollout.empty(settings.n_steps, env.num_envs, observation.shape[1], action_size, env.device)
-    history = []
-    for number in range(updates):
-        remaining = 1.0 - number / updates  # SB3's progress_remaining: the schedules' clock
-        for group in policy.optimizer.param_groups:
-            group["lr"] = model.lr_schedule(remaining)
-        observation = collect_rollout(policy, env, observation, settings, rollout)
-        estimate_advantages(policy, rollout, observation, settings)
-        stats = update(model, rollout, settings, model.clip_range(remaining))
-        history.append({"steps": (number + 1) * per_update, "mean_reward": float(rollout.rewards.mean()), **stats})
-        model.num_timesteps = (number + 1) * per_update
-        if progress is not None:
-            progress.update(per_update)
-    policy.to("cpu")
+    if progress is not None and start.updates:
+        progress.update(start.updates * per_update)
+    try:
+        for number in range(start.updates, updates):
+            remaining = 1.0 - number / updates  # SB3's progress_remaining: the schedules' clock
+            for group in policy.optimizer.param_groups:
+                group["lr"] = model.lr_schedule(remaining)
+            observation = collect_rollout(policy, env, observation, settings, rollout)
+            estimate_advantages(policy, rollout, observation, settings)
+            stats = update(model, rollout, settings, model.clip_range(remaining))
+            history.append({"steps": (number + 1) * per_update, "mean_reward": float(rollout.rewards.mean()), **stats})
+            model.num_timesteps = (number + 1) * per_update
+            if progress is not None:
+                progress.update(per_update)
+            if on_update is not None:
+                on_update(LoopState(number + 1, observation, history))
+    finally:  # (a Ctrl-C too: the model is saved as it is)
+        policy.to("cpu")
     return history

@@ -1,7 +1,14 @@
-"""``dpr train --engine batched``: a PPO run on the batched disk engine, written as ``dpr train`` writes one.
+"""``dpr train --engine batched``: a run on the batched disk engine, written as ``dpr train`` writes one.
 
-The run folder holds ``config.yaml`` (what the run was asked and what it made, the engine and device among it),
-``model.zip`` (an ordinary PPO model file, runnable on either engine) and ``progress.yaml`` (per-update statistics).
+The run folder holds ``config.yaml`` (what the run was asked and what it made, the engine, device and learner among
+it), ``model.zip`` (an ordinary SB3 model file, runnable on either engine) and ``progress.yaml`` (per-update
+statistics). The learner is the tensor PPO of :mod:`dpr.rl.batched_ppo` (``learner="torch"``), or SB3's own
+``learn()`` through the ``VecEnv`` adapter of :mod:`dpr.rl.sb3_batched` (``learner="sb3"``: any SB3 algorithm).
+
+A tensor-PPO run keeps a snapshot of its training state in ``resume/`` (:mod:`dpr.rl.batched_resume`), written after
+an update once every :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; ``resume=True`` goes on from it to the model the run
+would have made without the stop. Ctrl-C saves the model as it is, keeps the snapshot and returns
+``interrupted=True``.
 """
 
 from __future__ import annotations
@@ -18,37 +25,43 @@ import yaml
 from tqdm import tqdm
 
 from dpr import runs
-from dpr.policies.sb3 import ModelInfo, model_architecture, save_model
+from dpr.checks import ParameterError
+from dpr.policies.sb3 import ModelInfo, build_model, model_architecture, save_model
+from dpr.rl import resume as resume_state
 from dpr.rl.batched_ppo import build_learner, learn
+from dpr.rl.batched_resume import resume_batched, save_batched_snapshot, snapshot_file
+
+SB3_LEARNER = "sb3"
 
 
-def train_batched(
-    config,
-    out: str | Path | None = None,
-    *,
-    show_progress: bool = True,
-    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
-):
-    """Train ``config`` (a :class:`dpr.rl.train.TrainConfig` with ``engine="batched"``) with the tensor PPO of
-    :mod:`dpr.rl.batched_ppo` on ``config.n_envs`` envs of the batched engine; a :class:`TrainResult`."""
-    from dpr.rl.train import TrainResult, prepare_run_dir
+def _check_resume(config, out) -> None:
+    """A ParameterError about ``out`` unless it holds a stopped tensor-PPO run of ``config`` with a snapshot."""
+    if config.learner == SB3_LEARNER:
+        raise ParameterError("resume", "a run of SB3's learner on the batched engine does not resume; start it again")
+    if out is None or not snapshot_file(out).is_file():
+        raise ParameterError("out", f"{out} holds no snapshot of a stopped batched run to resume from")
+    recorded = yaml.safe_load((Path(out) / "config.yaml").read_text()).get("config")
+    wanted = yaml.safe_load(yaml.safe_dump(asdict(config)))
+    if recorded != wanted:
+        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k])
+        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
 
-    hyper, env_kwargs, timesteps = config.resolve()
-    venv = gym.make_vec(
-        config.env_id,
-        num_envs=config.n_envs,
-        vectorization_mode="vector_entry_point",
-        max_episode_steps=config.steps_per_episode,
-        device=config.device,
-        **config.training_kwargs(env_kwargs),
-    )  # bad kwargs, a device without CUDA or a swarm too large for memory fail here, before the run folder exists
-    torch.manual_seed(config.seed)
-    model = build_learner(hyper, venv.unwrapped.template, config.seed)
-    run_dir = prepare_run_dir(out, config)
-    record = {
+
+def batched_resumable(out, config) -> bool:
+    """Whether ``out`` holds a stopped tensor-PPO run of ``config`` to resume (changes nothing)."""
+    try:
+        _check_resume(config, out)
+    except (ParameterError, OSError, AttributeError):
+        return False
+    return True
+
+
+def _run_record(config, hyper, env_kwargs: dict, timesteps: int) -> dict:
+    return {
         "algo": config.algo,
         "engine": config.engine,
         "device": config.device,
+        "learner": config.learner,
         "env_id": config.env_id,
         "env_kwargs": env_kwargs,
         "steps_per_episode": config.steps_per_episode,
@@ -60,12 +73,59 @@ def train_batched(
         "config": asdict(config),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
+
+
+def _build(config, hyper, venv):
+    """The run's model, seeded as every run of ``config`` seeds it: the tensor PPO's learner, or SB3's model on the
+    adapter."""
+    torch.manual_seed(config.seed)
+    if config.learner == SB3_LEARNER:
+        from dpr.rl.sb3_batched import BatchedSB3VecEnv
+
+        adapter = BatchedSB3VecEnv(venv)
+        adapter.seed(config.seed)
+        return build_model(hyper, adapter, config.seed, None)
+    return build_learner(hyper, venv.unwrapped.template, config.seed)
+
+
+def train_batched(
+    config,
+    out: str | Path | None = None,
+    *,
+    show_progress: bool = True,
+    resume: bool = False,
+    snapshot_seconds: float | None = None,
+    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+):
+    """Train ``config`` (a :class:`dpr.rl.train.TrainConfig` with ``engine="batched"``) on ``config.n_envs`` envs
+    of the batched engine (module docstring); a :class:`TrainResult`. ``snapshot_seconds``: between snapshots
+    (default :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; 0: after every update)."""
+    from dpr.rl.train import TrainResult, prepare_run_dir
+
+    hyper, env_kwargs, timesteps = config.resolve()
+    if resume:
+        _check_resume(config, out)
+    venv = gym.make_vec(
+        config.env_id,
+        num_envs=config.n_envs,
+        vectorization_mode="vector_entry_point",
+        max_episode_steps=config.steps_per_episode,
+        device=config.device,
+        **config.training_kwargs(env_kwargs),
+    )  # bad kwargs, a device without CUDA or a swarm too large for memory fail here, before the run folder exists
+    model = _build(config, hyper, venv)
+    run_dir = Path(out) if resume else prepare_run_dir(out, config)
     config_path = run_dir / "config.yaml"
+    record = yaml.safe_load(config_path.read_text()) if resume else _run_record(config, hyper, env_kwargs, timesteps)
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
-    log(f"dpr train: ppo on the batched engine ({config.device}, {config.n_envs} envs), {config.env_id} {env_kwargs}")
+    again = " (resumed)" if resume else ""
+    log(
+        f"dpr train: {config.algo} on the batched engine ({config.device}, {config.n_envs} envs, {config.learner} "
+        f"learner), {config.env_id} {env_kwargs}{again}"
+    )
     started = time.perf_counter()
     with tqdm(total=timesteps, desc=f"train ppo {config.env_id}", unit="step", disable=not show_progress) as bar:
-        history = learn(model, venv.unwrapped, timesteps, config.seed, progress=bar)
+        history, interrupted = _learn(config, model, venv, timesteps, bar, (run_dir, resume, snapshot_seconds))
     seconds = time.perf_counter() - started
     venv.close()
     info = ModelInfo(
@@ -75,7 +135,48 @@ def train_batched(
     (run_dir / "progress.yaml").write_text(yaml.safe_dump(history, sort_keys=False))
     made = int(model.num_timesteps)
     record.update(seconds=round(seconds, 1), timesteps_done=made, env_steps_per_second=round(made / seconds, 1))
-    record["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    record["finished" if not interrupted else "interrupted"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
+    if not interrupted:
+        resume_state.drop_snapshot(run_dir)
     log(f"dpr train: wrote {model_path} ({made} steps in {seconds:.0f} s, {made / seconds:,.0f} env steps/s)")
-    return TrainResult(run_dir, model_path, config_path, None, timesteps, seconds)
+    return TrainResult(run_dir, model_path, config_path, None, timesteps, seconds, interrupted)
+
+
+def _learn(config, model, venv, timesteps: int, bar, snapshots: tuple) -> tuple[list, bool]:
+    """Run the learner; its statistics, and whether Ctrl-C stopped it. ``snapshots``: (run folder, whether to resume
+    from its snapshot, seconds between snapshots)."""
+    if config.learner == SB3_LEARNER:
+        try:
+            model.learn(total_timesteps=timesteps, callback=_sb3_progress(bar))
+        except KeyboardInterrupt:
+            return [], True
+        return [], False
+    run_dir, resume, every = snapshots
+    every = resume_state.SNAPSHOT_SECONDS if every is None else every
+    env = venv.unwrapped
+    start = resume_batched(run_dir, model, env) if resume else None
+    kept = {"history": [] if start is None else start.history, "at": time.monotonic()}
+
+    def on_update(loop) -> None:
+        kept["history"] = loop.history
+        if time.monotonic() - kept["at"] >= every:
+            save_batched_snapshot(run_dir, model, env, loop)
+            kept["at"] = time.monotonic()
+
+    try:
+        return learn(model, env, timesteps, config.seed, progress=bar, start=start, on_update=on_update), False
+    except KeyboardInterrupt:
+        return list(kept["history"]), True
+
+
+def _sb3_progress(bar):
+    """An SB3 callback moving ``bar`` by the steps of all envs."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Progress(BaseCallback):
+        def _on_step(self) -> bool:
+            bar.update(self.training_env.num_envs)
+            return True
+
+    return Progress()

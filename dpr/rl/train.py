@@ -61,6 +61,7 @@ EVALUATIONS = 5  # EvalCallback runs about this many times over a run
 CHECKPOINTS = 4  # evenly spaced: a quarter, half and three quarters of the way, and the end
 AVERAGED_MODEL = "averaged_model.zip"  # `dpr finetune --average-checkpoints`
 ENGINES = ("pymunk", "batched")  # the reference engine, and the disk model for many envs at once in torch
+LEARNERS = ("torch", "sb3")  # the batched engine's: dpr.rl.batched_ppo, or SB3's learn() on dpr.rl.sb3_batched
 EVAL_SEED_OFFSET = 10_000  # EvalCallback's env is seeded with seed + this: its starts differ from training's
 # Kwargs the trainer owns: they come from TrainConfig fields, not from env_kwargs.
 RESERVED_ENV_KWARGS = ("n_robots", "robot_model", "render_mode", "max_episode_steps")
@@ -93,6 +94,7 @@ class TrainConfig:
     anchor_decay: float = 0.99  # ... times this per update
     engine: str = "pymunk"  # or "batched": PPO on n_envs envs of the batched disk engine (dpr.rl.batched_train)
     device: str = "cpu"  # the batched engine's torch device
+    learner: str = "torch"  # the batched engine's: PPO on the device (dpr.rl.batched_ppo), or "sb3" (SB3's learn())
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -129,10 +131,13 @@ class TrainConfig:
 
     def _check_engine(self) -> None:
         check_choice("engine", self.engine, ENGINES)
+        check_choice("learner", self.learner, LEARNERS)
+        if self.engine == ENGINES[0] and self.learner != LEARNERS[0]:
+            raise ParameterError("learner", "chooses the batched engine's learner: it needs engine='batched'")
         if self.engine == ENGINES[0]:
             return
-        if self.algo != PPO:
-            raise ParameterError("algo", f"the batched engine trains {PPO} only, got {self.algo!r}")
+        if self.algo != PPO and self.learner != "sb3":
+            raise ParameterError("algo", f"the batched engine's torch learner trains {PPO} only (sb3: any)")
         if self.robot_model != "disk":
             raise ParameterError(
                 "robot_model", f"the batched engine simulates the disk model only, got {self.robot_model!r}"

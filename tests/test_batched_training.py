@@ -1,0 +1,146 @@
+"""Training on the batched engine beyond the tensor PPO's first run: SB3 through the VecEnv adapter (its autoreset and
+info conventions), a stopped run resumed to the model an uninterrupted run makes, and models moving between engines
+through the commands."""
+
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from helpers import assert_same_policy
+
+import dpr  # noqa: F401
+import dpr.rl.batched_ppo as batched_ppo
+from dpr.checks import ParameterError
+from dpr.cli import main
+from dpr.rl.batched_resume import snapshot_file
+from dpr.rl.batched_train import train_batched
+from dpr.rl.sb3_batched import BatchedSB3VecEnv
+from dpr.rl.train import TrainConfig
+
+REPO = Path(__file__).resolve().parents[1]
+NAV = "dpr/Navigation-v0"
+QUIET = {"show_progress": False, "log": lambda line: None}
+
+
+def make_vec(num_envs=3, steps=4, **kwargs):
+    kwargs = {"robot_model": "disk", "n_robots": 4, **kwargs}
+    return gym.make_vec(
+        NAV, num_envs=num_envs, vectorization_mode="vector_entry_point", max_episode_steps=steps, **kwargs
+    )
+
+
+def test_the_adapter_resets_an_ended_env_in_the_same_step_as_sb3_does():
+    adapter = BatchedSB3VecEnv(make_vec())
+    adapter.seed(5)
+    first = adapter.reset()
+    reference = make_vec()  # the vector env itself, NEXT_STEP: its step after the end is the reset
+    expected_first, _ = reference.reset(seed=5)
+    np.testing.assert_array_equal(first, expected_first)
+    actions = np.ones((3, 4), dtype=np.int8)
+    returns = np.zeros(3)
+    for step in range(4):
+        observation, rewards, dones, infos = adapter.step(actions)
+        final, reward, terminated, truncated, _ = reference.step(actions)
+        np.testing.assert_array_equal(rewards, reward)
+        returns += reward
+        if step < 3:
+            assert not dones.any() and infos == [{}, {}, {}]
+            np.testing.assert_array_equal(observation, final)
+    assert dones.all() and (truncated | terminated).all()
+    reset, _, _, _, _ = reference.step(actions)  # NEXT_STEP: the envs start again from their generators
+    for i, info in enumerate(infos):
+        np.testing.assert_array_equal(info["terminal_observation"], final[i])  # where the episode ended
+        np.testing.assert_array_equal(observation[i], reset[i])  # the reset observation, as SB3 expects
+        assert info["TimeLimit.truncated"] and info["episode"]["l"] == 4 and info["is_success"] is False
+        assert info["episode"]["r"] == pytest.approx(returns[i])
+    assert adapter.get_attr("n_robots") == [4, 4, 4] and adapter.env_is_wrapped(gym.Wrapper) == [False] * 3
+
+
+def test_sb3_ppo_learns_through_the_adapter():
+    from stable_baselines3 import PPO
+
+    adapter = BatchedSB3VecEnv(make_vec(num_envs=4, steps=20))
+    model = PPO("MlpPolicy", adapter, n_steps=32, batch_size=64, n_epochs=2, seed=0, device="cpu")
+    before = [p.detach().clone() for p in model.policy.parameters()]
+    model.learn(total_timesteps=384)
+    assert model.num_timesteps == 384 and len(model.ep_info_buffer) > 0
+    assert any(not torch.equal(a, b) for a, b in zip(before, model.policy.parameters()))
+
+
+def small_config(**overrides) -> TrainConfig:
+    settings = dict(
+        algo="ppo",
+        env_id=NAV,
+        n_robots=4,
+        robot_model="disk",
+        n_envs=4,
+        timesteps=4 * 8 * 4,  # 4 updates of n_steps 8 x 4 envs
+        preset="batched",
+        engine="batched",
+        steps_per_episode=12,
+        hyperparams={"n_steps": 8, "batch_size": 16, "n_epochs": 2},
+    )
+    return TrainConfig(**{**settings, **overrides})
+
+
+def test_a_stopped_batched_run_resumes_to_the_uninterrupted_runs_model(tmp_path, monkeypatch):
+    whole = train_batched(small_config(), tmp_path / "whole", **QUIET)
+    calls = {"n": 0}
+    real_update = batched_ppo.update
+
+    def stop_at_the_third_update(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real_update(*args, **kwargs)
+
+    monkeypatch.setattr(batched_ppo, "update", stop_at_the_third_update)
+    stopped = train_batched(small_config(), tmp_path / "run", snapshot_seconds=0, **QUIET)
+    assert stopped.interrupted and snapshot_file(tmp_path / "run").is_file()
+    monkeypatch.setattr(batched_ppo, "update", real_update)
+    with pytest.raises(ParameterError, match="other settings"):
+        train_batched(small_config(seed=1), tmp_path / "run", resume=True, **QUIET)
+    resumed = train_batched(small_config(), tmp_path / "run", resume=True, **QUIET)
+    assert not resumed.interrupted and not snapshot_file(tmp_path / "run").exists()
+    assert_same_policy(resumed.model_path, whole.model_path)
+    progress = (tmp_path / "run" / "progress.yaml").read_text()
+    assert progress == (tmp_path / "whole" / "progress.yaml").read_text()
+
+
+def test_dpr_train_engine_batched_resume_needs_a_snapshot(tmp_path, capsys):
+    argv = ["train", "--algo", "ppo", "--env", NAV, "--engine", "batched", "--robot-model", "disk", "--resume"]
+    with pytest.raises(SystemExit):
+        main([*argv, "--out", str(tmp_path / "none")])
+    assert "holds no snapshot of a stopped batched run" in capsys.readouterr().err
+
+
+def test_dpr_train_learner_sb3_trains_any_algorithm_on_the_batched_engine(tmp_path):
+    argv = ["train", "--algo", "a2c", "--env", NAV, "--engine", "batched", "--learner", "sb3", "--robot-model", "disk"]
+    out = tmp_path / "a2c"
+    assert main([*argv, "--n-robots", "4", "--n-envs", "4", "--timesteps", "80", "--out", str(out)]) == 0
+    record = (out / "config.yaml").read_text()
+    assert "learner: sb3" in record and "engine: batched" in record and (out / "model.zip").is_file()
+    with pytest.raises(ParameterError, match="learner"):
+        small_config(engine="pymunk", learner="sb3")
+
+
+def test_models_move_between_engines_through_the_commands(tmp_path):
+    out = tmp_path / "batched"
+    argv = ["train", "--algo", "ppo", "--env", NAV, "--engine", "batched", "--robot-model", "disk", "--n-envs", "4"]
+    hyper = ["--hyperparam", "n_steps=8", "--hyperparam", "batch_size=32"]
+    assert main([*argv, "--n-robots", "4", *hyper, "--timesteps", "32", "--out", str(out)]) == 0
+    scores = {}
+    for name, policy, engine, extra in (
+        ("trained-batched-on-pymunk", out / "model.zip", "pymunk", []),
+        ("shipped-pymunk-on-batched", REPO / "models" / "navigation-ppo.zip", "batched", ["--robot-model", "disk"]),
+    ):
+        path = tmp_path / f"{name}.json"
+        command = ["evaluate", "--policy", str(policy), "--env", NAV, "--seeds", "2-3", "--steps", "30"]
+        assert main([*command, "--engine", engine, *extra, "--json", str(path)]) == 0
+        scores[name] = json.loads(path.read_text())
+    assert [e["steps"] for e in scores["trained-batched-on-pymunk"]["episodes"]] == [30, 30]  # physics steps
+    assert scores["trained-batched-on-pymunk"]["env_kwargs"]["action_repeat"] == 6  # the batched entry's
+    assert scores["shipped-pymunk-on-batched"]["env_kwargs"]["robot_model"] == "disk"
