@@ -11,11 +11,11 @@ task run into the same folder at the same time, or a candidate recipe that share
 Each output folder holds ``stage.json``, written last: the stage's kind, settings, needs and every file's size and
 SHA-256. A folder whose files no longer match it (a truncated model, a half-copied dataset) is set aside as
 ``<key>.corrupt`` and built again, never used; every stored stage a run's targets depend on is checked so, those
-that no target needs any more too (a dataset whose clones are stored). A stage builds into ``<key>.partial`` and is renamed into place once
-complete, so a run killed at any moment leaves the whole output or none; what survives a kill inside a stage (a
-training run's snapshots, a dataset's saved episodes) lives in ``work/<kind>-<key>/`` beside the store and is
-resumed from. A stage is built by one run at a time (a lock file beside its folder): another run into the same
-folder that needs it waits for it, saying so, and takes the output as stored.
+that no target needs any more too (a dataset whose clones are stored). A stage builds into ``<key>.partial`` and
+is renamed into place once complete, so a run killed at any moment leaves the whole output or none; what survives
+a kill inside a stage (a training run's snapshots, a dataset's saved episodes) lives in ``work/<kind>-<key>/``
+beside the store and is resumed from. A stage is built by one run at a time (a lock file beside its folder):
+another run into the same folder that needs it waits for it, saying so, and takes the output as stored.
 
 Backends (:data:`BACKENDS`): ``local`` runs the stages in this process when ``workers`` is 1, else in ``workers``
 processes, each stage submitted once all it needs is done; ``ray`` submits every stage as a Ray task with its needs
