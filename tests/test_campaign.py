@@ -223,3 +223,24 @@ def test_stage_records_say_what_made_them(tiny):
     assert record["kind"] == "clone" and record["needs"]["demonstrations"].startswith("demonstrations/")
     assert set(record["files"]) >= {"model.zip", "config.yaml"}
     assert all(len(entry["sha256"]) == 64 for entry in record["files"].values())
+
+
+def test_the_same_run_started_twice_at_once_into_one_folder_waits_and_reports_as_a_lone_run(tmp_path):
+    """Two identical `dpr pipeline` commands started together into one folder: each stage is built once, the
+    other run waits for it (and says so, naming the stage and the folder), both exit 0, and the report is a lone
+    run's."""
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump(PIPELINE))
+    shared, lone = tmp_path / "shared", tmp_path / "lone"
+    argv = [*DPR, "pipeline", "--config", str(config), "--out"]
+    runs = [subprocess.Popen([*argv, str(shared)], stderr=subprocess.PIPE, text=True, env=ENV) for _ in range(2)]
+    errors = [run.communicate(timeout=600)[1] for run in runs]
+    assert [run.returncode for run in runs] == [0, 0], errors[0][-3000:] + errors[1][-3000:]
+    waited = [line for err in errors for line in err.splitlines() if "waiting for another `dpr pipeline`" in line]
+    assert waited and all(f"which is building {shared / 'stages'}" in line for line in waited), errors
+    assert pipeline("--config", str(config), "--out", str(lone)).returncode == 0
+    assert (shared / "report" / "results.md").read_text() == (lone / "report" / "results.md").read_text()
+    assert not (shared / "report-2").exists() and not list((shared / "stages").glob("*/*.corrupt"))
+    assert sorted(p.name for p in (shared / "stages").glob("*/*")) == sorted(
+        p.name for p in (lone / "stages").glob("*/*")
+    )

@@ -590,6 +590,11 @@ def test_collect_verify_names_a_corrupt_file(small_dataset, tmp_path, capsys):
     change_a_reward(tampered / "data/chunk-000/file-000.parquet")
     argv = ["collect", "--env", NAV, "--robot-model", "disk", "--n-robots", "4", "--steps", "40", "--episodes", "2"]
     assert run_cli([*argv, "--workers", "1", "--out", str(tampered), "--verify"]) == 2
+    err = capsys.readouterr().err  # (refused before resuming onto it: test_resume_checks.py)
+    assert "error:" in err and "file-000.parquet: episode 0: column 'next.reward' does not match its checksum" in err
+    from dpr.cli.data import verify_dataset
+
+    assert verify_dataset(tampered) == 2
     err = capsys.readouterr().err
     assert "verify:" in err and "file-000.parquet: episode 0: column 'next.reward' does not match its checksum" in err
 

@@ -81,12 +81,17 @@ def test_folders_that_cannot_be_compared_are_refused(tmp_path, capsys):
         payload["seeds"] = [s + 1000 for s in payload["seeds"]]
         path.write_text(json.dumps(payload))
         if seed == 0:  # the runs of one method disagree
-            with pytest.raises(ValueError, match="navigation-bc-seed1.json: scored on other validation seeds"):
+            with pytest.raises(ValueError, match="navigation-bc-seed1.json: scored otherwise than .*validation seeds"):
                 compare(HEADLINE, other, ["navigation"], "bc-ppo")
-    with pytest.raises(ParameterError, match="navigation-bc: the two folders used different validation seeds"):
+    with pytest.raises(
+        ParameterError, match="navigation-bc: the two folders scored their runs differently .validation seeds"
+    ):
         compare(HEADLINE, other, ["navigation"], "bc-ppo")
     assert run_cli(["compare", str(HEADLINE), str(other)]) == 2
-    assert "CANDIDATE: navigation-bc: the two folders used different validation seeds" in capsys.readouterr().err
+    assert (
+        "CANDIDATE: navigation-bc: the two folders scored their runs differently (validation seeds"
+        in capsys.readouterr().err
+    )
     shutil.rmtree(other / "eval" / "validation")
     with pytest.raises(ParameterError, match="no eval/validation folder") as error:
         compare(HEADLINE, other, ["navigation"], "bc-ppo")
@@ -152,3 +157,40 @@ def test_a_candidate_run_task_by_task_is_judged_across_its_folders(tmp_path, cap
         compare(HEADLINE, [whole, per_task[1]], TASKS, "bc-ppo")
     assert run_cli(["compare", str(HEADLINE), str(whole), str(per_task[1])]) == 2
     assert "CANDIDATE: gate: runs in both" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "change, named",
+    [
+        ({"steps": 2000}, "steps (episode length) 2500 and 2000"),
+        ({"env_ids": ["dpr/Navigation-v1"]}, "env id (task version) ['dpr/Navigation-v0'] and ['dpr/Navigation-v1']"),
+        ({"env_kwargs": {"n_robots": 16}}, "N (n_robots) 9 and 16"),
+        ({"env_kwargs": {"robot_model": "disk"}}, "robot model 'paddle' and 'disk'"),
+        ({"env_kwargs": {"start_radius": 300.0}}, "env kwargs {} and {'start_radius': 300.0}"),
+    ],
+)
+def test_runs_scored_differently_are_refused_naming_what_differs(tmp_path, capsys, change, named):
+    """Not only other validation seeds: another episode length, env version, swarm size, robot model or task
+    kwarg scores other episodes, and the two folders' IQMs are then not comparable."""
+    other = _copy_validation("full-lr3e4", tmp_path / "other", ["navigation"])
+    for path in (other / "eval" / "validation").glob("navigation-*-seed*.json"):
+        payload = json.loads(path.read_text())
+        for key, value in change.items():
+            payload[key] = {**payload[key], **value} if isinstance(value, dict) else value
+        path.write_text(json.dumps(payload))
+    with pytest.raises(ParameterError, match="the two folders scored their runs differently") as error:
+        compare(HEADLINE, other, ["navigation"], "bc-ppo")
+    assert named in str(error.value)
+    assert run_cli(["compare", str(HEADLINE), str(other), "--tasks", "navigation"]) == 2
+    assert named in capsys.readouterr().err
+
+
+def test_the_policys_own_env_kwargs_may_differ(tmp_path):
+    """A candidate that decides at another rate or sees other observations is scored on the same episodes."""
+    other = _copy_validation("full-lr3e4", tmp_path / "other", ["navigation"])
+    for path in (other / "eval" / "validation").glob("navigation-*-seed*.json"):
+        payload = json.loads(path.read_text())
+        payload["env_kwargs"] = {**payload["env_kwargs"], "action_repeat": 8, "obs_last_action": False}
+        path.write_text(json.dumps(payload))
+    rows, mean = compare(HEADLINE, other, ["navigation"], "bc-ppo")
+    assert mean == pytest.approx(1.0)

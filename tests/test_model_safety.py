@@ -166,3 +166,47 @@ def _rewrite_data(path: Path, data: dict) -> None:
     with zipfile.ZipFile(path, "w") as archive:
         for name, content in members.items():
             archive.writestr(name, content)
+
+
+def crafted_weights(tmp_path: Path, member: str = "policy.pth") -> tuple[Path, Path]:
+    """A copy of a shipped model whose weights member ``member`` is a torch file holding a pickle that creates a
+    file."""
+    import io
+
+    import torch
+
+    marker = tmp_path / "created-by-weights"
+    buffer = io.BytesIO()
+    torch.save({"weights": CreatesAFile(marker)}, buffer)
+    path = tmp_path / "crafted-weights.zip"
+    with zipfile.ZipFile(MODELS / "navigation-bc.zip") as original, zipfile.ZipFile(path, "w") as copy:
+        for item in original.infolist():
+            copy.writestr(item, buffer.getvalue() if item.filename == member else original.read(item))
+    return path, marker
+
+
+def test_a_weights_file_holding_a_pickle_is_one_clean_error_without_torchs_advice(tmp_path, capsys):
+    """torch refuses the pickle (weights_only=True) and says loading with weights_only=False "will likely
+    succeed": dpr names the file, exits 2, and never passes that advice on."""
+    path, marker = crafted_weights(tmp_path)
+    with pytest.raises(ParameterError, match="its weights hold a pickle that calls") as caught:
+        load_model(path)
+    assert str(path) in str(caught.value) and "weights_only" not in str(caught.value)
+    argv = ["evaluate", "--policy", str(path), "--env", "dpr/Navigation-v0", "--seeds", "0", "--steps", "10"]
+    assert run(argv) == 2
+    err = capsys.readouterr().err
+    assert f"--policy: {path}: its weights hold a pickle" in err
+    assert "weights_only" not in err and "Traceback" not in err and "trust" not in err
+    assert not marker.exists()
+
+
+def test_a_snapshot_weights_file_holding_a_pickle_is_refused_without_torchs_advice(tmp_path):
+    import torch
+
+    from dpr.rl.resume import _read_weights
+
+    marker = tmp_path / "created"
+    torch.save({"policy": CreatesAFile(marker), "optimizer": {}}, tmp_path / "weights.pt")
+    with pytest.raises(ValueError, match="not the weights of a snapshot .it holds a pickle that calls") as caught:
+        _read_weights(tmp_path / "weights.pt")
+    assert "weights_only" not in str(caught.value) and not marker.exists()

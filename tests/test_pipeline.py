@@ -155,8 +155,8 @@ def test_pipeline_resumes_without_changing_anything_and_refuses_other_settings(p
     files = {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()}
     _, lines = run_tiny(PIPELINE, out)
     assert {path: path.stat().st_mtime_ns for path in out.rglob("*") if path.is_file()} == files
-    # the demonstrations are not needed once the clone is stored
-    assert "dpr pipeline: 8 stages: 8 stored, 0 to build" in lines and not built_stages(lines)
+    # the demonstrations are not needed once the clone is stored, but they are checked as stored stages
+    assert "dpr pipeline: 9 stages: 9 stored, 0 to build" in lines and not built_stages(lines)
     with pytest.raises(ParameterError, match=r"^out: .* holds a pipeline run with other settings .*finetune_steps"):
         run_tiny({**PIPELINE, "finetune_steps": 128}, out)
     with pytest.raises(ParameterError, match="holds a pipeline run with other settings"):
@@ -201,6 +201,30 @@ def test_a_damaged_stored_output_is_set_aside_and_built_again(pipeline, tmp_path
     assert any("navigation: bc, seed 0: " in line and "is damaged (model.zip does not match" in line for line in lines)
     assert (copy / "stages" / "clone" / f"{clone['key']}.corrupt" / "model.zip").stat().st_size == 1000
     assert built_stages(lines) == ["navigation: bc, seed 0"]  # everything that needs it is stored whole
+    assert (again / "results.md").read_text() == (report / "results.md").read_text()
+
+
+def test_a_damaged_input_that_no_target_needs_any_more_is_caught_on_rerun(pipeline, tmp_path):
+    """One flipped byte in the stored demonstrations (read by the clones, which are stored) fails its stage.json
+    SHA-256 on the next run: the dataset is set aside and recorded again, the run says so, and the report is the
+    same."""
+    import shutil
+
+    out, report, _ = pipeline
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    (demonstrations,) = stored(copy, "demonstrations")
+    folder = copy / "stages" / "demonstrations" / demonstrations["key"]
+    data = sorted((folder / "dataset" / "data").rglob("*.parquet"))[0]
+    damaged = bytearray(data.read_bytes())
+    damaged[len(damaged) // 2] ^= 0x01
+    data.write_bytes(bytes(damaged))
+    again, lines = run_tiny(PIPELINE, copy)
+    relative = data.relative_to(folder).as_posix()
+    assert any(f"is damaged ({relative} does not match its size and SHA-256" in line for line in lines), lines
+    assert (folder.with_name(f"{folder.name}.corrupt") / relative).read_bytes() == bytes(damaged)
+    assert built_stages(lines) == ["navigation: 2 demonstrations"]
+    assert data.read_bytes() == (out / data.relative_to(copy)).read_bytes()  # recorded again, as it was
     assert (again / "results.md").read_text() == (report / "results.md").read_text()
 
 

@@ -188,3 +188,30 @@ def test_the_robot_model_how_to_shows_the_example_as_it_is():
     how_to = (ROOT / "docs" / "add-a-robot-model.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", how_to, flags=re.S)
     assert (EXAMPLES / "long_magnet_disk.py").read_text() in blocks
+
+
+def test_an_env_package_that_raises_is_one_clean_error_and_help_imports_none(tmp_path):
+    """A package whose import raises stops the command with exit 2, naming the option (or variable), the package
+    and what it raised, without a traceback; --help never imports a package (importing one runs its code)."""
+    (tmp_path / "raising_tasks.py").write_text("raise RuntimeError('boom at import')\n")
+    (tmp_path / "marking_tasks.py").write_text(f"open({str(tmp_path / 'imported')!r}, 'w').close()\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    env.pop(ENV_PACKAGES_VARIABLE, None)
+    evaluate = ["evaluate", "--policy", "wave", "--env", "dpr/Navigation-v0", "--seeds", "0", "--steps", "10"]
+
+    def dpr(argv, **extra):
+        return subprocess.run([*DPR, *argv], cwd=tmp_path, env={**env, **extra}, capture_output=True, text=True)
+
+    for result, name in [
+        (dpr(["--env-package", "raising_tasks", *evaluate]), "--env-package"),
+        (dpr(evaluate, **{ENV_PACKAGES_VARIABLE: "raising_tasks"}), ENV_PACKAGES_VARIABLE),
+    ]:
+        assert result.returncode == 2, result.stderr
+        assert (
+            f"{name}: env package 'raising_tasks' does not import: its code raised RuntimeError: boom at import"
+        ) in result.stderr
+        assert "Traceback" not in result.stderr
+    for argv in (["--env-package", "marking_tasks", "--help"], ["--env-package", "marking_tasks", "evaluate", "-h"]):
+        assert dpr(argv).returncode == 0
+        assert not (tmp_path / "imported").exists(), argv
+    assert "runs with your rights" in (ROOT / "docs" / "add-a-task.md").read_text()

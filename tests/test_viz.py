@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import shutil
 from collections import defaultdict
 
 import numpy as np
 import pytest
 from helpers import run_cli as run
-from helpers import write_info
 from rerun.chunk import RrdReader
 
 import dpr.viz
@@ -224,14 +222,15 @@ def test_a_dataset_of_decisions_every_six_steps_is_viewed_in_its_own_time(every_
     assert_timelines(entities["/episode_1/metrics/reward"], 1, 9, every=6)
 
 
-def test_a_dataset_of_the_old_fps_is_refused_by_the_viewer_with_what_to_do(every_six, tmp_path, capsys):
-    dataset, _ = every_six
-    old = tmp_path / "old"
-    shutil.copytree(dataset, old)
-    info = json.loads((old / "meta" / "info.json").read_text())
-    info["fps"] = 10  # as recorded before dpr kept simulated time
-    del info["dpr"]["dataset_revision"]
-    write_info(old, info)
+def test_a_dataset_of_the_old_fps_is_refused_by_the_viewer_with_what_to_do(tmp_path, capsys, monkeypatch):
+    import dpr.datasets.collect as collect_module
+
+    old = tmp_path / "old"  # recorded as dpr did before it kept simulated time: fps 10, timestamps 0.1 s apart
+    monkeypatch.setattr(collect_module, "dataset_fps", lambda env_kwargs: 10)
+    monkeypatch.setattr(collect_module, "time_info", lambda env_kwargs: {})
+    spec = CollectSpec("dpr/Navigation-v0", robot_model="disk", n_robots=4, steps=10, env_kwargs={"action_repeat": 6})
+    collect(old, spec, episodes=1)
+    monkeypatch.undo()
     assert run(["view", str(old), "--save", str(tmp_path / "old.rrd")]) == 2
     err = capsys.readouterr().err
     assert str(old) in err and "action_repeat=6" in err and "into a new folder" in err

@@ -61,7 +61,9 @@ COMMANDS = (
         "the ratio candidate / current. The last line applies the adoption rule: the candidate wins if the mean "
         "over --tasks of the --method ratios is above 1, once every task has as many runs in both folders; until "
         "then it says no decision yet. Only validation evaluations are read, never test ones, so a candidate's "
-        "test seeds stay unseen; runs scored on different validation seeds are refused. A candidate whose tasks "
+        "test seeds stay unseen. Runs scored differently are refused, naming what differs: other validation seeds, "
+        "episode lengths (steps), env ids (task versions), N, robot models or env kwargs that set the task (those of "
+        "the policy's own interface, such as action_repeat or obs_last_action, may differ). A candidate whose tasks "
         "ran side by side is given as one folder per task.",
         arguments=compare_arguments,
         run=cmd_compare,

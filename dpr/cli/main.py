@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
 
 from dpr import interrupts
 from dpr.cli import bc, bench, compare, data, evaluate, learn, pipeline, view
 from dpr.cli.common import ALL_ENVS, OUTPUT_FLAGS, check_bounds, unwritable_destination
 from dpr.envs import TASKS, load_env_packages
+from dpr.envs.tasks import ENV_PACKAGE_ERRORS, ENV_PACKAGES_VARIABLE
 
 COMMANDS = (
     *evaluate.COMMANDS,
@@ -88,12 +90,21 @@ def requested_env_packages(argv: list[str] | None) -> list[str]:
     return known.env_package
 
 
+def wants_help(argv: list[str] | None) -> bool:
+    """Whether the command line asks for help (``-h``/``--help``): then no --env-package is imported, since
+    importing one runs its code."""
+    return any(arg in ("-h", "--help") for arg in (sys.argv[1:] if argv is None else argv) if arg != "--")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    try:
-        load_env_packages(requested_env_packages(argv))
-    except ValueError as error:
-        parser.error(f"{ENV_PACKAGE_FLAG}: {error}")
+    if ENV_PACKAGE_ERRORS:  # DPR_ENV_PACKAGES names a package whose import failed when dpr was imported
+        parser.error(f"{ENV_PACKAGES_VARIABLE}: {ENV_PACKAGE_ERRORS[0]}")
+    if not wants_help(argv):
+        try:
+            load_env_packages(requested_env_packages(argv))
+        except ValueError as error:
+            parser.error(f"{ENV_PACKAGE_FLAG}: {error}")
     args = parser.parse_args(argv)
     parser = args.command_parser  # errors are the command's, with its usage: "dpr pipeline: error: ..."
     interrupts.install()  # a Ctrl-C is never lost in a callback from C code (dpr.interrupts)

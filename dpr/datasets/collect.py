@@ -409,6 +409,7 @@ def collect(
     if (root / INFO_PATH).is_file():  # a dataset of the wrong fps is named, not resumed with the right one
         info = load_info(root)
         check_dataset_time(root, info)
+        LeRobotReader(root).check_data()  # stored data is checked before anything is added to it
         features = _resumed_features(root, info, spec, features, seeds)
     bytes_before = folder_bytes(root)
     writer = LeRobotWriter.open(

@@ -86,21 +86,36 @@ def register_task(
 
 def load_env_packages(packages: list[str] | tuple[str, ...]) -> None:
     """Import each package (whose import registers its tasks), and name them in ``DPR_ENV_PACKAGES`` so that the
-    processes this one starts (env workers, Ray tasks) import them too. A ValueError names a package that does
-    not import."""
+    processes this one starts (env workers, Ray tasks) import them too. Importing a package runs its code, with the
+    rights of whoever runs dpr. A ValueError names a package that does not import, or whose import raises, and
+    the error it raised (its own code's, not a traceback)."""
     listed = [name for name in os.environ.get(ENV_PACKAGES_VARIABLE, "").split(",") if name]
     for package in packages:
         try:
             importlib.import_module(package)
         except ImportError as error:
             raise ValueError(f"env package {package!r} does not import: {error}") from None
+        except (Exception, SystemExit) as error:  # the package's own code failed: named, not a traceback
+            raise ValueError(
+                f"env package {package!r} does not import: its code raised {type(error).__name__}: {error}"
+            ) from None
         if package not in listed:
             listed.append(package)
     if listed:
         os.environ[ENV_PACKAGES_VARIABLE] = ",".join(listed)
 
 
+# what importing the packages DPR_ENV_PACKAGES names raised when dpr.envs was imported (the `dpr` command reports it)
+ENV_PACKAGE_ERRORS: list[str] = []
+
+
 def load_listed_env_packages() -> None:
-    """Import the packages ``DPR_ENV_PACKAGES`` names (done when ``dpr.envs`` is imported)."""
+    """Import the packages ``DPR_ENV_PACKAGES`` names (done when ``dpr.envs`` is imported). One that fails is left
+    out and its error kept in :data:`ENV_PACKAGE_ERRORS`, so that ``import dpr`` itself never fails on it: the
+    `dpr` command refuses to run with it, naming the variable, and its tasks' ids stay unknown elsewhere."""
     listed = [name.strip() for name in os.environ.get(ENV_PACKAGES_VARIABLE, "").split(",") if name.strip()]
-    load_env_packages(listed)
+    for package in listed:
+        try:
+            load_env_packages([package])
+        except ValueError as error:
+            ENV_PACKAGE_ERRORS.append(str(error))

@@ -7,7 +7,8 @@ episodes of every training run on the validation seeds (``eval/validation/<task>
 pooled, and their IQM in each recipe and the ratio candidate / current are reported. The candidate wins if the mean
 over tasks of ``method``'s ratios (default ``bc-ppo``) is above 1, once every task has as many runs in both. Test
 evaluations are never read, so a candidate's test seeds stay unseen until it is judged; runs scored on different
-validation seeds are refused.
+validation seeds, episode lengths (``steps``), env ids (task versions), swarm sizes, robot models or task env
+kwargs are refused, naming what differs (:func:`scoring`).
 """
 
 from __future__ import annotations
@@ -63,16 +64,65 @@ def validation_runs(*folders: Path, parameter: str = "folders") -> dict[tuple[st
     return runs
 
 
-def pooled(paths: list[Path]) -> tuple[np.ndarray, list[int]]:
-    """Every episode's projected displacement over ``paths``, and the validation seeds they share."""
-    values, seeds = [], None
+# env kwargs of a policy's own interface: how often it decides, what it sees, how it acts and what reward it
+# trained on. Recipes may differ in them; every other kwarg sets the task or the swarm, and so what is scored.
+POLICY_SIDE_KWARGS = (
+    "action_repeat",
+    "action_type",
+    "obs_type",
+    "obs_last_action",
+    "image_size",
+    "approach_reward",
+    "render_mode",
+    "render_size",
+)
+SWARM_DEFAULTS = {"n_robots": 9, "robot_model": "paddle"}  # the env's own, where an evaluation file names none
+
+
+def scoring(payload: dict) -> dict[str, object]:
+    """What decides the score of an evaluation file's episodes, by name: its validation seeds, episode length
+    (``steps``), env id (and so the task's version), swarm size, robot model and the env kwargs that set the task
+    (all but :data:`POLICY_SIDE_KWARGS`). Two files scored alike can be compared."""
+    kwargs = dict(payload.get("env_kwargs") or {})
+    swarm = {name: kwargs.pop(name, default) for name, default in SWARM_DEFAULTS.items()}
+    task_kwargs = {name: value for name, value in sorted(kwargs.items()) if name not in POLICY_SIDE_KWARGS}
+    return {
+        "validation seeds": payload["seeds"],
+        "steps (episode length)": payload.get("steps"),
+        "env id (task version)": payload.get("env_ids"),
+        "N (n_robots)": swarm["n_robots"],
+        "robot model": swarm["robot_model"],
+        "env kwargs": task_kwargs,
+    }
+
+
+def scoring_difference(one: dict[str, object], other: dict[str, object]) -> str | None:
+    """What differs between two :func:`scoring` descriptions, each with both values ("; "-joined), or None."""
+    differ = [
+        f"{name} {_shown(one[name])} and {_shown(other.get(name))}" for name in one if one[name] != other.get(name)
+    ]
+    return "; ".join(differ) or None
+
+
+def _shown(value: object) -> str:
+    """``value`` as a message shows it: a long list of seeds by its ends and length."""
+    if isinstance(value, list) and len(value) > 6:
+        return f"[{value[0]!r}, {value[1]!r}, ..., {value[-1]!r}] ({len(value)})"
+    return repr(value)
+
+
+def pooled(paths: list[Path]) -> tuple[np.ndarray, dict[str, object]]:
+    """Every episode's projected displacement over ``paths``, and the :func:`scoring` they share (a ValueError
+    naming what differs when one file was scored otherwise than the first)."""
+    values, shared = [], None
     for path in paths:
         payload = load_evaluation(path)
-        if seeds is not None and payload["seeds"] != seeds:
-            raise ValueError(f"{path}: scored on other validation seeds than {paths[0]}")
-        seeds = payload["seeds"]
+        described = scoring(payload)
+        if shared is not None and (difference := scoring_difference(shared, described)):
+            raise ValueError(f"{path}: scored otherwise than {paths[0]} ({difference}); not comparable")
+        shared = described
         values += [episode["projected_displacement"] for episode in payload["episodes"]]
-    return np.array(values), seeds
+    return np.array(values), shared
 
 
 def _check_tasks(tasks: Sequence[str]) -> list[str]:
@@ -109,10 +159,13 @@ def compare(
     for key in sorted(set(before) & set(after), key=lambda key: (list(ENV_IDS).index(key[0]), key[1])):
         if key[0] not in tasks:
             continue
-        (old, old_seeds), (new, new_seeds) = pooled(before[key]), pooled(after[key])
-        if old_seeds != new_seeds:
+        (old, old_scoring), (new, new_scoring) = pooled(before[key]), pooled(after[key])
+        difference = scoring_difference(old_scoring, new_scoring)
+        if difference:
             raise ParameterError(
-                "candidate", f"{key[0]}-{key[1]}: the two folders used different validation seeds; not comparable"
+                "candidate",
+                f"{key[0]}-{key[1]}: the two folders scored their runs differently ({difference}, current first); "
+                "not comparable",
             )
         rows.append(
             {

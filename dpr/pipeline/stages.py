@@ -10,10 +10,12 @@ task run into the same folder at the same time, or a candidate recipe that share
 
 Each output folder holds ``stage.json``, written last: the stage's kind, settings, needs and every file's size and
 SHA-256. A folder whose files no longer match it (a truncated model, a half-copied dataset) is set aside as
-``<key>.corrupt`` and built again, never used. A stage builds into ``<key>.partial`` and is renamed into place once
-complete, so a run killed at any moment leaves the whole output or none; what survives a kill inside a stage (a
-training run's snapshots, a dataset's saved episodes) lives in ``work/<kind>-<key>/`` beside the store and is
-resumed from.
+``<key>.corrupt`` and built again, never used; every stored stage a run's targets depend on is checked so, those
+that no target needs any more too (a dataset whose clones are stored). A stage builds into ``<key>.partial`` and
+is renamed into place once complete, so a run killed at any moment leaves the whole output or none; what survives
+a kill inside a stage (a training run's snapshots, a dataset's saved episodes) lives in ``work/<kind>-<key>/``
+beside the store and is resumed from. A stage is built by one run at a time (a lock file beside its folder):
+another run into the same folder that needs it waits for it, saying so, and takes the output as stored.
 
 Backends (:data:`BACKENDS`): ``local`` runs the stages in this process when ``workers`` is 1, else in ``workers``
 processes, each stage submitted once all it needs is done; ``ray`` submits every stage as a Ray task with its needs
@@ -194,12 +196,10 @@ def build_stage(stage: Stage, root: str, show_progress: bool, *_needs_done: Any)
     if final.is_dir() and damage(final) is None:  # another run into this folder built it meanwhile
         return stage.name, 0.0
     final.parent.mkdir(parents=True, exist_ok=True)
-    lock = FolderLock(final.with_name(f".{final.name}.lock"))
+    lock = _stage_lock(stage, final)
     try:
-        lock.acquire()
-    except LockHeld as held:
-        raise RuntimeError(f"{stage.name}: another `dpr pipeline`{held.holder} is building {final}") from None
-    try:
+        if final.is_dir() and damage(final) is None:  # the run it waited for built it
+            return stage.name, 0.0
         partial = final.with_name(f"{final.name}.partial")
         if partial.exists():  # left by a run killed while it built: incomplete, rebuilt from the work folder
             shutil.rmtree(partial)
@@ -218,6 +218,24 @@ def build_stage(stage: Stage, root: str, show_progress: bool, *_needs_done: Any)
     return stage.name, seconds
 
 
+def _stage_lock(stage: Stage, final: Path) -> FolderLock:
+    """The lock of ``stage``'s output ``final``, held: one run builds a stage at a time. Another run into the same
+    folder that is building it is waited for, and a line on stderr says so and on what (its output is then taken
+    as stored)."""
+    lock = FolderLock(final.with_name(f".{final.name}.lock"))
+    try:
+        lock.acquire()
+    except LockHeld as held:
+        print(
+            f"dpr pipeline: {stage.name}: waiting for another `dpr pipeline`{held.holder}, which is building {final}",
+            file=sys.stderr,
+            flush=True,
+        )
+        lock.wait = True
+        lock.acquire()
+    return lock
+
+
 def run_stages(
     targets: Sequence[Stage],
     store: StageStore,
@@ -229,17 +247,19 @@ def run_stages(
     log: Log = lambda line: print(line, file=sys.stderr),
 ) -> dict[str, str]:
     """Make every output ``targets`` need and return, per stage key, where it came from: "built", "here" (stored
-    already) or a reuse store's run folder. A stage is built only when it is missing and a target needs it; one
-    line is logged per finished stage. ``workers`` stages run at once; ``backend`` "ray" joins the cluster at
-    ``address`` (a new local one when None)."""
+    already) or a reuse store's run folder. A stage is built only when it is missing and a target needs it, or
+    when it is stored damaged: every stored stage of the targets' graph is checked against its ``stage.json``
+    first, those that no target needs any more too (a dataset whose clones are stored), so that no damaged input is
+    read and none lies in the folder unnoticed; one line is logged per finished stage. ``workers`` stages run at
+    once; ``backend`` "ray" joins the cluster at ``address`` (a new local one when None)."""
     with backend_session(backend, workers, address):
         required = {stage.key for stage in targets}  # grows by what each stage to build needs
         origin: dict[str, str] = {}
         needed: list[Stage] = []
         for stage in reversed(closure(targets)):  # dependents first
-            if stage.key not in required:
-                continue
-            found = store.find(stage, log)
+            if stage.key not in required and not store.path(stage).is_dir():
+                continue  # neither stored nor needed: not read by this run
+            found = store.find(stage, log)  # every stored stage is checked: it may be read by one this run builds
             if found is None:
                 needed.append(stage)
                 required.update(need.key for need in stage.needs.values())

@@ -330,10 +330,7 @@ def load_model(
             check_model_members(archive, path, parameter, stream=True)
     except zipfile.BadZipFile as error:
         raise ParameterError(parameter, f"{path} is not a readable .zip model file ({error})") from None
-    try:
-        model = algo_class(info.algo).load(path, device="cpu", custom_objects=custom)
-    except (KeyError, ValueError, RuntimeError, TypeError, zipfile.BadZipFile, EOFError) as error:
-        raise ParameterError(parameter, f"cannot load {info.algo} model {path}: {error}") from None
+    model = _sb3_load(path, info, parameter, custom_objects=custom)
     if env is not None:
         per_robot_parallel = False
         if info.per_robot is not None:  # its spaces are one robot's: the env must give local observations
@@ -363,10 +360,35 @@ def load_model(
         if for_training and info.per_robot is not None and env.num_envs != model.n_envs:
             # One VecEnv entry per robot: another swarm size is another n_envs, which set_env refuses and SB3's
             # load rebuilds the rollout buffer for.
-            model = algo_class(info.algo).load(path, env=env, device="cpu", custom_objects=custom)  # (checked above)
+            model = _sb3_load(path, info, parameter, env=env, custom_objects=custom)  # (checked above)
         elif for_training:
             model.set_env(env)
     return model, info
+
+
+def _sb3_load(path: Path, info: ModelInfo, parameter: str, **options):
+    """SB3's load of the model file at ``path``; one that cannot be loaded is a :class:`ParameterError` about
+    ``parameter`` naming it, and a weights member holding a pickle that is more than weights (which torch refuses)
+    is said without torch's advice to load it with ``weights_only=False``."""
+    import pickle
+
+    from dpr.policies.torch_files import is_refused_pickle, refused_pickle
+
+    try:
+        return algo_class(info.algo).load(path, device="cpu", **options)
+    except (
+        KeyError,
+        ValueError,
+        RuntimeError,
+        TypeError,
+        zipfile.BadZipFile,
+        EOFError,
+        pickle.UnpicklingError,
+    ) as error:
+        if is_refused_pickle(error):
+            problem = f"its weights hold {refused_pickle(error)}; refused, nothing in it was run"
+            raise ParameterError(parameter, f"{path}: {problem}") from None
+        raise ParameterError(parameter, f"cannot load {info.algo} model {path}: {error}") from None
 
 
 class ModelPolicy:

@@ -238,9 +238,13 @@ def _read_weights(path: Path) -> dict[str, Any]:
 
     import torch
 
+    from dpr.policies.torch_files import is_refused_pickle, refused_pickle
+
     try:
         weights = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as error:
+        if is_refused_pickle(error):  # (torch's message advises weights_only=False: never passed on)
+            raise ValueError(f"{path}: not the weights of a snapshot (it holds {refused_pickle(error)})") from None
         first = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise ValueError(f"{path}: not the weights of a snapshot ({first})") from None
     if not isinstance(weights, dict) or not {"policy", "optimizer"} <= set(weights):

@@ -308,6 +308,7 @@ def check_info(info: Any, path: Path) -> dict:
                 f"{path}: {key} is {info[key]}, beyond any dataset this reader takes ({MAX_COUNTS[key]})"
             )
     check_fps(info["fps"], str(path))
+    check_splits(info.get("splits", {}), info["total_episodes"], path)
     features = info["features"]
     if not isinstance(features, dict):
         raise DatasetError(f"{path}: features must be an object, got {type(features).__name__}")
@@ -362,6 +363,22 @@ def check_info_checksum(info: dict, path: Path) -> None:
     rows_from = entry["rows_from"]
     if not isinstance(rows_from, int) or isinstance(rows_from, bool) or rows_from < 0:
         raise DatasetError(f"{path}: {META_CHECKSUMS_KEY}.rows_from must be a non-negative int, got {rows_from!r}")
+
+
+def check_splits(splits: Any, total_episodes: int, path: Path) -> None:
+    """A DatasetError naming ``path`` unless ``splits`` (info.json's) maps each split's name to LeRobot's
+    ``"start:stop"`` range of episodes within the dataset's ``total_episodes``."""
+    if not isinstance(splits, dict):
+        raise DatasetError(f"{path}: splits must be an object of name -> 'start:stop', got {splits!r}")
+    for name, span in splits.items():
+        start, _, stop = span.partition(":") if isinstance(span, str) else ("", "", "")
+        if not (start.isdigit() and stop.isdigit() and int(start) <= int(stop)):
+            raise DatasetError(f"{path}: split {name!r} must be 'start:stop' episodes, got {span!r}")
+        if int(stop) > total_episodes:
+            raise DatasetError(
+                f"{path}: split {name!r} is episodes {span}, but the dataset holds {total_episodes} "
+                f"(total_episodes); the meta contradicts the data"
+            )
 
 
 def check_fps(fps: Any, where: str) -> int | float:

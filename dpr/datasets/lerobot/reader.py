@@ -47,7 +47,8 @@ class LeRobotReader:
 
     The constructor validates ``meta/info.json`` (codebase_version, required keys), the committed episodes' meta
     rows, ``meta/tasks.parquet``, ``meta/stats.json`` (the meta tables against their checksums, where the dataset
-    keeps them: :mod:`dpr.datasets.lerobot.checksums`) and every committed data file's parquet footer. Episodes at or
+    keeps them: :mod:`dpr.datasets.lerobot.checksums`), every committed data file's parquet footer, and that the
+    meta does not contradict the data (``splits`` within the episodes, ``fps`` as the timestamps say). Episodes at or
     above ``info.total_episodes`` and files outside ``info.dpr_live_files`` (leftovers of a crash or of an
     interrupted compaction) are ignored. A reader is a snapshot: open a new one after a compaction. Arrays come
     back as ``[T, *shape]`` in the feature's dtype (shape-[1] features as ``[T, 1]``); images as uint8
@@ -81,6 +82,33 @@ class LeRobotReader:
         self._row_group_starts: dict[Path, tuple[pq.FileMetaData, list[int]]] = {}
         self._row_groups: tuple[tuple, pa.Table] | None = None  # the row groups read last
         self.stats: dict[str, dict[str, np.ndarray]] = self._load_stats()
+        self._check_frame_rate()
+
+    def _check_frame_rate(self) -> None:
+        """A DatasetError when info.json's fps contradicts the data: in the first episode of two frames or more, the
+        timestamps must span (last frame index - first) / fps, as LeRobot records them (to within
+        :data:`DELTA_TOLERANCE_S` and float32's rounding). Read from the episode's stats in its meta row (made of
+        its frames, under the row's checksums), or from its two columns where the row keeps no such stats."""
+        index = next((i for i, ep in enumerate(self.episodes) if int(ep["length"]) > 1), None)
+        if index is None or "timestamp" not in self.features or "frame_index" not in self.features:
+            return
+        stats = self.episode_stats(index)
+        if all(key in stats.get(name, {}) for name in ("timestamp", "frame_index") for key in ("min", "max")):
+            times = [float(np.ravel(stats["timestamp"][key])[0]) for key in ("min", "max")]
+            steps = [float(np.ravel(stats["frame_index"][key])[0]) for key in ("min", "max")]
+        else:
+            frames = self.episode(index, ["timestamp", "frame_index"])
+            times = [float(frames["timestamp"].min()), float(frames["timestamp"].max())]
+            steps = [float(frames["frame_index"].min()), float(frames["frame_index"].max())]
+        span, frames_apart = times[1] - times[0], steps[1] - steps[0]
+        if frames_apart > 0 and abs(span - frames_apart / self.fps) > DELTA_TOLERANCE_S + 1e-6 * abs(times[1]):
+            apart = span / frames_apart
+            rate = f"{1 / apart:g} frames per second" if apart > 0 else "no frame rate"
+            path = data_file_path(self.root, self.info, self.episodes[index])
+            raise DatasetError(
+                f"{self.root / INFO_PATH}: fps is {self.fps:g}, but the timestamps of episode {index} in {path} are "
+                f"{apart:g} s apart ({rate}); the meta contradicts the data"
+            )
 
     def _load_stats(self) -> dict[str, dict[str, np.ndarray]]:
         """stats.json, or the aggregate of the per-episode stats when stats.json is absent or stale (a crash
@@ -212,11 +240,26 @@ class LeRobotReader:
             raise DatasetError(f"{self.root / INFO_PATH}: unknown columns {unknown}; features are {readable}")
         return list(columns)
 
+    def check_data(self) -> int:
+        """Read every committed episode's rows, each column checked against the checksum its meta row keeps (and
+        its row count and episode index), without decoding images; returns the frames read. A DatasetError naming
+        the file at the first that does not hold: what to run before adding to a dataset."""
+        return sum(self._episode_table(index, self._columns(None)).num_rows for index in range(self.num_episodes))
+
     def episode(self, index: int, columns: list[str] | None = None) -> dict[str, np.ndarray]:
         """Episode ``index``'s frames as ``{column: [T, *shape] array}``; reads only its data file's rows."""
+        names = self._columns(columns)
+        table = self._episode_table(index, names)
+        path, length = data_file_path(self.root, self.info, self.episodes[index]), table.num_rows
+        try:
+            return {name: self._to_numpy(table.column(name), self.features[name], length) for name in names}
+        except (pa.ArrowException, OSError, ValueError) as exc:
+            raise DatasetError(f"{path}: cannot decode episode {index}: {exc}") from exc
+
+    def _episode_table(self, index: int, names: list[str]) -> pa.Table:
+        """Episode ``index``'s rows of the columns ``names``, checked against its meta row and checksums."""
         self._check_episode(index)
         ep = self.episodes[index]
-        names = self._columns(columns)
         path = data_file_path(self.root, self.info, ep)
         length = int(ep["length"])
         if self._episodes_per_file.get(path, 1) > 1:  # a packed file (LeRobot's layout): pick this episode's rows
@@ -230,10 +273,7 @@ class LeRobotReader:
             found = sorted(set(table.column("episode_index").to_pylist()))[:3]
             raise DatasetError(f"{path}: holds rows of episode(s) {found} where episode {index} belongs")
         check_checksums(table, ep.get(CHECKSUMS_COLUMN), names, f"{path}: episode {index}")
-        try:
-            return {name: self._to_numpy(table.column(name), self.features[name], length) for name in names}
-        except (pa.ArrowException, OSError, ValueError) as exc:
-            raise DatasetError(f"{path}: cannot decode episode {index}: {exc}") from exc
+        return table
 
     def _rows_of_packed_file(self, path: Path, index: int, offset: int, length: int, names: list[str]) -> pa.Table:
         """Episode ``index``'s rows in a file holding episodes back to back from row 0: only the row groups that
