@@ -43,7 +43,7 @@ def env_state(env) -> dict[str, Any]:
     start generator."""
     return {
         "env": _tensors(env),
-        "world": _tensors(env.world),
+        "world": env.world.state_dict(),
         "generators": [generator.bit_generator.state for generator in env._generators],
         "started": bool(env._started),
     }
@@ -51,12 +51,12 @@ def env_state(env) -> dict[str, Any]:
 
 def load_env_state(env, state: dict[str, Any]) -> None:
     """Put ``state`` (from :func:`env_state` of an env of the same settings) back into ``env``."""
-    for target, tensors in ((env, state["env"]), (env.world, state["world"])):
-        for name, value in tensors.items():
-            current = getattr(target, name, None)  # (None: made by the first reset, as _last_observation is)
-            if isinstance(current, torch.Tensor) and current.shape != value.shape:
-                raise ValueError(f"the snapshot's {name} does not fit this run's env")
-            setattr(target, name, value.to(env.device))
+    for name, value in state["env"].items():
+        current = getattr(env, name, None)  # (None: made by the first reset, as _last_observation is)
+        if isinstance(current, torch.Tensor) and current.shape != value.shape:
+            raise ValueError(f"the snapshot's {name} does not fit this run's env")
+        setattr(env, name, value.to(env.device))
+    env.world.load_state_dict(state["world"])
     for generator, generator_state in zip(env._generators, state["generators"], strict=True):
         generator.bit_generator.state = generator_state
     env._started = state["started"]

@@ -1,19 +1,19 @@
 """The disk robot model (revision 2, :class:`dpr.sim.disk.DiskSwarm`) for K swarms of N robots, in torch.
 
-One :meth:`BatchedDiskWorld.step` is one control step of every swarm: the command rule, the neighbour search,
-the growth of each robot's radius into the room its neighbours leave, the rods' lengths and force limits, then
-``substeps`` physics substeps. No Python loop runs over swarms or robots; the loops left run over substeps and
-solver iterations, a fixed number.
+One :meth:`BatchedDiskWorld.step` is one control step of every swarm: the command rule, the pairs within the
+magnet range, the growth of each robot's radius into the room its neighbours leave, the rods' lengths and force
+limits, then ``substeps`` physics substeps. No Python loop runs over swarms or robots; the loops left run over
+substeps and solver rounds, a fixed number.
 
 The physics copies what chipmunk (pymunk's engine) does for this model, one substep at a time:
 
 1. positions move with the velocities (plus the contacts' bias velocities) of the previous solve;
-2. contacts (disk-disk, disk-wall, disk-ball, ball-wall) and rods are measured at the new positions;
+2. contacts (disk-disk, disk-ball, disk-wall, ball-wall) and rods are measured at the new positions;
 3. every constraint's impulse accumulated in the previous substep is applied again (warm start);
 4. ``iterations`` rounds of impulses: contacts (normal impulse >= 0 with restitution, Coulomb friction up to
    the normal impulse, overlap pushed out through separate bias velocities beyond ``collision_slop``), then
-   rods (holding their length, clamped to their force limit times dt), then ground friction (each body's
-   velocity and spin pulled toward zero, clamped to 500 times dt: pymunk's pivot and gear joints with no bias).
+   ground friction (each body's velocity and spin pulled toward zero, clamped to 500 times dt: pymunk's pivot
+   and gear joints with no bias), then rods (holding their length, clamped to their force limit times dt).
 
 Chipmunk solves one constraint after another (Gauss-Seidel). Here all contacts are solved at once, then all
 rods, then all frictions (Jacobi within each group): each constraint sees its bodies' masses multiplied by the
@@ -22,8 +22,10 @@ impulses sum to one body's worth and the iteration converges to the sequential s
 overshooting. Robots rotate (contact friction turns them) but their angle is not kept: a disk's angle changes
 nothing.
 
-Neighbour rows hold every pair twice (``i``'s row names ``j`` and ``j``'s names ``i``), so what acts on a robot is
-summed over its own row, a gather without scatters: deterministic on every device.
+The state is body-major: ``[B, K]`` tensors, one row per body (the robots, then the ball), the swarms along the
+fast axis, and every pair of bodies kept once (:mod:`dpr.sim.batched.pairs`). Up to ``ALL_PAIRS_LIMIT`` robots,
+every pair is a column of one fixed incidence matrix and reading or summing over pairs is a matrix product; above
+it, a cell list finds the pairs within the magnet range each control step.
 """
 
 from __future__ import annotations
@@ -36,8 +38,20 @@ import torch
 
 from dpr.checks import ParameterError, check_int, check_number
 from dpr.sim import constants as C
-from dpr.sim.batched.neighbours import all_pairs, carry_over, cell_list
-from dpr.sim.batched.solver import MUTABLE, physics, solve_round
+from dpr.sim.batched.neighbours import cell_list
+from dpr.sim.batched.pairs import DensePairs, SparsePairs
+from dpr.sim.batched.solver import (
+    BALL_ELASTICITY,
+    DISK_MOMENT,
+    ROBOT_ELASTICITY,
+    Bodies,
+    Impulses,
+    Rods,
+    StepConstants,
+    Walls,
+    physics,
+    substep,
+)
 from dpr.sim.batched.walls import disk_wall_distance, wall_geometry
 from dpr.sim.swarm import REACHED_FRACTION
 
@@ -51,16 +65,15 @@ RELAXATION = 1.3
 ERROR_BIAS = (1.0 - 0.1) ** 60  # both contacts' and joints' share of error left after one second
 SUBSTEPS = 2  # DiskSwarm.substeps
 _SANE_LIMIT = 1e6  # World.is_sane's
-# what the physics reads besides MUTABLE
-_READ = ("radius", "_index", "_valid", "walls", "_wall_edge", "_wall_normal", "_wall_present")
-# Below this many robots, comparing every pair costs less than the cell grid's fixed work.
+# Up to this many robots every pair is kept (a matrix product per read); above, a cell list finds the pairs.
 ALL_PAIRS_LIMIT = 32
 CELL_CAP = 8  # robots per cell of the magnet range's size: disks of radius >= 32.3 fit at most ~5
 MAX_NEIGHBOURS = 16  # robots within the magnet range of one robot: 4-6 in a grid, ~12 packed hard
-# Bytes of working memory per robot-neighbour slot and per robot (tensors alive in a step, float32), for the
-# up-front memory estimate.
-_BYTES_PER_SLOT = 4 * 40
-_BYTES_PER_ROBOT = 4 * 120
+# Bytes of working memory per pair and per body (tensors alive in a step, float32), for the up-front estimate;
+# a cell-list swarm keeps about PAIRS_PER_ROBOT pairs per robot (within the magnet range, each once).
+_BYTES_PER_PAIR = 4 * 48
+_BYTES_PER_BODY = 4 * 64
+_PAIRS_PER_ROBOT = 8
 
 
 def _bias_coefficient(dt: float) -> float:
@@ -87,15 +100,17 @@ def _available_memory(device: torch.device) -> int:
 
 def estimated_memory(num_envs: int, n_robots: int) -> int:
     """Bytes a :class:`BatchedDiskWorld` of ``num_envs`` swarms of ``n_robots`` needs while stepping (estimate)."""
-    slots = n_robots if n_robots <= ALL_PAIRS_LIMIT else 9 * CELL_CAP + MAX_NEIGHBOURS
-    return num_envs * n_robots * (slots * _BYTES_PER_SLOT + _BYTES_PER_ROBOT)
+    bodies = n_robots + 1
+    pairs = bodies * (bodies - 1) // 2 if n_robots <= ALL_PAIRS_LIMIT else _PAIRS_PER_ROBOT * bodies
+    return num_envs * (pairs * _BYTES_PER_PAIR + bodies * _BYTES_PER_BODY)
 
 
 @dataclass(frozen=True)
 class SolverSettings:
     """How a :class:`BatchedDiskWorld` solves its impulses: ``iterations`` rounds per substep, ``substeps`` per
-    control step, each round's updates over-relaxed by ``relaxation``, and whether one round is compiled by
-    ``torch.compile`` (off: on CPU the compiled round ran slower than eager)."""
+    control step, each round's updates over-relaxed by ``relaxation``, and whether ``torch.compile`` fuses each
+    substep into a few loops (swarms of up to ``ALL_PAIRS_LIMIT`` robots; the first step of each shape then
+    takes seconds to compile, every later one runs about 3 times faster on a CPU)."""
 
     iterations: int = ITERATIONS
     substeps: int = SUBSTEPS
@@ -135,7 +150,6 @@ class BatchedDiskWorld:
         self.n_walls = check_int("n_walls", n_walls, minimum=0)
         if not isinstance(solver, SolverSettings):
             raise ParameterError("solver", f"expected SolverSettings, got {type(solver).__name__}")
-        self.iterations, self.substeps, self.relaxation = solver.iterations, solver.substeps, solver.relaxation
         self.device = _checked_device(device)
         if object_radius is not None:
             object_radius = check_number("object_radius", object_radius, above=0.0)
@@ -148,71 +162,102 @@ class BatchedDiskWorld:
                 f"{k} swarms of {n} robots need about {needed / 2**30:.1f} GiB while stepping; "
                 f"{self.device} has {available / 2**30:.1f} GiB: use fewer swarms or robots",
             )
-        self.dt = C.CONTROL_PERIOD / self.substeps
-        self._bias = _bias_coefficient(self.dt)
+        self.n_bodies = n + (object_radius is not None)
         self.use_cells = n > ALL_PAIRS_LIMIT
+        # compiled, a substep is a handful of fused loops; its pairs are read through slices, which fuse, where
+        # eager code reads them faster through matrix products
+        compiled = solver.compile and not self.use_cells
+        dt = C.CONTROL_PERIOD / solver.substeps
+        self.constants = StepConstants(
+            dt,
+            _bias_coefficient(dt),
+            solver.relaxation,
+            solver.iterations,
+            solver.substeps,
+            torch.compile(substep, dynamic=False) if compiled else substep,
+        )
         self.cell_cap, self.max_neighbours = CELL_CAP, MAX_NEIGHBOURS
         self._allocate_state(k, n)
-        self._allocate_solver_state(k, n)
-        # compiled, one solver round is one graph (seconds to compile, once per shape and case)
-        self._solve = torch.compile(solve_round, dynamic=False) if solver.compile else solve_round
+        self._pairs = None if self.use_cells else DensePairs(self.n_bodies, k, self.device, slices=compiled)
+        self._impulses = self._no_impulses(0 if self.use_cells else self._pairs.size)
+        if not self.use_cells:
+            self._pair_constants(self._pairs)
 
     def _zeros(self, *shape, dtype=torch.float32) -> torch.Tensor:
         return torch.zeros(*shape, dtype=dtype, device=self.device)
 
     def _allocate_state(self, k: int, n: int) -> None:
         """The swarms', walls' and ball's state, all contracted and at rest until :meth:`reset`."""
-        zeros = self._zeros
-        self.position = zeros(k, n, 2)
-        self.velocity = zeros(k, n, 2)
-        self.angular_velocity = zeros(k, n)
-        self.radius = torch.full((k, n), C.DISK_CONTRACTED_RADIUS, device=self.device)
-        self.commanded_radius = self.radius.clone()  # where each actuator drives: the radius with no load
-        self.expansion = zeros(k, n)
-        self.target = zeros(k, n)
-        self.moving = zeros(k, n, dtype=torch.bool)
-        self.alive = torch.ones(k, n, dtype=torch.bool, device=self.device)
-        self.walls = zeros(k, self.n_walls, 4, 2)
+        b = self.n_bodies
+        masses = [C.DISK_MASS] * n + ([self.object_mass] if self.object_radius is not None else [])
+        moments = [DISK_MOMENT] * n + ([self.object_mass * self.object_radius**2 / 2] if b > n else [])
+        radius = torch.full((b, k), C.DISK_CONTRACTED_RADIUS, device=self.device)
+        if b > n:
+            radius[n] = self.object_radius
+        zeros = [self._zeros(b, k) for _ in range(10)]
+        self.bodies = Bodies(
+            *zeros,
+            radius=radius,
+            mass=torch.tensor(masses, device=self.device)[:, None],
+            moment=torch.tensor(moments, device=self.device)[:, None],
+        )
+        self._commanded = torch.full((n, k), C.DISK_CONTRACTED_RADIUS, device=self.device)  # radius with no load
+        self._expansion, self._target = self._zeros(n, k), self._zeros(n, k)
+        self._moving = self._zeros(n, k, dtype=torch.bool)
+        self._alive = torch.ones(n, k, dtype=torch.bool, device=self.device)
+        self.walls = self._zeros(k, self.n_walls, 4, 2)
         self._set_wall_geometry()
-        if self.object_radius is not None:
-            self.object_position = zeros(k, 2)
-            self.object_velocity = zeros(k, 2)
-            self.object_angular_velocity = zeros(k)
-            self._object_bias_velocity = zeros(k, 2)
-            self._object_moment = self.object_mass * self.object_radius**2 / 2
-            self._object_friction = zeros(k, 2)  # accumulated ground-friction impulses (pivot, gear)
-            self._object_spin_friction = zeros(k)
 
-    def _allocate_solver_state(self, k: int, n: int) -> None:
-        """What the solver keeps between substeps and steps: the neighbour table and chipmunk's accumulated
-        impulses (its warm starts)."""
-        zeros = self._zeros
-        self._bias_velocity = zeros(k, n, 2)
-        self._ground = zeros(k, n, 2)
-        self._ground_spin = zeros(k, n)
-        m = n if not self.use_cells else self.max_neighbours
-        self._index = torch.arange(n, device=self.device).expand(k, n, n) if not self.use_cells else None
-        self._valid = zeros(k, n, m, dtype=torch.bool)
-        if self.use_cells:
-            self._index = torch.zeros(k, n, m, dtype=torch.long, device=self.device)
-        self._config = {
-            "dt": self.dt,
-            "_bias": self._bias,
-            "iterations": self.iterations,
-            "substeps": self.substeps,
-            "relaxation": self.relaxation,
-            "use_cells": self.use_cells,
-            "n_walls": self.n_walls,
-            "object_radius": self.object_radius,
-            "object_mass": self.object_mass,
-            "_object_moment": getattr(self, "_object_moment", None),
-        }
-        self._rod_impulse = zeros(k, n, m)
-        self._normal_impulse = zeros(k, n, m)
-        self._tangent_impulse = zeros(k, n, m)
-        self._wall_impulse = zeros(k, n, self.n_walls, 2)  # normal, tangent
-        self._ball_impulse = zeros(k, n, 2)
-        self._ball_wall_impulse = zeros(k, self.n_walls, 2)
+    def _no_impulses(self, n_pairs: int) -> Impulses:
+        k, walls = self.num_envs, self.n_walls
+        pair = [self._zeros(n_pairs, k) if not self.use_cells else self._zeros(n_pairs) for _ in range(3)]
+        wall = [self._zeros(walls, self.n_bodies, k) for _ in range(2)] if walls else [None, None]
+        return Impulses(*pair, *wall)
+
+    def _pair_constants(self, pairs) -> None:
+        """Per pair: which are two robots (rods and the magnet range apply) and the contact's restitution."""
+        self._robot_pair = pairs.second < self.n_robots
+        self._elasticity = torch.where(self._robot_pair, ROBOT_ELASTICITY, BALL_ELASTICITY)
+        if not self.use_cells:
+            self._robot_pair, self._elasticity = self._robot_pair[:, None], self._elasticity[:, None]
+
+    # -- the public state, [K, N, ...] ----------------------------------------------------------------------
+    def _robots_xy(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        return torch.stack((x[: self.n_robots], y[: self.n_robots]), dim=-1).transpose(0, 1)
+
+    @property
+    def position(self) -> torch.Tensor:
+        return self._robots_xy(self.bodies.px, self.bodies.py)
+
+    @property
+    def velocity(self) -> torch.Tensor:
+        return self._robots_xy(self.bodies.vx, self.bodies.vy)
+
+    @property
+    def angular_velocity(self) -> torch.Tensor:
+        return self.bodies.spin[: self.n_robots].t()
+
+    @property
+    def radius(self) -> torch.Tensor:
+        return self.bodies.radius[: self.n_robots].t()
+
+    @property
+    def commanded_radius(self) -> torch.Tensor:
+        return self._commanded.t()
+
+    expansion = property(lambda self: self._expansion.t())
+    target = property(lambda self: self._target.t())
+    moving = property(lambda self: self._moving.t())
+    alive = property(lambda self: self._alive.t())
+
+    def _ball(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        if self.object_radius is None:
+            raise AttributeError("this world has no ball")
+        return torch.stack((x[self.n_robots], y[self.n_robots]), dim=-1)
+
+    object_position = property(lambda self: self._ball(self.bodies.px, self.bodies.py))
+    object_velocity = property(lambda self: self._ball(self.bodies.vx, self.bodies.vy))
+    object_angular_velocity = property(lambda self: self._ball(self.bodies.spin, self.bodies.spin)[:, 0])
 
     # -- state --------------------------------------------------------------------------------------------
     def reset(
@@ -230,49 +275,78 @@ class BatchedDiskWorld:
         mask = self._checked("mask", mask, (k,), torch.bool)
         centres = self._checked("centres", centres, (k, n, 2), torch.float32)
         dead = self._checked("dead", dead, (k, n), torch.bool)
-        robots = mask[:, None]
-
-        def put(name: str, value) -> None:
-            old = getattr(self, name)
-            where = mask.reshape(-1, *([1] * (old.dim() - 1)))
-            setattr(self, name, torch.where(where, torch.as_tensor(value, dtype=old.dtype, device=self.device), old))
-
-        put("position", centres)
-        for name in (
-            "velocity",
-            "angular_velocity",
-            "expansion",
-            "target",
-            "moving",
-            "_bias_velocity",
-            "_ground",
-            "_ground_spin",
-            "_rod_impulse",
-            "_normal_impulse",
-            "_tangent_impulse",
-            "_wall_impulse",
-            "_ball_impulse",
-            "_ball_wall_impulse",
-            "_valid",
-        ):
-            put(name, 0)
-        put("radius", C.DISK_CONTRACTED_RADIUS)
-        put("commanded_radius", C.DISK_CONTRACTED_RADIUS)
-        self.alive = torch.where(robots, ~dead, self.alive)
+        bodies = self.bodies
+        px, py = centres[..., 0].t(), centres[..., 1].t()
+        if self.object_radius is not None and object_position is not None:
+            ball = self._checked("object_position", object_position, (k, 2), torch.float32)
+            px, py = torch.cat((px, ball[None, :, 0])), torch.cat((py, ball[None, :, 1]))
+        elif self.object_radius is not None:
+            px, py = torch.cat((px, bodies.px[n:])), torch.cat((py, bodies.py[n:]))
+        bodies.px, bodies.py = torch.where(mask, px, bodies.px), torch.where(mask, py, bodies.py)
+        for name in ("vx", "vy", "spin", "bx", "by", "gx", "gy", "gspin"):
+            setattr(bodies, name, torch.where(mask, 0.0, getattr(bodies, name)))
+        bodies.radius = torch.where(mask, self._contracted_radii(), bodies.radius)
+        self._commanded = torch.where(mask, C.DISK_CONTRACTED_RADIUS, self._commanded)
+        self._expansion = torch.where(mask, 0.0, self._expansion)
+        self._target = torch.where(mask, 0.0, self._target)
+        self._moving = self._moving & ~mask
+        self._alive = torch.where(mask, ~dead.t(), self._alive)
+        self._clear_impulses(mask)
         if walls is not None:
-            put("walls", self._checked("walls", walls, (k, self.n_walls, 4, 2), torch.float32))
+            walls = self._checked("walls", walls, (k, self.n_walls, 4, 2), torch.float32)
+            self.walls = torch.where(mask[:, None, None, None], walls, self.walls)
             self._set_wall_geometry()
+
+    # -- snapshots ----------------------------------------------------------------------------------------
+    _STATE = ("_commanded", "_expansion", "_target", "_moving", "_alive", "walls")
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Every tensor that stepping changes (bodies, accumulated impulses, this step's pairs, the robots'
+        commands): what :meth:`load_state_dict` needs to go on exactly where this world stands."""
+        state = {f"bodies.{name}": value.clone() for name, value in vars(self.bodies).items()}
+        state.update({f"impulses.{name}": v.clone() for name, v in vars(self._impulses).items() if v is not None})
+        state.update({name: getattr(self, name).clone() for name in self._STATE})
+        if self.use_cells and self._pairs is not None:
+            state.update({f"pairs.{name}": getattr(self._pairs, name).clone() for name in ("first", "second", "env")})
+        return state
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Go on from ``state`` (:meth:`state_dict` of a world of the same settings)."""
+        mine = self.state_dict()
+        if set(state) - set(mine) - {"pairs.first", "pairs.second", "pairs.env"}:
+            raise ValueError(f"the state holds what this world does not: {sorted(set(state) - set(mine))}")
+        for name, value in state.items():
+            if name in mine and not name.startswith(("pairs.", "impulses.")) and value.shape != mine[name].shape:
+                raise ValueError(f"the state's {name} is {list(value.shape)}, this world's {list(mine[name].shape)}")
+            owner, _, attribute = name.rpartition(".")
+            if owner in ("bodies", "impulses"):
+                setattr(self.bodies if owner == "bodies" else self._impulses, attribute, value.to(self.device))
+            elif not owner:
+                setattr(self, name, value.to(self.device))
+        if self.use_cells and "pairs.first" in state:
+            self._pairs = SparsePairs(
+                *(state[f"pairs.{name}"].to(self.device) for name in ("first", "second", "env")),
+                self.n_bodies,
+                self.num_envs,
+            )
+            self._pair_constants(self._pairs)
+        self._set_wall_geometry()
+
+    def _contracted_radii(self) -> torch.Tensor:
+        radius = torch.full((self.n_bodies, 1), C.DISK_CONTRACTED_RADIUS, device=self.device)
         if self.object_radius is not None:
-            if object_position is not None:
-                put("object_position", self._checked("object_position", object_position, (k, 2), torch.float32))
-            for name in (
-                "object_velocity",
-                "object_angular_velocity",
-                "_object_bias_velocity",
-                "_object_friction",
-                "_object_spin_friction",
-            ):
-                put(name, 0)
+            radius[self.n_robots] = self.object_radius
+        return radius
+
+    def _clear_impulses(self, mask: torch.Tensor) -> None:
+        impulses = self._impulses
+        if self._pairs is not None:
+            pair_mask = mask[self._pairs.env] if self.use_cells else mask
+            for name in ("normal", "tangent", "rod"):
+                setattr(impulses, name, torch.where(pair_mask, 0.0, getattr(impulses, name)))
+        if self.n_walls:
+            impulses.wall_normal = torch.where(mask, 0.0, impulses.wall_normal)
+            impulses.wall_tangent = torch.where(mask, 0.0, impulses.wall_tangent)
 
     def _checked(self, name: str, value, shape: tuple, dtype: torch.dtype) -> torch.Tensor:
         value = torch.as_tensor(value, device=self.device)
@@ -281,109 +355,107 @@ class BatchedDiskWorld:
         return value.to(dtype)
 
     def _set_wall_geometry(self) -> None:
-        self._wall_edge, self._wall_normal, self._wall_present = wall_geometry(self.walls)
+        edge, outward, present = wall_geometry(self.walls)
+        self._walls = Walls(self.walls, edge, outward, present) if self.n_walls else None
 
     def is_sane(self) -> torch.Tensor:
         """``[K]``: False where any body's state is non-finite or absurdly large (a physics blow-up)."""
-        parts = [self.position.flatten(1), self.velocity.flatten(1), self.angular_velocity]
-        if self.object_radius is not None:
-            parts += [self.object_position, self.object_velocity, self.object_angular_velocity[:, None]]
+        b = self.bodies
+        state = torch.stack((b.px, b.py, b.vx, b.vy, b.spin))
         # NaN compares False: one comparison catches NaN, infinities and runaway values
-        return (torch.cat(parts, dim=1).abs() < _SANE_LIMIT).all(dim=1)
+        return (state.abs() < _SANE_LIMIT).flatten(0, 1).all(dim=0)
 
     def max_overlap(self) -> torch.Tensor:
         """``[K]``: the deepest overlap between two robots' disks now (0 if none touch)."""
-        index, valid = self._search_now() if self.use_cells else all_pairs(self.position, C.DISK_MAGNET_RANGE)
-        distance = torch.linalg.vector_norm(self._gather(self.position, index) - self.position[:, :, None], dim=-1)
-        overlap = self.radius[:, :, None] + self._gather(self.radius, index) - distance
-        return torch.where(valid, overlap, 0.0).flatten(1).amax(dim=1).clamp(min=0.0)
+        pairs = self._search() if self.use_cells else self._pairs
+        robot_pair = pairs.second < self.n_robots
+        dx, dy = pairs.difference(self.bodies.px, self.bodies.py)
+        (radius_sum,) = pairs.total(self.bodies.radius)
+        overlap = torch.where(robot_pair if self.use_cells else robot_pair[:, None], radius_sum - dx.hypot(dy), 0.0)
+        if not self.use_cells:
+            return overlap.amax(dim=0).clamp(min=0.0)
+        deepest = torch.zeros(self.num_envs, device=self.device)
+        return deepest.scatter_reduce(0, pairs.env, overlap, reduce="amax")
 
     def robots_touch_walls(self) -> torch.Tensor:
         """``[K]``: whether any robot's disk touches a wall now."""
         if self.n_walls == 0:
             return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        distance, _ = disk_wall_distance(self.position, self.walls, self._wall_edge, self._wall_normal)
-        touch = (distance < self.radius[..., None]) & self._wall_present[:, None]
+        distance, _ = disk_wall_distance(self.position, self.walls, self._walls.edge, self._walls.outward)
+        touch = (distance < self.radius[..., None]) & self._walls.present[:, None]
         return touch.flatten(1).any(dim=1)
 
     # -- neighbours ---------------------------------------------------------------------------------------
-    def _search_now(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The cell-list table for the current positions, searched again with larger caps until nothing
-        overflows."""
+    def _search(self) -> SparsePairs:
+        """Every pair of robots closer than the magnet range (and every robot with the ball), from a cell list
+        searched again with larger caps until nothing overflows."""
+        n, b, device = self.n_robots, self.n_bodies, self.device
         while True:
             index, valid, overflow = cell_list(self.position, C.DISK_MAGNET_RANGE, self.cell_cap, self.max_neighbours)
             if not overflow:
-                return index, valid
+                break
             self.cell_cap *= 2
             self.max_neighbours *= 2
+        valid &= index > torch.arange(n, device=device)[None, :, None]  # each pair once, first < second
+        env, first, slot = valid.nonzero(as_tuple=True)
+        second = index[env, first, slot]
+        if b > n:  # every robot with the ball
+            env_grid, robot_grid = torch.meshgrid(
+                torch.arange(self.num_envs, device=device), torch.arange(n, device=device), indexing="ij"
+            )
+            env, first = torch.cat((env, env_grid.reshape(-1))), torch.cat((first, robot_grid.reshape(-1)))
+            second = torch.cat((second, torch.full_like(robot_grid.reshape(-1), n)))
+        order = torch.argsort((env * b + first) * b + second)
+        return SparsePairs(first[order], second[order], env[order], b, self.num_envs)
 
-    def _update_neighbours(self) -> None:
-        """This step's magnet pairs (the rods) and contact candidates: robots whose centres are closer than the
-        magnet range; accumulated impulses follow their pairs to the new table's slots."""
-        if not self.use_cells:
-            _, self._valid = all_pairs(self.position, C.DISK_MAGNET_RANGE)
+    def _update_pairs(self) -> None:
+        """This step's pairs; accumulated impulses follow their pairs into the new list (0 for new pairs)."""
+        old, impulses = self._pairs, self._impulses
+        self._pairs = pairs = self._search()
+        self._pair_constants(pairs)
+        if old is None or old.size == 0:
+            impulses.normal, impulses.tangent, impulses.rod = (self._zeros(pairs.size) for _ in range(3))
             return
-        index, valid = self._search_now()
-        old = (self._rod_impulse, self._normal_impulse, self._tangent_impulse)
-        if index.shape[-1] != self._index.shape[-1]:  # the caps grew: widen the old table with empty slots
-            pad = index.shape[-1] - self._index.shape[-1]
-            grow = lambda t: torch.nn.functional.pad(t, (0, pad))  # noqa: E731
-            self._index, self._valid, old = grow(self._index), grow(self._valid), [grow(t) for t in old]
-        self._rod_impulse, self._normal_impulse, self._tangent_impulse = carry_over(
-            self._index, self._valid, index, valid, *old
-        )
-        self._index, self._valid = index, valid
-
-    def _gather(self, value: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
-        """Each neighbour slot's value of a per-robot tensor ``[K, N, ...]``: ``[K, N, M, ...]``."""
-        index = self._index if index is None else index
-        k, n = value.shape[:2]
-        if not self.use_cells:  # slot m is robot m: a broadcast, no copy
-            return value[:, None].expand(k, n, *value.shape[1:])
-        flat = (index + torch.arange(k, device=value.device)[:, None, None] * n).reshape(-1)
-        return value.reshape(k * n, *value.shape[2:])[flat].reshape(*index.shape, *value.shape[2:])
+        old_key, new_key = old.key(), pairs.key()
+        at = torch.searchsorted(old_key, new_key).clamp(max=old.size - 1)
+        found = old_key[at] == new_key
+        for name in ("normal", "tangent", "rod"):
+            setattr(impulses, name, torch.where(found, getattr(impulses, name)[at], 0.0))
 
     # -- control ------------------------------------------------------------------------------------------
     def step(self, targets: torch.Tensor) -> None:
         """One control step (0.1 s) of every swarm with expansion ``targets [K, N]`` in [0, 1]."""
-        targets = self._checked("targets", targets, (self.num_envs, self.n_robots), torch.float32)
+        targets = self._checked("targets", targets, (self.num_envs, self.n_robots), torch.float32).t()
         # the command rule (Swarm.command): a robot moving toward its target keeps it until within reach
-        busy = self.moving & ((self.target - self.expansion).abs() >= REACHED_FRACTION)
-        accept = self.alive & ~busy  # dead robots never accept: their target stays 0 (contracted)
-        self.target = torch.where(accept, targets, self.target)
-        self.moving = (busy | accept) & ((self.target - self.expansion).abs() >= REACHED_FRACTION)
-        radius_target = C.DISK_CONTRACTED_RADIUS + self.target * (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
+        busy = self._moving & ((self._target - self._expansion).abs() >= REACHED_FRACTION)
+        accept = self._alive & ~busy  # dead robots never accept: their target stays 0 (contracted)
+        self._target = torch.where(accept, targets, self._target)
+        self._moving = (busy | accept) & ((self._target - self._expansion).abs() >= REACHED_FRACTION)
+        radius_target = C.DISK_CONTRACTED_RADIUS + self._target * (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
+        if self.use_cells:
+            self._update_pairs()
+        rods = self._grow(radius_target)
+        physics(self.bodies, self._pairs, self._elasticity, rods, self._walls, self._impulses, self.constants)
 
-        self._update_neighbours()
-        rod_length, rod_max_impulse = self._grow(radius_target)
-        state = {name: getattr(self, name) for name in MUTABLE + _READ if hasattr(self, name)}
-        for name, value in physics(state, self._config, rod_length, rod_max_impulse, self._solve).items():
-            setattr(self, name, value)
-
-    def _grow(self, radius_target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _grow(self, radius_target: torch.Tensor) -> Rods:
         """DiskSwarm.before_physics: move the commanded radii, grow the disks into the room their neighbours
-        leave (at most DISK_GROWTH_OVERLAP into one), and return the rods' lengths and force limits (as impulses
-        per substep)."""
+        leave (at most DISK_GROWTH_OVERLAP into one), and return the rods: pairs of robots within the magnet
+        range, their lengths and force limits (as impulses per substep)."""
+        n, pairs, bodies = self.n_robots, self._pairs, self.bodies
         reach = C.DISK_RADIUS_SPEED * C.CONTROL_PERIOD
-        commanded = torch.minimum(
-            torch.maximum(radius_target, self.commanded_radius - reach), self.commanded_radius + reach
-        )
-        radius = self.radius
-        distance = torch.linalg.vector_norm(self._gather(self.position) - self.position[:, :, None], dim=-1)
-        radius_sum = radius[:, :, None] + self._gather(radius)
-        commanded_sum = commanded[:, :, None] + self._gather(commanded)
+        commanded = torch.minimum(torch.maximum(radius_target, self._commanded - reach), self._commanded + reach)
+        commanded_bodies = torch.cat((commanded, bodies.radius[n:]))
+        dx, dy = pairs.difference(bodies.px, bodies.py)
+        distance = torch.sqrt(dx * dx + dy * dy)
+        radius_sum, commanded_sum = pairs.total(bodies.radius, commanded_bodies)
+        rod = (distance < C.DISK_MAGNET_RANGE) & self._robot_pair
         gap = distance - radius_sum  # free room between the two surfaces of each linked pair
-        room = (
-            torch.where(self._valid, gap, math.inf).amin(dim=-1)
-            if self._valid.shape[-1]
-            else torch.full_like(radius, math.inf)
-        )
-        new_radius = torch.minimum(commanded, radius + (room + C.DISK_GROWTH_OVERLAP).clamp(min=0.0))
+        room = pairs.nearest(torch.where(rod, gap, math.inf))[:n]
+        new_radius = torch.minimum(commanded, bodies.radius[:n] + (room + C.DISK_GROWTH_OVERLAP).clamp(min=0.0))
         # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink)
-        rod_length = gap + commanded_sum
         pushing = commanded_sum > radius_sum
-        rod_max_impulse = torch.where(pushing, C.DISK_PUSH_FORCE, C.MAGNET_MAX_FORCE) * self.dt
-        self.commanded_radius = commanded
-        self.radius = new_radius
-        self.expansion = (new_radius - C.DISK_CONTRACTED_RADIUS) / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
-        return rod_length, rod_max_impulse
+        limit = torch.where(pushing, C.DISK_PUSH_FORCE, C.MAGNET_MAX_FORCE) * self.constants.dt * rod
+        self._commanded = commanded
+        bodies.radius = torch.cat((new_radius, bodies.radius[n:]))
+        self._expansion = (new_radius - C.DISK_CONTRACTED_RADIUS) / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
+        return Rods(gap + commanded_sum, limit, rod.float())
