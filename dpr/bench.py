@@ -143,10 +143,13 @@ BATCHED_SIZES = (100, 1000, 10000)  # N, with K*N near BATCHED_ROBOTS robots in 
 BATCHED_ROBOTS = 10_000
 
 
-def bench_batched(num_envs: int, n_robots: int, seconds: float = 2.0, device: str = "cpu", seed: int = 0) -> dict:
+def bench_batched(
+    num_envs: int, n_robots: int, seconds: float = 2.0, device: str = "cpu", seed: int = 0, compile: bool = False
+) -> dict:
     """Env steps per second of ``num_envs`` Navigation envs of N robots on the batched engine
     (``step_tensors``: physics, observation, reward, same-step resets), random actions drawn on the device, timed
-    for at least ``seconds`` after one warm-up step; and the peak memory of the device (CUDA), or of the process."""
+    for at least ``seconds`` after one warm-up step (with ``compile``, after the compiling); and the peak memory of the
+    device (CUDA), or of the process."""
     import resource
 
     import torch
@@ -158,6 +161,7 @@ def bench_batched(num_envs: int, n_robots: int, seconds: float = 2.0, device: st
         robot_model="disk",
         n_robots=n_robots,
         device=device,
+        compile=compile,
     ).unwrapped
     envs.reset_tensors(seed)
     generator = torch.Generator(device=envs.device).manual_seed(seed)
@@ -179,6 +183,7 @@ def bench_batched(num_envs: int, n_robots: int, seconds: float = 2.0, device: st
     return {
         "engine": "batched",
         "device": str(envs.device),
+        "compiled": compile and not envs.world.use_cells,
         "num_envs": num_envs,
         "n_robots": n_robots,
         "env_steps_per_s": rate,
@@ -187,14 +192,16 @@ def bench_batched(num_envs: int, n_robots: int, seconds: float = 2.0, device: st
     }
 
 
-def run_batched_benchmarks(ks=BATCHED_ENVS, sizes=BATCHED_SIZES, seconds: float = 2.0, device="cpu", progress=None):
+def run_batched_benchmarks(
+    ks=BATCHED_ENVS, sizes=BATCHED_SIZES, seconds: float = 2.0, device="cpu", progress=None, compile: bool = False
+):
     """The batched engine at N=9 for every K in ``ks`` and at every N in ``sizes`` (K*N near
     :data:`BATCHED_ROBOTS`), each beside the pymunk disk env at the same N (random actions, :func:`bench_env`; not
     above N=1000, whose steps take seconds), in one run."""
     pymunk = {n: bench_env("disk", n, steps=max(20, 2000 // n), repeats=3) for n in (9, *sizes) if n <= 1000}
     rows = []
     for k, n in [(k, 9) for k in ks] + [(max(1, BATCHED_ROBOTS // n), n) for n in sizes]:
-        row = bench_batched(k, n, seconds, device)
+        row = bench_batched(k, n, seconds, device, compile=compile)
         row["pymunk_env_steps_per_s"] = pymunk[n]["env_steps_per_s"] if n in pymunk else None
         rows.append(row)
         if progress is not None:

@@ -8,6 +8,7 @@ import sys
 from dpr.cli.common import (
     Command,
     check_output,
+    compile_argument,
     default_argument,
     defaults,
     json_argument,
@@ -42,6 +43,7 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"batched: N, each with K*N near {BATCHED_ROBOTS} robots",
     )
     parser.add_argument("--device", default=batched["device"], help="batched: torch device, cpu or cuda")
+    compile_argument(parser)
     json_argument(parser, "the rows")
 
 
@@ -78,6 +80,7 @@ def _batched_rows(args) -> tuple[list[dict], str]:
         args.ks,
         args.batched_sizes,
         device=args.device,
+        compile=args.compile,
         progress=lambda r: print(
             f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
             file=sys.stderr,

@@ -319,6 +319,16 @@ def engine_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="torch device of the batched engine: cpu or cuda (default cpu)")
 
 
+def compile_argument(parser: argparse.ArgumentParser) -> None:
+    """--compile: torch.compile the batched engine's physics."""
+    parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="with --engine batched: torch.compile each physics substep (swarms of up to 32 robots): seconds of "
+        "compiling at the first step, then about 3 times the speed on a CPU",
+    )
+
+
 def apply_engine_defaults(args) -> None:
     """The batched engine's robot model, disk, where --robot-model was not given (a model file's own applies)."""
     if args.engine == "batched" and args.robot_model is None and not args.policy.endswith(".zip"):

@@ -14,6 +14,7 @@ from dpr.cli.common import (
     apply_engine_defaults,
     check_output,
     check_rerun_output,
+    compile_argument,
     defaults,
     engine_arguments,
     env_kwarg_argument,
@@ -69,6 +70,7 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     workers_argument(parser, "episodes run in this many processes")
     engine_arguments(parser)
+    compile_argument(parser)
     env_kwarg_argument(parser, "object_start=paper")
     json_argument(parser, "episodes and summary")
     rerun_argument(parser, "also save every evaluated episode (replayed with full state) to this new rerun file")
@@ -87,7 +89,9 @@ def cmd_evaluate(args, parser) -> int:
         if args.engine == "batched":
             from dpr.evaluation.batched import evaluate_batched
 
-            results = evaluate_batched(env_ids, args.policy, args.seeds, args.steps, env_kwargs, args.device)
+            results = evaluate_batched(
+                env_ids, args.policy, args.seeds, args.steps, env_kwargs, args.device, compile=args.compile
+            )
         else:
             results = _evaluate_on_pymunk(args, env_ids, env_kwargs)
     except ValueError as error:

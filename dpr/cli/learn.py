@@ -11,6 +11,7 @@ from dpr.cli.common import (
     Command,
     check_rerun_output,
     check_seed,
+    compile_argument,
     default_argument,
     defaults,
     engine_arguments,
@@ -181,6 +182,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
         f"batched, else {config['preset']})",
     )
     engine_arguments(parser)
+    compile_argument(parser)
     parser.add_argument(
         "--learner",
         choices=LEARNERS,
@@ -243,6 +245,7 @@ def cmd_train(args, parser) -> int:
             preset=args.preset,
             engine=args.engine,
             device=args.device,
+            compile=args.compile,
             learner=args.learner,
             steps_per_episode=args.steps_per_episode,
             env_kwargs=dict(args.env_kwarg or []),

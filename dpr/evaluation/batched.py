@@ -26,26 +26,24 @@ def evaluate_batched(
     steps: int = MAX_EPISODE_STEPS,
     env_kwargs: dict | None = None,
     device: str = "cpu",
+    compile: bool = False,
 ) -> list[EpisodeResult]:
     """:func:`dpr.evaluation.scoring.evaluate` on the batched engine: per env id, one vector env of ``len(seeds)``
-    envs, env ``i`` started from ``seeds[i]`` as ``gymnasium.make(env_id).reset(seed=seeds[i])`` starts."""
+    envs, env ``i`` started from ``seeds[i]`` as ``gymnasium.make(env_id).reset(seed=seeds[i])`` starts;
+    ``compile``: torch.compile the physics (:class:`dpr.sim.batched.SolverSettings`)."""
     check_policy_name(policy)
     results = []
     for env_id in env_ids:
         check_env_id(env_id, "env_ids")
         kwargs = policy_env_kwargs(policy, env_id, env_kwargs)
-        results += _evaluate_task(env_id, policy, list(seeds), episode_steps(kwargs, steps), kwargs, device)
+        kwargs = {**kwargs, "device": device, "compile": compile}
+        results += _evaluate_task(env_id, policy, list(seeds), episode_steps(kwargs, steps), kwargs)
     return results
 
 
-def _evaluate_task(env_id: str, policy_name: str, seeds: list[int], steps: int, kwargs: dict, device: str):
+def _evaluate_task(env_id: str, policy_name: str, seeds: list[int], steps: int, kwargs: dict):
     venv = gym.make_vec(
-        env_id,
-        num_envs=len(seeds),
-        vectorization_mode="vector_entry_point",
-        max_episode_steps=steps,
-        device=device,
-        **kwargs,
+        env_id, num_envs=len(seeds), vectorization_mode="vector_entry_point", max_episode_steps=steps, **kwargs
     )
     env = venv.unwrapped
     policy = make_batched_policy(policy_name, env, seed=seeds[0])

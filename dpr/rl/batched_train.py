@@ -111,6 +111,7 @@ def train_batched(
         vectorization_mode="vector_entry_point",
         max_episode_steps=config.steps_per_episode,
         device=config.device,
+        compile=config.compile,
         **config.training_kwargs(env_kwargs),
     )  # bad kwargs, a device without CUDA or a swarm too large for memory fail here, before the run folder exists
     model = _build(config, hyper, venv)

@@ -104,6 +104,10 @@ def has_snapshot(run_dir: str | Path) -> bool:
     return snapshot_folder(run_dir) is not None
 
 
+# TrainConfig settings added after runs were recorded, at the value those runs had
+SETTINGS_ADDED_LATER = {"engine": "pymunk", "device": "cpu", "learner": "torch", "compile": False}
+
+
 def check_resumable(out: str | Path | None, config: dict[str, Any]) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run with a snapshot to resume from whose
     ``config.yaml`` records ``config`` (the run's settings, as it records them under ``config``)."""
@@ -117,6 +121,8 @@ def check_resumable(out: str | Path | None, config: dict[str, Any]) -> None:
     config_path = Path(out) / "config.yaml"
     recorded = load_yaml(config_path, "out", MAX_RECORD_BYTES).get("config") if config_path.is_file() else None
     wanted = yaml.safe_load(yaml.safe_dump(config))
+    if recorded is not None:  # settings that came later: a run recorded before them ran at their defaults
+        recorded = {**{k: v for k, v in SETTINGS_ADDED_LATER.items() if k in wanted}, **recorded}
     if recorded != wanted:
         differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
         raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")

@@ -94,6 +94,7 @@ class TrainConfig:
     anchor_decay: float = 0.99  # ... times this per update
     engine: str = "pymunk"  # or "batched": PPO on n_envs envs of the batched disk engine (dpr.rl.batched_train)
     device: str = "cpu"  # the batched engine's torch device
+    compile: bool = False  # the batched engine's: torch.compile its physics substeps
     learner: str = "torch"  # the batched engine's: PPO on the device (dpr.rl.batched_ppo), or "sb3" (SB3's learn())
 
     def __post_init__(self):
@@ -132,6 +133,8 @@ class TrainConfig:
     def _check_engine(self) -> None:
         check_choice("engine", self.engine, ENGINES)
         check_choice("learner", self.learner, LEARNERS)
+        if self.engine == ENGINES[0] and self.compile:
+            raise ParameterError("compile", "compiles the batched engine's physics: it needs engine='batched'")
         if self.engine == ENGINES[0] and self.learner != LEARNERS[0]:
             raise ParameterError("learner", "chooses the batched engine's learner: it needs engine='batched'")
         if self.engine == ENGINES[0]:
