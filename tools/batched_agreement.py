@@ -155,6 +155,15 @@ def batched_episodes(starts: list[dict], steps: int, overlap_every: int, **world
     return {"displacement": displacement.tolist(), "overlap": overlap.tolist(), "sane": world.is_sane().tolist()}
 
 
+def ratio_interval(reference: np.ndarray, ours: np.ndarray, resamples: int = 2000) -> list[float]:
+    """A 95% bootstrap interval of median(ours) / median(reference), the seeds resampled in pairs (both engines
+    start each seed alike): how far the ratio moves with the draw of starts alone."""
+    generator = np.random.default_rng(0)
+    picks = generator.integers(0, len(reference), size=(resamples, len(reference)))
+    ratios = np.median(ours[picks], axis=1) / np.median(reference[picks], axis=1)
+    return [float(v) for v in np.percentile(ratios, [2.5, 97.5])]
+
+
 def _load_cache(path: Path | None) -> dict:
     if path is None or not path.exists():
         return {}
@@ -216,20 +225,25 @@ def main() -> int:
             "batched_seconds": batched_seconds,
         }
         row["ratio"] = row["batched_median"] / row["pymunk_median"] if row["pymunk_median"] else float("nan")
+        row["ratio_ci95"] = ratio_interval(reference, ours)
+        row["pymunk_displacements"], row["batched_displacements"] = reference.tolist(), ours.tolist()
         row["agrees"] = (
             RATIO_RANGE[0] <= row["ratio"] <= RATIO_RANGE[1]
             and row["batched_overlap"] <= row["pymunk_overlap"] + 0.5
             and row["batched_sane"]
         )
         rows.append(row)
-        print(json.dumps(row), file=sys.stderr, flush=True)
+        print(json.dumps({k: v for k, v in row.items() if not k.endswith("displacements")}), file=sys.stderr, flush=True)
     print(f"wave (hold {HOLD_STEPS}, near side), {args.steps} steps; median projected displacement over the seeds")
-    print("| case | seeds | pymunk | batched | batched / pymunk | max overlap pymunk | max overlap batched | agrees |")
+    print(
+        "| case | seeds | pymunk | batched | batched / pymunk [95% CI] | max overlap pymunk | max overlap batched "
+        "| agrees |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
         print(
             f"| {r['case']} | {r['seeds']} | {r['pymunk_median']:+.1f} | {r['batched_median']:+.1f} | "
-            f"{r['ratio']:.2f} | "
+            f"{r['ratio']:.2f} [{r['ratio_ci95'][0]:.2f}, {r['ratio_ci95'][1]:.2f}] | "
             f"{r['pymunk_overlap']:.2f} | {r['batched_overlap']:.2f} | {'yes' if r['agrees'] else '**no**'} |"
         )
     if args.json:

@@ -10,4 +10,7 @@ python -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 'no C
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader || true
 python -m dpr.cli bench --engine batched --device cuda --ks 1 64 1024 4096 16384 65536 \
     --batched-sizes 100 1000 10000 --json "$out/bench-batched.json"
+# the same at N=9 with each physics substep compiled (Triton kernels on the GPU)
+python -m dpr.cli bench --engine batched --device cuda --compile --ks 1024 4096 16384 65536 --batched-sizes \
+    --json "$out/bench-batched-compiled.json"
 python tools/bench_training.py --device cuda --num-envs 4096 --updates 3 --repeats 1 --json "$out/bench-training.json"

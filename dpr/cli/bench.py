@@ -37,10 +37,10 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ks", nargs="+", type=positive_int, default=list(batched["ks"]), help="batched: K at N=9")
     parser.add_argument(
         "--batched-sizes",
-        nargs="+",
+        nargs="*",
         type=positive_int,
         default=list(batched["sizes"]),
-        help=f"batched: N, each with K*N near {BATCHED_ROBOTS} robots",
+        help=f"batched: N, each with K*N near {BATCHED_ROBOTS} robots (none: N=9 only)",
     )
     parser.add_argument("--device", default=batched["device"], help="batched: torch device, cpu or cuda")
     compile_argument(parser)

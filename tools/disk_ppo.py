@@ -1,0 +1,131 @@
+#!/usr/bin/env python
+"""Learning without demonstrations: PPO from scratch on the batched disk engine, then on the pymunk paddle model.
+
+For each task and training seed, four steps, each skipped when its output is there (so a stopped campaign goes on
+where it stopped when run again):
+
+1. ``pretrain``: ``dpr train --engine batched --robot-model disk`` (the swarm actor, deciding every 6 physics steps,
+   on ``--num-envs`` envs in one call);
+2. ``zero-shot``: that actor, unchanged, on the paddle model over the validation seeds;
+3. ``finetune``: ``dpr finetune --from`` it on the paddle model (the disk-pretraining recipe of the research log);
+4. ``validation``: the fine-tuned actor on the validation seeds.
+
+``--report`` then prints, per task, each run's validation medians and the median run's, and with ``--test`` scores
+the median run (chosen on validation seeds) on the test seeds beside the paddle wave.
+
+    python tools/disk_ppo.py --tasks navigation unresponsive --seeds 0 1 2 --out runs/disk-ppo
+    python tools/disk_ppo.py --out runs/disk-ppo --report --test
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+ENVS = {
+    "navigation": "dpr/Navigation-v0",
+    "gate": "dpr/Gate-v2",
+    "unresponsive": "dpr/Unresponsive-v0",
+    "manipulation": "dpr/Manipulation-v0",
+}
+VALIDATION = "200-219"  # the full preset's validation seeds
+TEST = "300-349"  # and its test seeds
+ENV_KWARGS = ["--env-kwarg", "obs_last_action=true", "--env-kwarg", "action_repeat=6"]
+FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
+
+
+def dpr(*arguments: str) -> None:
+    command = [sys.executable, "-m", "dpr.cli", *arguments]
+    print("+", " ".join(command[2:]), file=sys.stderr, flush=True)
+    subprocess.run(command, check=True)
+
+
+def evaluate(model: Path, env_id: str, seeds: str, out: Path) -> None:
+    if not out.exists():
+        dpr("evaluate", "--policy", str(model), "--env", env_id, "--robot-model", "paddle", "--seeds", seeds,
+            "--json", str(out))  # fmt: skip
+
+
+def run(task: str, seed: int, args) -> None:
+    env_id, folder = ENVS[task], args.out / task / f"seed-{seed}"
+    pretrain = folder / "pretrain"
+    if not (pretrain / "model.zip").exists():
+        resume = ["--resume"] if pretrain.exists() else []
+        dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
+            "--timesteps", str(args.pretrain_steps), "--n-envs", str(args.num_envs), "--seed", str(seed),
+            *(["--compile"] if args.compile else []), "--out", str(pretrain), *resume)  # fmt: skip
+    evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
+    if args.finetune_steps == 0:
+        return
+    finetune = folder / "finetune"
+    if not (finetune / "model.zip").exists():
+        hyper = [item for value in FINETUNE_HYPERPARAMS for item in ("--hyperparam", value)]
+        dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
+            "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
+            "--out", str(finetune), *(["--resume"] if finetune.exists() else []))  # fmt: skip
+    evaluate(finetune / "model.zip", env_id, VALIDATION, folder / "finetuned_validation.json")
+
+
+def median_displacement(path: Path) -> float | None:
+    if not path.exists():
+        return None
+    episodes = json.loads(path.read_text())
+    episodes = episodes.get("episodes", episodes) if isinstance(episodes, dict) else episodes
+    return statistics.median(e["projected_displacement"] for e in episodes)
+
+
+def report(args) -> None:
+    for task, env_id in ENVS.items():
+        runs = sorted((args.out / task).glob("seed-*"))
+        if not runs:
+            continue
+        scores = {}
+        for folder in runs:
+            zero = median_displacement(folder / "zero_shot_validation.json")
+            tuned = median_displacement(folder / "finetuned_validation.json")
+            print(f"{task} {folder.name}: zero-shot {zero}, fine-tuned {tuned} (validation medians)")
+            best = tuned if tuned is not None else zero
+            if best is not None:
+                scores[folder] = (best, "finetune" if tuned is not None else "pretrain")
+        if not scores or not args.test:
+            continue
+        ordered = sorted(scores, key=lambda f: scores[f][0])
+        chosen = ordered[len(ordered) // 2]
+        model = chosen / scores[chosen][1] / "model.zip"
+        evaluate(model, env_id, TEST, chosen / "test.json")
+        wave = args.out / task / "wave_test.json"
+        if not wave.exists():
+            dpr("evaluate", "--policy", "wave", "--env", env_id, "--robot-model", "paddle", "--seeds", TEST,
+                "--json", str(wave))  # fmt: skip
+        ours, theirs = median_displacement(chosen / "test.json"), median_displacement(wave)
+        print(f"{task}: median run {chosen.name} ({model}): test median {ours:.1f}, wave {theirs:.1f}, "
+              f"{ours / theirs:.0%} of the wave")  # fmt: skip
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", nargs="+", choices=list(ENVS), default=list(ENVS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--out", type=Path, default=Path("runs/disk-ppo"))
+    parser.add_argument("--pretrain-steps", type=int, default=600_000, help="env steps on the batched engine")
+    parser.add_argument("--num-envs", type=int, default=256)
+    parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
+    parser.add_argument("--finetune-steps", type=int, default=100_000, help="env steps on paddle (0: none)")
+    parser.add_argument("--report", action="store_true", help="print the runs' validation medians")
+    parser.add_argument("--test", action="store_true", help="with --report: score each task's median run")
+    args = parser.parse_args()
+    if args.report:
+        report(args)
+        return 0
+    for task in args.tasks:
+        for seed in args.seeds:
+            run(task, seed, args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
