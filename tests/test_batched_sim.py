@@ -103,12 +103,13 @@ def test_growth_into_a_neighbour_is_limited():
     assert world.expansion[0, 0] < free.expansion[0, 0]
 
 
-def test_deterministic():
+@pytest.mark.parametrize("n, ball", [(9, True), (40, False)])  # all pairs with the ball; the cell list
+def test_deterministic(n, ball):
     runs = []
     for _ in range(2):
-        world = _world(k=2, n=40, spread=(37.0, 11.0))
+        world = _world(k=2, n=n, spread=(37.0, 11.0), object_radius=40.0 if ball else None)
         for step in range(15):
-            world.step((torch.arange(40) % 3 == step % 3).float().expand(2, 40))
+            world.step((torch.arange(n) % 3 == step % 3).float().expand(2, n))
         runs.append(world.position.clone())
     assert torch.equal(runs[0], runs[1])
 
