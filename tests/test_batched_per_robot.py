@@ -12,9 +12,9 @@ import torch
 import dpr  # noqa: F401
 from dpr.cli import main
 from dpr.envs.local_obs import LocalObservation
+from dpr.envs.particle_env import ROBOT_FEATURES
 from dpr.evaluation.batched import evaluate_batched
 from dpr.evaluation.scoring import evaluate
-from dpr.envs.particle_env import ROBOT_FEATURES
 from dpr.policies.batched import BatchedPerRobotModelPolicy, make_batched_policy
 from dpr.policies.batched_local_obs import batched_local_observations
 from dpr.policies.registry import make_policy
