@@ -88,16 +88,29 @@ def nearest_neighbours(positions: torch.Tensor, neighbour_range: float, k: int) 
     indices, valids = [], []
     for first in range(0, n, chunk):
         owners = positions[:, first : first + chunk]
-        delta = positions[:, None, :, :] - owners[:, :, None, :]  # [K, owners, N, 2]: other minus owner
-        squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
+        dx = positions[:, None, :, 0] - owners[:, :, None, 0]  # [K, owners, N]: other minus owner
+        dy = positions[:, None, :, 1] - owners[:, :, None, 1]
+        squared = dx * dx + dy * dy
         within = squared < limit
         own = torch.arange(first, first + owners.shape[1], device=positions.device)
         within[:, torch.arange(owners.shape[1], device=positions.device), own] = False
         key = torch.where(within, squared, torch.inf)
-        order = key.sort(dim=2, stable=True).indices[..., :width]  # ties keep index order
+        order = _nearest_first(key, within, width)
         indices.append(order)
         valids.append(within.gather(2, order))
     return torch.cat(indices, dim=1), torch.cat(valids, dim=1)
+
+
+def _nearest_first(key: torch.Tensor, within: torch.Tensor, width: int) -> torch.Tensor:
+    """The indices of the ``width`` smallest ``key`` values along the last axis, smallest first and ties by index.
+    Only the robots within range are ranked (``topk`` of as many as the most crowded robot has, then a stable sort
+    of those few), so the cost per robot grows with N only through the distance table."""
+    crowd = int(within.count_nonzero(dim=2).max()) if within.numel() else 0
+    candidates = min(key.shape[2], max(crowd, width))
+    picked = key.topk(candidates, dim=2, largest=False, sorted=False).indices  # every robot within range
+    picked = picked.sort(dim=2).values  # by index, so that the stable sort below breaks ties by index
+    order = key.gather(2, picked).sort(dim=2, stable=True).indices
+    return picked.gather(2, order)[..., :width]
 
 
 __all__ = ["batched_local_observations", "nearest_neighbours"]
