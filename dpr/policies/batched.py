@@ -185,17 +185,65 @@ class BatchedModelPolicy:
             return policy._predict(observation, deterministic=True).float()
 
 
+class BatchedPerRobotModelPolicy:
+    """A per-robot model file (``dpr bc-decentralised``, ``dpr finetune-decentralised``) acting for every robot of K
+    envs at once: every robot's local observation computed in batch from the observations
+    (:func:`dpr.policies.batched_local_obs.batched_local_observations`, with a clock counted per env from its
+    episode's start and the world's dead flags where the layout has them), and the model's actor run on all K x N
+    rows in one forward pass, deterministically: in each env the actions
+    :class:`~dpr.policies.decentralised.PerRobotPolicyAdapter` gives there, as [K, N] targets."""
+
+    def __init__(self, robot_policy, venv):
+        self.actor = robot_policy.model.policy  # SB3's actor-critic module; only its actor's mode is used
+        self.layout = robot_policy.layout
+        self.venv = venv
+        self.n_robots = venv.n_robots
+        self.neighbour_range = float(venv.template.swarm_class.magnet_range)
+        self.steps = torch.zeros(venv.num_envs, dtype=torch.long, device=venv.device)  # since each episode began
+
+    @classmethod
+    def load(cls, path: str, venv) -> BatchedPerRobotModelPolicy:
+        """The per-robot model at ``path`` for the batched vector env ``venv``: a ValueError naming what differs
+        where the model was not trained for ``venv``'s task and robot model."""
+        from dpr.policies.per_robot_model import RobotModelPolicy, check_per_robot_env
+        from dpr.policies.sb3 import read_model_info
+
+        check_per_robot_env(path, read_model_info(path), venv.template)
+        return cls(RobotModelPolicy.load(path, single_thread=False), venv)
+
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Restart the clock of the envs of ``mask`` (all when None)."""
+        self.steps = torch.zeros_like(self.steps) if mask is None else torch.where(mask, 0, self.steps)
+
+    def local_observations(self, observation: torch.Tensor) -> torch.Tensor:
+        """Every robot's local observation, [K, N, size], at the current step of each env's clock."""
+        from dpr.policies.batched_local_obs import batched_local_observations
+
+        dead = ~self.venv.world.alive if self.layout.dead_flag else None
+        steps = self.steps.to(observation.device)
+        return batched_local_observations(observation, self.n_robots, self.neighbour_range, self.layout, steps, dead)
+
+    def __call__(self, observation: torch.Tensor) -> torch.Tensor:
+        rows = self.local_observations(observation)
+        self.steps = self.steps + 1
+        if next(self.actor.parameters()).device != rows.device:
+            self.actor.to(rows.device)
+        with torch.no_grad():
+            actions = self.actor._predict(rows.reshape(-1, rows.shape[-1]), deterministic=True)
+        return actions.reshape(rows.shape[0], rows.shape[1]).float()
+
+
 def make_batched_policy(name: str, venv, seed: int = 0):
     """The policy called ``name`` (:func:`dpr.policies.registry.make_policy`'s names) for the batched vector env
-    ``venv``: the waves and ``random`` in batch, or a centralised model file trained for ``venv``'s spaces (on either
-    engine). A per-robot model is refused by name: it does not run in batch yet."""
+    ``venv``: the waves and ``random`` in batch, a centralised model file trained for ``venv``'s spaces (on either
+    engine), or a per-robot model file trained for ``venv``'s robot model (any N)."""
     from dpr.policies.registry import DECENTRALISED_WAVE, RANDOM, WAVE, WAVE_MARKOV, parse_scripted_name
     from dpr.policies.sb3 import is_model_path, load_model, read_model_info
 
     env = venv.template
     if is_model_path(name):
         if read_model_info(name).per_robot is not None:
-            raise ValueError(f"policy {name!r} is a per-robot model, which the batched engine does not run yet")
+            return BatchedPerRobotModelPolicy.load(name, venv)
         model, _ = load_model(name, env)
         return BatchedModelPolicy(model)
     base, settings = parse_scripted_name(name)

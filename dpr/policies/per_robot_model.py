@@ -42,10 +42,11 @@ class RobotModelPolicy:
         self.path = Path(path)
 
     @classmethod
-    def load(cls, path: str | Path, parameter: str = POLICY_PARAMETER) -> RobotModelPolicy:
+    def load(cls, path: str | Path, parameter: str = POLICY_PARAMETER, single_thread: bool = True) -> RobotModelPolicy:
         """The per-robot model file at ``path`` (a :class:`ParameterError` about ``parameter`` for a file that is
-        not one), predicting on one torch thread."""
-        single_thread_torch()
+        not one), predicting on one torch thread (``single_thread``; the batched engine keeps its threads)."""
+        if single_thread:
+            single_thread_torch()
         info = read_model_info(path, parameter)
         spec = RobotModelSpec.from_info(info, path, parameter)
         model, _ = load_model(path, parameter=parameter)
