@@ -133,18 +133,15 @@ class TrainConfig:
     def _check_engine(self) -> None:
         check_choice("engine", self.engine, ENGINES)
         check_choice("learner", self.learner, LEARNERS)
-        if self.engine == ENGINES[0] and self.compile:
-            raise ParameterError("compile", "compiles the batched engine's physics: it needs engine='batched'")
-        if self.engine == ENGINES[0] and self.learner != LEARNERS[0]:
-            raise ParameterError("learner", "chooses the batched engine's learner: it needs engine='batched'")
         if self.engine == ENGINES[0]:
+            for name, asked in (("compile", self.compile), ("learner", self.learner != LEARNERS[0])):
+                if asked:
+                    raise ParameterError(name, "is a setting of the batched engine: it needs engine='batched'")
             return
         if self.algo != PPO and self.learner != "sb3":
             raise ParameterError("algo", f"the batched engine's torch learner trains {PPO} only (sb3: any)")
         if self.robot_model != "disk":
-            raise ParameterError(
-                "robot_model", f"the batched engine simulates the disk model only, got {self.robot_model!r}"
-            )
+            raise ParameterError("robot_model", f"the batched engine has the disk model only: {self.robot_model!r}")
         if self.init_from is not None or self.anchor_datasets:
             raise ParameterError("engine", "the batched engine trains from scratch: fine-tune on the pymunk engine")
 
@@ -159,10 +156,9 @@ class TrainConfig:
         hyper = load_hyperparams(self.algo, self.env_id, self.preset, self.hyperparams)
         env_kwargs = {**hyper.env_kwargs, "n_robots": self.n_robots, "robot_model": self.robot_model}
         for name, value in self.env_kwargs.items():
-            if name in hyper.env_kwargs and hyper.env_kwargs[name] != value:
-                raise ValueError(
-                    f"{self.algo} needs {name}={hyper.env_kwargs[name]!r} (its yaml env_kwargs); got {value!r}"
-                )
+            needed = hyper.env_kwargs.get(name, value)
+            if needed != value:
+                raise ValueError(f"{self.algo} needs {name}={needed!r} (its yaml env_kwargs); got {value!r}")
             env_kwargs[name] = value
         return hyper, env_kwargs, self.timesteps or hyper.n_timesteps
 
