@@ -50,11 +50,16 @@ def evaluate(model: Path, env_id: str, seeds: str, out: Path) -> None:
             "--json", str(out))  # fmt: skip
 
 
+def finished(run_dir: Path) -> bool:
+    """A run that wrote its model and keeps no snapshot to resume from (a stopped run keeps one)."""
+    return (run_dir / "model.zip").exists() and not (run_dir / "resume").exists()
+
+
 def run(task: str, seed: int, args) -> None:
     env_id, folder = ENVS[task], args.out / task / f"seed-{seed}"
     pretrain = folder / "pretrain"
-    if not (pretrain / "model.zip").exists():
-        resume = ["--resume"] if pretrain.exists() else []
+    if not finished(pretrain):
+        resume = ["--resume"] if (pretrain / "resume").exists() else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(args.pretrain_steps), "--n-envs", str(args.num_envs), "--seed", str(seed),
             *(["--compile"] if args.compile else []), "--out", str(pretrain), *resume)  # fmt: skip
@@ -62,11 +67,11 @@ def run(task: str, seed: int, args) -> None:
     if args.finetune_steps == 0:
         return
     finetune = folder / "finetune"
-    if not (finetune / "model.zip").exists():
+    if not finished(finetune):
         hyper = [item for value in FINETUNE_HYPERPARAMS for item in ("--hyperparam", value)]
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
-            "--out", str(finetune), *(["--resume"] if finetune.exists() else []))  # fmt: skip
+            "--out", str(finetune), *(["--resume"] if (finetune / "resume").exists() else []))  # fmt: skip
     evaluate(finetune / "model.zip", env_id, VALIDATION, folder / "finetuned_validation.json")
 
 
