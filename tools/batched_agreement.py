@@ -233,7 +233,8 @@ def main() -> int:
             and row["batched_sane"]
         )
         rows.append(row)
-        print(json.dumps({k: v for k, v in row.items() if not k.endswith("displacements")}), file=sys.stderr, flush=True)
+        summary = {k: v for k, v in row.items() if not k.endswith("displacements")}
+        print(json.dumps(summary), file=sys.stderr, flush=True)
     print(f"wave (hold {HOLD_STEPS}, near side), {args.steps} steps; median projected displacement over the seeds")
     print(
         "| case | seeds | pymunk | batched | batched / pymunk [95% CI] | max overlap pymunk | max overlap batched "

@@ -6,7 +6,8 @@ Both train the swarm actor (SwarmPolicy) on the same task and env kwargs (the la
 run in dpr.rl.batched_ppo's loop on `--num-envs` envs of the batched engine. Each rate counts the steps of the whole
 run, rollouts and updates together (model building and saving excluded), over the median of `--repeats` runs.
 
-    python tools/bench_training.py [--env dpr/Navigation-v0] [--num-envs 1024] [--device cpu] [--json out.json]
+    python tools/bench_training.py [--env dpr/Navigation-v0] [--num-envs 1024] [--device cpu] [--compile]
+                                   [--threads 2] [--json out.json]
 """
 
 from __future__ import annotations
@@ -42,9 +43,16 @@ def pymunk_rate(env_id: str, n_envs: int, timesteps: int) -> float:
     return result.timesteps / result.seconds
 
 
-def batched_rate(env_id: str, num_envs: int, device: str, updates: int) -> float:
+def batched_rate(env_id: str, num_envs: int, device: str, updates: int, compile: bool = False) -> float:
     config = TrainConfig(
-        "ppo", env_id, robot_model="disk", n_envs=num_envs, preset="batched", engine="batched", device=device
+        "ppo",
+        env_id,
+        robot_model="disk",
+        n_envs=num_envs,
+        preset="batched",
+        engine="batched",
+        device=device,
+        compile=compile,
     )
     hyper, _, _ = config.resolve()
     timesteps = updates * num_envs * hyper.algo_kwargs["n_steps"]
@@ -63,16 +71,22 @@ def main(argv=None) -> int:
     parser.add_argument("--updates", type=int, default=3, help="batched: PPO updates per run (default 3)")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=2, help="torch threads of the batched run (default 2)")
+    parser.add_argument(
+        "--compile", action="store_true", help="batched: torch.compile the physics (a first, untimed run compiles)"
+    )
     parser.add_argument("--json")
     args = parser.parse_args(argv)
-    torch.set_num_threads(2)
+    torch.set_num_threads(args.threads)
+    if args.compile:  # compiled once here; the timed runs find the compiled code in inductor's cache
+        batched_rate(args.env, args.num_envs, args.device, 1, compile=True)
     pymunk = statistics.median(pymunk_rate(args.env, args.n_envs, args.pymunk_timesteps) for _ in range(args.repeats))
     batched = statistics.median(
-        batched_rate(args.env, args.num_envs, args.device, args.updates) for _ in range(args.repeats)
+        batched_rate(args.env, args.num_envs, args.device, args.updates, args.compile) for _ in range(args.repeats)
     )
     print("| loop | env steps/s | ratio |\n|---|---:|---:|")
     print(f"| dpr train, pymunk disk, {args.n_envs} processes | {pymunk:,.0f} | 1.0 |")
-    label = f"dpr train --engine batched, {args.num_envs} envs, {args.device}"
+    label = f"dpr train --engine batched, {args.num_envs} envs, {args.device}{', compiled' if args.compile else ''}"
     print(f"| {label} | {batched:,.0f} | {batched / pymunk:.1f} |")
     if args.json:
         Path(args.json).write_text(json.dumps({"pymunk": pymunk, "batched": batched, "args": vars(args)}, indent=2))
