@@ -279,3 +279,15 @@ def stopped_after_snapshots(snapshots: int = 1):
         patch.setattr(resume_state, "save_snapshot", save_then_stop)
         with pytest.raises(Stop):
             yield
+
+
+def change_a_reward(path: Path) -> None:
+    """Rewrite the data file at ``path`` with one reward changed: parquet still decodes it."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    rewards = table.column("next.reward").to_numpy().copy()
+    rewards[3] = -4.3e24
+    index = table.column_names.index("next.reward")
+    pq.write_table(table.set_column(index, "next.reward", pa.array(rewards, table.schema.field(index).type)), path)

@@ -11,7 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from helpers import parquet_files, run_cli, tree_hash, write_stats
+from helpers import change_a_reward, parquet_files, run_cli, tree_hash, write_stats
 
 import dpr.datasets.collect as collect_module
 from dpr.datasets.collect import CollectSpec, collect
@@ -185,18 +185,6 @@ def test_a_data_file_from_another_episode_is_refused(small_dataset, tmp_path):
     reader.episode(0)
     with pytest.raises(DatasetError, match=r"file-001.parquet: holds rows of episode\(s\) \[0\] where episode 1"):
         reader.episode(1)
-
-
-def change_a_reward(path: Path) -> None:
-    """Rewrite the data file at ``path`` with one reward changed: parquet still decodes it."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    table = pq.read_table(path)
-    rewards = table.column("next.reward").to_numpy().copy()
-    rewards[3] = -4.3e24
-    index = table.column_names.index("next.reward")
-    pq.write_table(table.set_column(index, "next.reward", pa.array(rewards, table.schema.field(index).type)), path)
 
 
 def test_a_changed_value_fails_its_checksum(small_dataset, tmp_path):

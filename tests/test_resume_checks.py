@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from helpers import run_cli, tree_hash
+from helpers import change_a_reward, run_cli, tree_hash
 
 from dpr.datasets.collect import CollectSpec, collect
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
@@ -17,18 +17,6 @@ DAMAGED = "data/chunk-000/file-001.parquet"
 
 def small_spec(steps: int) -> CollectSpec:
     return CollectSpec("dpr/Navigation-v0", n_robots=4, robot_model="disk", steps=steps)
-
-
-def change_a_reward(path: Path) -> None:
-    """Rewrite the data file at ``path`` with one reward changed: parquet still decodes it."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    table = pq.read_table(path)
-    rewards = table.column("next.reward").to_numpy().copy()
-    rewards[3] = -4.3e24
-    index = table.column_names.index("next.reward")
-    pq.write_table(table.set_column(index, "next.reward", pa.array(rewards, table.schema.field(index).type)), path)
 
 
 @pytest.fixture(scope="module")
