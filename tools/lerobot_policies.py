@@ -56,6 +56,7 @@ CPU_DEFAULTS: dict[str, dict[str, Any]] = {
 }  # fmt: skip
 MODEL_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
 TRAINING_RECORD = "dpr_training.json"
+ENV_FILE = "dpr_env.json"  # beside a shipped policy: the env id and kwargs it was trained on
 EXPAND_THRESHOLD = 0.5  # a robot expands where the policy's continuous action is above this (actions are 0 or 1)
 
 
@@ -170,6 +171,28 @@ def training_step(dataset: Path, kind: str, batch_size: int = 4, **overrides: An
     return float(loss.detach()), {**held, F.ACTION: batch[F.ACTION].shape[1]}
 
 
+def policy_folder(model: Path) -> Path:
+    """The policy's own folder: ``model`` itself, or its ``checkpoints/last/pretrained_model`` (a ``train`` output)."""
+    return model / MODEL_FOLDER if (model / MODEL_FOLDER).is_dir() else model
+
+
+def policy_env(model: Path, dataset: Path) -> tuple[str, dict]:
+    """The env id and kwargs the policy in ``model`` was trained on: its :data:`ENV_FILE` (a shipped policy, whose
+    dataset is not at hand), else its dataset's episode rows."""
+    from dpr.datasets.lerobot import LeRobotReader
+    from dpr.imitation.bc import dataset_env
+
+    env_file = policy_folder(model) / ENV_FILE
+    if env_file.is_file():
+        recorded = json.loads(env_file.read_text())
+        return recorded["env_id"], recorded["env_kwargs"]
+    if not dataset.is_dir():
+        raise ValueError(f"--model: {model} has no {ENV_FILE} and its dataset {dataset} is not here")
+    reader = LeRobotReader(dataset)
+    env_id = reader.episodes[0][F.ENV_ID]
+    return env_id, dataset_env(reader, env_id)[0]
+
+
 def load_policy(model: Path, **overrides: Any):
     """The trained policy in ``model`` (a ``train`` output folder or its ``pretrained_model``), with its
     processors and the dataset it was trained on. ``overrides``: fields of its config that act at inference only
@@ -177,7 +200,7 @@ def load_policy(model: Path, **overrides: Any):
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
-    folder = model / MODEL_FOLDER if (model / MODEL_FOLDER).is_dir() else model
+    folder = policy_folder(model)
     if not (folder / "config.json").is_file():
         raise ValueError(f"--model: {model} holds no trained LeRobot policy (no {MODEL_FOLDER}/config.json)")
     config = PreTrainedConfig.from_pretrained(folder)
@@ -206,8 +229,13 @@ class LeRobotPolicyAdapter:
         self.features = set(policy.config.input_features)
 
     def reset(self, seed: int | None = None) -> None:
-        """Empty the policy's action and observation queues: a new episode starts."""
+        """Empty the policy's action and observation queues: a new episode starts. A seed also seeds torch, as
+        lerobot_env_dpr's reset does, so a sampling policy draws the same noise on a seed in both evaluations."""
+        import torch
+
         self.policy.reset()
+        if seed is not None:
+            torch.manual_seed(seed)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         import torch
@@ -223,29 +251,50 @@ class LeRobotPolicyAdapter:
         return (action[0].numpy() > EXPAND_THRESHOLD).astype(np.int8)
 
 
+def check_policy_fits(config, env) -> None:
+    """The policy's features must be the env's (robots, state size, environment-state size): a ValueError naming
+    each difference before any episode runs."""
+    base = env.unwrapped
+    have = {F.OBSERVATION: [int(np.prod(env.observation_space.shape))], F.ACTION: [base.n_robots]}
+    have[F.ENVIRONMENT_STATE] = [len(base.environment_state_names)]
+    features = {**config.input_features, **config.output_features}
+    wrong = {key: (list(ft.shape), have[key]) for key, ft in features.items() if key in have and list(ft.shape) != have[key]}
+    if wrong:
+        details = "; ".join(f"{key}: policy {policy}, env {got}" for key, (policy, got) in wrong.items())
+        raise ValueError(f"the policy does not fit the env ({base.spec.id if base.spec else base}): {details}")
+
+
 def evaluate(
-    model: Path, seeds: list[int], steps: int, json_path: Path, label: str | None = None, **overrides: Any
+    model: Path,
+    seeds: list[int],
+    steps: int,
+    json_path: Path,
+    label: str | None = None,
+    env_overrides: dict | None = None,
+    **overrides: Any,
 ) -> list:
     """Score the policy in ``model`` (with inference-time config ``overrides``) on ``seeds`` over ``steps`` physics
-    steps in the env its dataset was recorded on, and write ``json_path`` as ``dpr evaluate --json`` does; returns
-    the episodes' results."""
+    steps in the env its dataset was recorded on (with ``env_overrides`` over its kwargs; the policy must fit it),
+    and write ``json_path`` as ``dpr evaluate --json`` does; returns the episodes' results."""
     import gymnasium as gym
     import torch
 
     import dpr  # noqa: F401  (registers the env ids)
-    from dpr.datasets.lerobot import LeRobotReader
     from dpr.envs import episode_steps
     from dpr.evaluation.scoring import episode_result, format_table, save_evaluation
-    from dpr.imitation.bc import dataset_env
     from dpr.rollout import roll_out
 
     if json_path.exists():
         raise ValueError(f"--json: {json_path} exists; choose a new file")
     torch.set_num_threads(1)
     policy, preprocessor, postprocessor, dataset = load_policy(model, **overrides)
-    reader = LeRobotReader(dataset)
-    env_id = reader.episodes[0][F.ENV_ID]
-    env_kwargs, _ = dataset_env(reader, env_id)
+    env_id, env_kwargs = policy_env(model, dataset)
+    env_kwargs = {**env_kwargs, **(env_overrides or {})}
+    probe = gym.make(env_id, **env_kwargs)
+    try:
+        check_policy_fits(policy.config, probe)
+    finally:
+        probe.close()
     name = label or f"lerobot-{policy.config.type}"
     render = {}
     if F.IMAGE in policy.config.input_features:  # trained on pixels: the env renders frames of the dataset's size
@@ -308,13 +357,21 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="a config field that acts at inference, e.g. n_action_steps=1 (re-plan at every decision)",
     )
+    score.add_argument(
+        "--env-kwarg",
+        type=_setting,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="over the dataset's env kwargs, e.g. n_robots=16 (the policy must fit the env)",
+    )
     args = parser.parse_args(argv)
     prepare()
     if args.command == "train":
         folder = train(args.dataset, args.policy, args.steps, args.batch_size, args.out, args.seed, **dict(args.set))
         print(f"trained {args.policy}: {folder}")
     else:
-        evaluate(args.model, args.seeds, args.steps, args.json, args.label, **dict(args.set))
+        evaluate(args.model, args.seeds, args.steps, args.json, args.label, dict(args.env_kwarg), **dict(args.set))
     return 0
 
 

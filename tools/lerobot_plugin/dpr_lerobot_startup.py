@@ -30,7 +30,10 @@ def _declare_torchvision_ops() -> None:
             return
     except OSError:
         pass
-    _LIBRARY = torch.library.Library("torchvision", "DEF")
+    try:
+        _LIBRARY = torch.library.Library("torchvision", "DEF")
+    except RuntimeError:  # declared already (tools/check_lerobot_load.py's make_torchvision_importable)
+        return
     for name in ("nms", "qnms"):
         _LIBRARY.define(f"{name}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
 

@@ -10,6 +10,8 @@ does for PushT:
   ``observation.environment_state``, the features dpr datasets record;
 - actions: one continuous value per robot, as the policy's postprocessor returns it, turned into the env's
   MultiBinary action (a robot expands where its value is above ``expand_above``, 0.5: recorded actions are 0 or 1);
+- a seeded reset also seeds torch, so a policy that samples (Diffusion Policy) draws the same noise as in
+  ``tools/lerobot_policies.py evaluate`` on that seed: with ``--eval.batch_size=1`` both score an episode alike;
 - reward: the step's gain in projected displacement (the paper's metric), so LeRobot's ``sum_reward`` of an
   episode is its projected displacement, the number ``dpr evaluate`` reports; ``info["is_success"]`` is the
   env's (the swarm within 10 units of the goal).
@@ -57,6 +59,10 @@ class LeRobotObservation(gym.Wrapper):
         return {AGENT_POS: np.asarray(state, np.float32), ENVIRONMENT_STATE: self.env.unwrapped.environment_state()}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:  # the policy's own noise (Diffusion's sampling) drawn from the episode's seed too
+            import torch
+
+            torch.manual_seed(seed)
         state, info = self.env.reset(seed=seed, options=options)
         self._displacement = float(info["projected_displacement"])
         return self._observation(state), info

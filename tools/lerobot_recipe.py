@@ -1,0 +1,253 @@
+#!/usr/bin/env python
+"""Train a recipe of ``tools/lerobot_recipes`` with LeRobot's own ``lerobot-train``, resuming when run again, and
+score its checkpoints on validation seeds (a learning curve).
+
+Runs in the LeRobot side environment (``make lerobot-env``). From the repository root:
+
+    .venv-lerobot/bin/python tools/lerobot_recipe.py train --recipe diffusion_navigation \\
+        --dataset runs/lerobot/nav80 --seed 0 --out runs/lerobot/train/diffusion-s0
+    .venv-lerobot/bin/python tools/lerobot_recipe.py curve --run runs/lerobot/train/diffusion-s0 \\
+        --wave runs/lerobot/eval/wave-val.json
+
+A recipe is a ``lerobot-train --config_path`` file (``tools/lerobot_recipes/<name>.json``) and a row of
+``tools/lerobot_recipes/recipes.json``: the env it was chosen on, its robots, the LeRobot versions it was checked
+with, its CPU budget and its validation seeds. ``train`` checks all of that before any work (a dataset of another
+env or swarm size, a LeRobot version the recipe was not checked with: errors), then runs
+
+    lerobot-train --config_path=<recipe> --dataset.root=DATASET --output_dir=OUT --seed=SEED
+
+or, where OUT already holds a checkpoint, LeRobot's own resume:
+
+    lerobot-train --config_path=OUT/checkpoints/last/pretrained_model/train_config.json --resume=true
+
+and adds the session's CPU seconds to ``OUT/dpr_training.json``. ``curve`` rolls every checkpoint of OUT out on
+the validation seeds with ``tools/lerobot_policies.py evaluate`` (files it already wrote are kept) and writes
+``OUT/curve.json``: steps, CPU hours and IQM as % of the wave's on the same seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+TOOLS = Path(__file__).resolve().parent
+RECIPES = TOOLS / "lerobot_recipes"
+LAST = Path("checkpoints") / "last"
+RECORD = "dpr_training.json"
+CURVE = "curve.json"
+
+
+def load_recipe(name: str) -> dict:
+    """The row ``name`` of recipes.json with ``config`` resolved to its file: a ValueError listing the recipes."""
+    rows = json.loads((RECIPES / "recipes.json").read_text())
+    if name not in rows:
+        raise ValueError(f"--recipe: {name!r} is not a recipe; choose one of {sorted(rows)}")
+    return {**rows[name], "name": name, "config": RECIPES / rows[name]["config"]}
+
+
+def check_lerobot_version(recipe: dict, allow_unchecked: bool = False) -> str:
+    """The installed LeRobot version, which must be one the recipe was checked with (else a ValueError that says
+    how to get it, unless ``allow_unchecked``)."""
+    try:
+        version = importlib.metadata.version("lerobot")
+    except importlib.metadata.PackageNotFoundError:
+        raise ValueError("LeRobot is not installed here: `make lerobot-env` builds its side environment") from None
+    checked = recipe["lerobot_versions"]
+    if version not in checked and not allow_unchecked:
+        raise ValueError(
+            f"recipe {recipe['name']} was checked with LeRobot {', '.join(checked)}, and this is LeRobot {version}: "
+            "`make lerobot-env` builds the checked one (--allow-unchecked-lerobot runs it anyway)"
+        )
+    return version
+
+
+def check_dataset_fits(dataset: Path, recipe: dict) -> None:
+    """The dataset must be of the recipe's env and swarm size: a ValueError naming both before any work."""
+    sys.path.insert(0, str(TOOLS))
+    import lerobot_policies
+
+    from dpr.datasets import features as F
+    from dpr.datasets.lerobot import LeRobotReader
+
+    lerobot_policies.check_dataset(dataset)
+    reader = LeRobotReader(dataset)
+    env_ids = sorted({episode[F.ENV_ID] for episode in reader.episodes})
+    robots = json.loads((dataset / "meta" / "info.json").read_text())["features"][F.ACTION]["shape"][0]
+    if env_ids != [recipe["env_id"]] or robots != recipe["n_robots"]:
+        raise ValueError(
+            f"--dataset: {dataset} holds {', '.join(env_ids)} with {robots} robots; recipe {recipe['name']} is for "
+            f"{recipe['env_id']} with {recipe['n_robots']}: record that with `dpr collect` or choose its recipe"
+        )
+
+
+def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> list[str]:
+    """``lerobot-train``'s command line for a new run of ``recipe``, or its resume where ``out`` holds one."""
+    command = [sys.executable, "-m", "lerobot.scripts.lerobot_train"]
+    resume_config = out / LAST / "pretrained_model" / "train_config.json"
+    if resume_config.is_file():
+        return [*command, f"--config_path={resume_config}", "--resume=true"] + ([f"--steps={steps}"] if steps else [])
+    if out.exists():
+        raise ValueError(f"--out: {out} exists without a checkpoint to resume from; remove it or choose another")
+    command += [f"--config_path={recipe['config']}", f"--dataset.root={dataset}", f"--dataset.repo_id=dpr/{dataset.name}"]
+    command += [f"--output_dir={out}", f"--seed={seed}", f"--job_name={out.name}"]
+    return command + ([f"--steps={steps}"] if steps else [])
+
+
+def trained_steps(out: Path) -> int:
+    """The step of the run's last checkpoint (0 without one)."""
+    state = out / LAST / "training_state" / "training_step.json"
+    return json.loads(state.read_text())["step"] if state.is_file() else 0
+
+
+def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> int:
+    """Run (or resume) ``recipe`` on ``dataset`` into ``out`` with LeRobot's training; returns its exit status.
+    Each session's wall and CPU seconds are added to ``out/dpr_training.json``."""
+    check_dataset_fits(dataset, recipe)
+    config = json.loads(Path(recipe["config"]).read_text())
+    total = steps or config["steps"]
+    if trained_steps(out) >= total:
+        print(f"{out}: trained {trained_steps(out)} of {total} steps already", file=sys.stderr)
+        return 0
+    command = train_command(recipe, dataset, out, seed, steps)
+    print(" ".join(command[1:]), file=sys.stderr)
+    started, cpu_before = time.time(), resource.getrusage(resource.RUSAGE_CHILDREN)
+    status = subprocess.run(command).returncode
+    cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
+    record_path = out / RECORD
+    record = json.loads(record_path.read_text()) if record_path.is_file() else {"recipe": recipe["name"], "sessions": []}
+    record["sessions"].append({
+        "command": command[1:], "exit_status": status, "until_step": trained_steps(out),
+        "wall_seconds": round(time.time() - started, 1),
+        "cpu_seconds": round(cpu.ru_utime + cpu.ru_stime - cpu_before.ru_utime - cpu_before.ru_stime, 1),
+    })  # fmt: skip
+    record["cpu_hours"] = round(sum(s["cpu_seconds"] for s in record["sessions"]) / 3600, 3)
+    if out.is_dir():
+        record_path.write_text(json.dumps(record, indent=2) + "\n")
+    return status
+
+
+def _iqm(values: list[float]) -> float:
+    cut = len(values) // 4
+    return float(np.mean(sorted(values)[cut : len(values) - cut]))
+
+
+def _scores(path: Path) -> dict[int, float]:
+    return {e["seed"]: e["projected_displacement"] for e in json.loads(path.read_text())["episodes"]}
+
+
+def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500) -> list[dict]:
+    """Every checkpoint of ``run`` scored on ``seeds`` (the recipe's validation seeds by default), as IQM % of
+    the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json`` of the wave on them); writes and returns
+    the rows of ``run/curve.json``."""
+    sys.path.insert(0, str(TOOLS))
+    import lerobot_policies
+
+    wave_scores = _scores(wave)
+    seeds = seeds or sorted(wave_scores)
+    if missing := sorted(set(seeds) - set(wave_scores)):
+        raise ValueError(f"--wave: {wave} has no episode of seeds {missing}")
+    rows = []
+    for checkpoint in sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit()):
+        path = run / "curve" / f"{checkpoint.name}.json"
+        if not path.is_file():
+            lerobot_policies.evaluate(checkpoint / "pretrained_model", seeds, steps, path, label=run.name)
+        scores = _scores(path)
+        rows.append({
+            "step": int(checkpoint.name), "seeds": seeds,
+            "median": float(np.median([scores[s] for s in seeds])),
+            "iqm_percent_of_wave": round(100 * _iqm([scores[s] for s in seeds]) / _iqm([wave_scores[s] for s in seeds]), 1),
+        })  # fmt: skip
+        print(f"{run.name} step {rows[-1]['step']}: {rows[-1]['iqm_percent_of_wave']}% of the wave", file=sys.stderr)
+    (run / CURVE).write_text(json.dumps(rows, indent=2) + "\n")
+    return rows
+
+
+def ship(run: Path, out: Path, max_megabytes: float = 10.0) -> Path:
+    """The run's last policy (weights as safetensors, config, normaliser) copied to ``out`` with the env it was
+    trained on (``dpr_env.json``), so that it scores without its dataset; refused over ``max_megabytes``."""
+    import shutil
+
+    sys.path.insert(0, str(TOOLS))
+    import lerobot_policies
+
+    folder = lerobot_policies.policy_folder(run)
+    dataset = Path(json.loads((folder / "train_config.json").read_text())["dataset"]["root"])
+    env_id, env_kwargs = lerobot_policies.policy_env(folder, dataset)
+    size = sum(p.stat().st_size for p in folder.iterdir()) / 1e6
+    if size > max_megabytes:
+        raise ValueError(f"{folder} is {size:.1f} MB, over {max_megabytes} MB: train a smaller network")
+    shutil.copytree(folder, out)
+    (out / lerobot_policies.ENV_FILE).write_text(json.dumps({"env_id": env_id, "env_kwargs": env_kwargs}, indent=2) + "\n")
+    return out
+
+
+AGREEMENT = 1e-3  # units of projected displacement between lerobot-eval's sum_reward and dpr's metric
+
+
+def agreement(eval_info: Path, dpr_json: Path) -> dict[int, tuple[float, float]]:
+    """Per seed: lerobot-eval's ``sum_reward`` (the step gains of projected displacement that lerobot_env_dpr
+    returns as rewards) and dpr's ``projected_displacement``. lerobot-eval's ``eval_info.json`` keeps rewards in
+    episode order without seeds; run with ``--seed=S`` its episodes are seeds S, S+1, ..., so the dpr file must
+    hold consecutive seeds as many as lerobot-eval's episodes (a ValueError otherwise)."""
+    info = json.loads(eval_info.read_text())
+    rewards = [float(r) for task in info["per_task"] for r in task["metrics"]["sum_rewards"]]
+    ours = _scores(dpr_json)
+    seeds = sorted(ours)
+    if len(seeds) != len(rewards) or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise ValueError(f"{dpr_json}: seeds {seeds} are not {len(rewards)} consecutive seeds as lerobot-eval ran")
+    return {seed: (reward, ours[seed]) for seed, reward in zip(seeds, rewards, strict=True)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from dpr.cli.common import parse_seeds
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    fit = commands.add_parser("train", help="run or resume a recipe with lerobot-train")
+    fit.add_argument("--recipe", required=True, help="a name of tools/lerobot_recipes/recipes.json")
+    fit.add_argument("--dataset", type=Path, required=True, help="a dataset folder written by `dpr collect`")
+    fit.add_argument("--seed", type=int, default=0)
+    fit.add_argument("--steps", type=int, help="optimizer steps (default: the recipe's)")
+    fit.add_argument("--out", type=Path, required=True, help="LeRobot's output folder; run again, it resumes")
+    fit.add_argument("--allow-unchecked-lerobot", action="store_true", help="run on a LeRobot version not checked")
+    score = commands.add_parser("curve", help="score every checkpoint of a run on validation seeds")
+    score.add_argument("--run", type=Path, required=True, help="a `train` output folder")
+    score.add_argument("--wave", type=Path, required=True, help="`dpr evaluate --policy wave --json` on the seeds")
+    score.add_argument("--seeds", type=parse_seeds, help="default: the wave file's seeds")
+    copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
+    copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
+    copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/lerobot-diffusion-nav9")
+    agree = commands.add_parser("agree", help="lerobot-eval's sum_reward per seed against a dpr evaluation file")
+    agree.add_argument("--lerobot-eval", type=Path, required=True, help="lerobot-eval's eval_info.json")
+    agree.add_argument("--dpr", type=Path, required=True, help="tools/lerobot_policies.py evaluate --json")
+    args = parser.parse_args(argv)
+    sys.path.insert(0, str(TOOLS))
+    import lerobot_policies
+
+    lerobot_policies.prepare()
+    if args.command == "train":
+        recipe = load_recipe(args.recipe)
+        check_lerobot_version(recipe, args.allow_unchecked_lerobot)
+        return train(recipe, args.dataset, args.out, args.seed, args.steps)
+    if args.command == "ship":
+        print(ship(args.run, args.out))
+        return 0
+    if args.command == "agree":
+        rows = agreement(args.lerobot_eval, args.dpr)
+        for seed, (theirs, ours) in sorted(rows.items()):
+            print(f"seed {seed}: lerobot-eval sum_reward {theirs:.3f}, dpr projected_displacement {ours:.3f}")
+        return 0 if all(abs(a - b) <= AGREEMENT for a, b in rows.values()) else 1
+    curve(args.run, args.wave, args.seeds)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
