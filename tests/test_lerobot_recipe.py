@@ -64,7 +64,8 @@ def tiny_recipe(tools, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict:
 
 def _lerobot_eval(policy: Path, seed: int, out: Path, *extra: str) -> subprocess.CompletedProcess:
     command = [sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={policy}", *LEROBOT_EVAL_ENV,
-               "--eval.n_episodes=1", "--eval.batch_size=1", f"--seed={seed}", f"--output_dir={out}", *extra]  # fmt: skip
+               "--eval.n_episodes=1", "--eval.batch_size=1", f"--seed={seed}", f"--output_dir={out}",
+               *extra]  # fmt: skip
     path = os.pathsep.join([str(TOOLS.parent), str(TOOLS / "lerobot_plugin"), os.environ.get("PYTHONPATH", "")])
     env = {**os.environ, "PYTHONPATH": path, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
     return subprocess.run(command, env=env, capture_output=True, text=True)

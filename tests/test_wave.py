@@ -458,5 +458,7 @@ def test_a_lerobot_policy_is_refused_with_how_to_score_it(tmp_path, run_folder: 
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "config.json").write_text('{"type": "diffusion"}')
     (folder / "model.safetensors").write_bytes(b"")
-    with pytest.raises(ValueError, match=r"LeRobot policy \(diffusion\).*make lerobot-env.*lerobot_policies.py evaluate"):
+    with pytest.raises(
+        ValueError, match=r"LeRobot policy \(diffusion\).*make lerobot-env.*lerobot_policies.py evaluate"
+    ):
         check_policy_name(str(tmp_path))

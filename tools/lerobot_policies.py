@@ -258,7 +258,9 @@ def check_policy_fits(config, env) -> None:
     have = {F.OBSERVATION: [int(np.prod(env.observation_space.shape))], F.ACTION: [base.n_robots]}
     have[F.ENVIRONMENT_STATE] = [len(base.environment_state_names)]
     features = {**config.input_features, **config.output_features}
-    wrong = {key: (list(ft.shape), have[key]) for key, ft in features.items() if key in have and list(ft.shape) != have[key]}
+    wrong = {
+        key: (list(ft.shape), have[key]) for key, ft in features.items() if key in have and list(ft.shape) != have[key]
+    }
     if wrong:
         details = "; ".join(f"{key}: policy {policy}, env {got}" for key, (policy, got) in wrong.items())
         raise ValueError(f"the policy does not fit the env ({base.spec.id if base.spec else base}): {details}")

@@ -86,6 +86,11 @@ def check_dataset_fits(dataset: Path, recipe: dict) -> None:
             f"--dataset: {dataset} holds {', '.join(env_ids)} with {robots} robots; recipe {recipe['name']} is for "
             f"{recipe['env_id']} with {recipe['n_robots']}: record that with `dpr collect` or choose its recipe"
         )
+    names = json.loads((dataset / "meta" / "info.json").read_text())["features"][F.ACTION]["names"]
+    has_phases = all(name.endswith(PHASE_SUFFIX) for name in names)
+    if has_phases != (recipe.get("actions") == "phase"):
+        wanted = "phases (`tools/lerobot_recipe.py phase-dataset`)" if not has_phases else "0/1 expansions"
+        raise ValueError(f"--dataset: recipe {recipe['name']} trains on {wanted}; {dataset} holds the other kind")
 
 
 def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> list[str]:
@@ -96,7 +101,11 @@ def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int 
         return [*command, f"--config_path={resume_config}", "--resume=true"] + ([f"--steps={steps}"] if steps else [])
     if out.exists():
         raise ValueError(f"--out: {out} exists without a checkpoint to resume from; remove it or choose another")
-    command += [f"--config_path={recipe['config']}", f"--dataset.root={dataset}", f"--dataset.repo_id=dpr/{dataset.name}"]
+    command += [
+        f"--config_path={recipe['config']}",
+        f"--dataset.root={dataset}",
+        f"--dataset.repo_id=dpr/{dataset.name}",
+    ]
     command += [f"--output_dir={out}", f"--seed={seed}", f"--job_name={out.name}"]
     return command + ([f"--steps={steps}"] if steps else [])
 
@@ -122,7 +131,9 @@ def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None =
     status = subprocess.run(command).returncode
     cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
     record_path = out / RECORD
-    record = json.loads(record_path.read_text()) if record_path.is_file() else {"recipe": recipe["name"], "sessions": []}
+    record = (
+        json.loads(record_path.read_text()) if record_path.is_file() else {"recipe": recipe["name"], "sessions": []}
+    )
     record["sessions"].append({
         "command": command[1:], "exit_status": status, "until_step": trained_steps(out),
         "wall_seconds": round(time.time() - started, 1),
@@ -151,20 +162,17 @@ def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 25
     import lerobot_policies
 
     wave_scores = _scores(wave)
-    seeds = seeds or sorted(wave_scores)
+    seeds = seeds or sorted(wave_scores)  # the seeds evaluated; a row's ratio is over the seeds its file holds
     if missing := sorted(set(seeds) - set(wave_scores)):
         raise ValueError(f"--wave: {wave} has no episode of seeds {missing}")
+    batch = json.loads((run / LAST / "pretrained_model" / "train_config.json").read_text())["batch_size"]
     rows = []
     for checkpoint in sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit()):
         path = run / "curve" / f"{checkpoint.name}.json"
         if not path.is_file():
             lerobot_policies.evaluate(checkpoint / "pretrained_model", seeds, steps, path, label=run.name)
-        scores = _scores(path)
-        rows.append({
-            "step": int(checkpoint.name), "seeds": seeds,
-            "median": float(np.median([scores[s] for s in seeds])),
-            "iqm_percent_of_wave": round(100 * _iqm([scores[s] for s in seeds]) / _iqm([wave_scores[s] for s in seeds]), 1),
-        })  # fmt: skip
+        row = evaluation_row(int(checkpoint.name) * batch, path, wave)
+        rows.append({"step": int(checkpoint.name), **row})
         print(f"{run.name} step {rows[-1]['step']}: {rows[-1]['iqm_percent_of_wave']}% of the wave", file=sys.stderr)
     (run / CURVE).write_text(json.dumps(rows, indent=2) + "\n")
     return rows
@@ -185,8 +193,95 @@ def ship(run: Path, out: Path, max_megabytes: float = 10.0) -> Path:
     if size > max_megabytes:
         raise ValueError(f"{folder} is {size:.1f} MB, over {max_megabytes} MB: train a smaller network")
     shutil.copytree(folder, out)
-    (out / lerobot_policies.ENV_FILE).write_text(json.dumps({"env_id": env_id, "env_kwargs": env_kwargs}, indent=2) + "\n")
+    (out / lerobot_policies.ENV_FILE).write_text(
+        json.dumps({"env_id": env_id, "env_kwargs": env_kwargs}, indent=2) + "\n"
+    )
     return out
+
+
+PHASE_SUFFIX = ".phase"  # the action names of a dataset whose actions are phases (robot0.phase, ...)
+
+
+def phases(expand: np.ndarray, cap: int) -> np.ndarray:
+    """An episode's 0/1 actions (T, N) as phases: 1 - the decisions until each robot next expands (0 where it
+    expands now), capped at ``cap`` decisions, so the action is the phase thresholded at one half, exactly."""
+    until = np.full(expand.shape, float(cap), dtype=np.float32)
+    nxt = np.full(expand.shape[1], float(cap), dtype=np.float32)
+    for t in range(len(expand) - 1, -1, -1):
+        nxt = np.where(expand[t] > 0.5, 0.0, np.minimum(nxt + 1, cap))
+        until[t] = nxt
+    return (1.0 - until).astype(np.float32)
+
+
+def phase_dataset(dataset: Path, out: Path, cap: int = 4) -> Path:
+    """A copy of ``dataset`` whose actions are :func:`phases` (a continuous target the env's 0/1 action is
+    recovered from exactly, by thresholding at one half), with the action's stats recomputed; returns ``out``."""
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    if out.exists():
+        raise ValueError(f"--out: {out} exists; choose a new folder")
+    shutil.copytree(dataset, out)
+    values = []
+    for path in sorted((out / "data").glob("*/*.parquet")):
+        table = pq.read_table(path)
+        actions = np.array(table.column("action").to_pylist(), dtype=np.float32)
+        episodes = table.column("episode_index").to_numpy()
+        for episode in np.unique(episodes):  # rows of an episode are consecutive, in frame order
+            rows = episodes == episode
+            actions[rows] = phases(actions[rows], cap)
+        column = pa.array(list(actions), type=table.schema.field("action").type)
+        pq.write_table(table.set_column(table.schema.get_field_index("action"), "action", column), path)
+        values.append(actions)
+    values = np.concatenate(values)
+    stats_path, info_path = out / "meta" / "stats.json", out / "meta" / "info.json"
+    stats = json.loads(stats_path.read_text())
+    stats["action"] = {"min": values.min(0).tolist(), "max": values.max(0).tolist(), "mean": values.mean(0).tolist(),
+                       "std": values.std(0).tolist(), "count": [len(values)]}  # fmt: skip
+    for q in (1, 10, 50, 90, 99):
+        stats["action"][f"q{q:02d}"] = np.percentile(values, q, axis=0).tolist()
+    stats_path.write_text(json.dumps(stats, indent=2))
+    info = json.loads(info_path.read_text())
+    names = info["features"]["action"]["names"]
+    info["features"]["action"]["names"] = [name.rsplit(".", 1)[0] + PHASE_SUFFIX for name in names]
+    info_path.write_text(json.dumps(info, indent=2))
+    return out
+
+
+def evaluation_row(frames: int, evaluation: Path, wave: Path) -> dict:
+    """A curve row of one evaluation file (e.g. of BC trained on ``frames`` frames): IQM as % of the wave's."""
+    scores, wave_scores = _scores(evaluation), _scores(wave)
+    seeds = sorted(scores)
+    ratio = _iqm([scores[s] for s in seeds]) / _iqm([wave_scores[s] for s in seeds])
+    median = float(np.median([scores[s] for s in seeds]))
+    return {"frames": frames, "seeds": seeds, "median": median, "iqm_percent_of_wave": round(100 * ratio, 1)}
+
+
+def learning_figure(curves: dict[str, list[dict]], path: Path) -> Path:
+    """Score on validation seeds (IQM, % of the wave's) against training frames seen, one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(7, 4))
+    for label, rows in curves.items():
+        rows = sorted(rows, key=lambda row: row["frames"])
+        axes.plot([r["frames"] for r in rows], [r["iqm_percent_of_wave"] for r in rows], marker="o", label=label)
+    axes.axhline(100, color="grey", linestyle="--", linewidth=1, label="wave")
+    axes.set_xscale("log")
+    axes.set_xlabel("training frames seen (optimizer steps x batch size)")
+    axes.set_ylabel("IQM, % of the wave's")
+    seeds = next(iter(curves.values()))[0]["seeds"]
+    axes.set_title(f"Navigation, N=9: validation seeds {seeds[0]}-{seeds[-1]}")
+    axes.legend()
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return path
 
 
 AGREEMENT = 1e-3  # units of projected displacement between lerobot-eval's sum_reward and dpr's metric
@@ -206,7 +301,7 @@ def agreement(eval_info: Path, dpr_json: Path) -> dict[int, tuple[float, float]]
     return {seed: (reward, ours[seed]) for seed, reward in zip(seeds, rewards, strict=True)}
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     from dpr.cli.common import parse_seeds
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -225,10 +320,42 @@ def main(argv: list[str] | None = None) -> int:
     copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
     copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
     copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/lerobot-diffusion-nav9")
+    plot = commands.add_parser("plot", help="learning curves of runs and BC evaluations, as a PNG")
+    plot.add_argument("--curve", action="append", default=[], metavar="LABEL=CURVE.json", help="a run's curve.json")
+    plot.add_argument(
+        "--point",
+        action="append",
+        default=[],
+        metavar="LABEL=FRAMES:EVAL.json",
+        help="an evaluation file of a model trained on FRAMES frames (e.g. BC), a point of LABEL's line",
+    )
+    plot.add_argument("--wave", type=Path, required=True, help="the wave's evaluation on the same seeds")
+    plot.add_argument("--out", type=Path, required=True, help="the PNG to write")
+    phase = commands.add_parser("phase-dataset", help="a copy of a dataset with phases as actions (ACT's recipe)")
+    phase.add_argument("--dataset", type=Path, required=True, help="a dataset folder written by `dpr collect`")
+    phase.add_argument("--out", type=Path, required=True, help="a new folder")
+    phase.add_argument("--cap", type=int, default=4, help="decisions counted ahead at most (default 4)")
     agree = commands.add_parser("agree", help="lerobot-eval's sum_reward per seed against a dpr evaluation file")
     agree.add_argument("--lerobot-eval", type=Path, required=True, help="lerobot-eval's eval_info.json")
     agree.add_argument("--dpr", type=Path, required=True, help="tools/lerobot_policies.py evaluate --json")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def plot_curves(args: argparse.Namespace) -> Path:
+    """The ``plot`` command: each --curve a line, each --point a point of its label's line."""
+    curves: dict[str, list[dict]] = {}
+    for text in args.curve:
+        label, path = text.split("=", 1)
+        curves[label] = json.loads(Path(path).read_text())
+    for text in args.point:
+        label, rest = text.split("=", 1)
+        frames, path = rest.split(":", 1)
+        curves.setdefault(label, []).append(evaluation_row(int(frames), Path(path), args.wave))
+    return learning_figure(curves, args.out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     sys.path.insert(0, str(TOOLS))
     import lerobot_policies
 
@@ -237,6 +364,12 @@ def main(argv: list[str] | None = None) -> int:
         recipe = load_recipe(args.recipe)
         check_lerobot_version(recipe, args.allow_unchecked_lerobot)
         return train(recipe, args.dataset, args.out, args.seed, args.steps)
+    if args.command == "plot":
+        print(plot_curves(args))
+        return 0
+    if args.command == "phase-dataset":
+        print(phase_dataset(args.dataset, args.out, args.cap))
+        return 0
     if args.command == "ship":
         print(ship(args.run, args.out))
         return 0

@@ -183,5 +183,7 @@ def check_policy_features(env: DprEnv) -> None:
     wrong = {key: (shape, have.get(key)) for key, shape in wanted.items() if have.get(key) != shape}
     if wrong:
         details = "; ".join(f"{key}: policy {shape}, env {got}" for key, (shape, got) in wrong.items())
-        raise ValueError(f"--policy.path={path} does not fit --env ({env.task}, n_robots={env.n_robots}): "
-                         f"{details}. Set --env.n_robots and the other --env fields to the policy's dataset")  # fmt: skip
+        raise ValueError(
+            f"--policy.path={path} does not fit --env ({env.task}, n_robots={env.n_robots}): {details}. "
+            "Set --env.n_robots and the other --env fields to the policy's dataset"
+        )
