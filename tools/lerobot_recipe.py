@@ -214,39 +214,31 @@ def phases(expand: np.ndarray, cap: int) -> np.ndarray:
 
 
 def phase_dataset(dataset: Path, out: Path, cap: int = 4) -> Path:
-    """A copy of ``dataset`` whose actions are :func:`phases` (a continuous target the env's 0/1 action is
-    recovered from exactly, by thresholding at one half), with the action's stats recomputed; returns ``out``."""
-    import shutil
-
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    """A new dataset at ``out``, written by dpr's writer: ``dataset``'s episodes with :func:`phases` as actions (a
+    continuous target the env's 0/1 action is recovered from exactly, by thresholding at one half), the same
+    episode rows and env; returns ``out``."""
+    from dpr.datasets import features as F
+    from dpr.datasets.lerobot import LeRobotReader, LeRobotWriter
 
     if out.exists():
         raise ValueError(f"--out: {out} exists; choose a new folder")
-    shutil.copytree(dataset, out)
-    values = []
-    for path in sorted((out / "data").glob("*/*.parquet")):
-        table = pq.read_table(path)
-        actions = np.array(table.column("action").to_pylist(), dtype=np.float32)
-        episodes = table.column("episode_index").to_numpy()
-        for episode in np.unique(episodes):  # rows of an episode are consecutive, in frame order
-            rows = episodes == episode
-            actions[rows] = phases(actions[rows], cap)
-        column = pa.array(list(actions), type=table.schema.field("action").type)
-        pq.write_table(table.set_column(table.schema.get_field_index("action"), "action", column), path)
-        values.append(actions)
-    values = np.concatenate(values)
-    stats_path, info_path = out / "meta" / "stats.json", out / "meta" / "info.json"
-    stats = json.loads(stats_path.read_text())
-    stats["action"] = {"min": values.min(0).tolist(), "max": values.max(0).tolist(), "mean": values.mean(0).tolist(),
-                       "std": values.std(0).tolist(), "count": [len(values)]}  # fmt: skip
-    for q in (1, 10, 50, 90, 99):
-        stats["action"][f"q{q:02d}"] = np.percentile(values, q, axis=0).tolist()
-    stats_path.write_text(json.dumps(stats, indent=2))
-    info = json.loads(info_path.read_text())
-    names = info["features"]["action"]["names"]
-    info["features"]["action"]["names"] = [name.rsplit(".", 1)[0] + PHASE_SUFFIX for name in names]
-    info_path.write_text(json.dumps(info, indent=2))
+    reader = LeRobotReader(dataset)
+    info = json.loads((dataset / "meta" / "info.json").read_text())
+    own = {"index", "episode_index", "frame_index", "timestamp", "task_index"}  # the writer numbers these itself
+    features = {key: dict(spec) for key, spec in info["features"].items() if key not in own}
+    features[F.ACTION]["names"] = [name.rsplit(".", 1)[0] + PHASE_SUFFIX for name in features[F.ACTION]["names"]]
+    writer = LeRobotWriter.create(
+        out, fps=info["fps"], features=features, robot_type=info["robot_type"], info_extra={"dpr": info["dpr"]}
+    )
+    meta_keys = (F.SEED, F.ENV_ID, F.ENV_KWARGS, F.POLICY, F.LABEL_POLICY, F.N_ROBOTS, F.ROBOT_MODEL,
+                 *F.METRIC_FIELDS, F.PHYSICS_ERROR, F.MCAP_FILE)  # fmt: skip
+    with writer:
+        for index, row in enumerate(reader.episodes):
+            frames = {key: value for key, value in reader.episode(index).items() if key not in own}
+            frames[F.ACTION] = phases(frames[F.ACTION], cap)
+            writer.add_frames(frames, task=row["tasks"][0])
+            writer.save_episode({key: row[key] for key in meta_keys})
+        writer.finalize()
     return out
 
 
