@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parent / "lerobot_plugin"))  # lerobot_env_dpr.decode_actions
 import check_lerobot_load  # noqa: E402  (the LeRobot environment's set-up: offline hub, importable torchvision)
 
 from dpr.datasets import features as F  # noqa: E402
@@ -57,7 +58,7 @@ CPU_DEFAULTS: dict[str, dict[str, Any]] = {
 MODEL_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
 TRAINING_RECORD = "dpr_training.json"
 ENV_FILE = "dpr_env.json"  # beside a shipped policy: the env id and kwargs it was trained on
-EXPAND_THRESHOLD = 0.5  # a robot expands where the policy's continuous action is above this (actions are 0 or 1)
+PHASE_SUFFIX = ".phase"  # action names of a dataset of phases (tools/lerobot_recipe.py phase-dataset)
 
 
 def prepare() -> None:
@@ -193,6 +194,16 @@ def policy_env(model: Path, dataset: Path) -> tuple[str, dict]:
     return env_id, dataset_env(reader, env_id)[0]
 
 
+def policy_actions(model: Path, dataset: Path) -> str:
+    """What the policy's action values are, "expand" (0/1 per robot) or "phase": its :data:`ENV_FILE`'s
+    ``actions``, else its dataset's action names (``robot0.phase``, ...: a phase dataset)."""
+    env_file = policy_folder(model) / ENV_FILE
+    if env_file.is_file():
+        return json.loads(env_file.read_text()).get("actions", "expand")
+    names = json.loads((dataset / "meta" / "info.json").read_text())["features"][F.ACTION].get("names") or []
+    return "phase" if names and all(name.endswith(PHASE_SUFFIX) for name in names) else "expand"
+
+
 def load_policy(model: Path, **overrides: Any):
     """The trained policy in ``model`` (a ``train`` output folder or its ``pretrained_model``), with its
     processors and the dataset it was trained on. ``overrides``: fields of its config that act at inference only
@@ -223,8 +234,9 @@ class LeRobotPolicyAdapter:
     and the env's ``environment_state()`` go in (images, for a policy trained on pixels, from the env's render);
     the first action of the policy's queue comes out, thresholded into the env's MultiBinary action."""
 
-    def __init__(self, policy, preprocessor, postprocessor, env):
+    def __init__(self, policy, preprocessor, postprocessor, env, actions: str = "expand"):
         self.policy, self.preprocessor, self.postprocessor = policy, preprocessor, postprocessor
+        self.actions = actions  # "expand" or "phase": lerobot_env_dpr.decode_actions
         self.env = env.unwrapped
         self.features = set(policy.config.input_features)
 
@@ -248,7 +260,9 @@ class LeRobotPolicyAdapter:
             batch[F.IMAGE] = image.permute(2, 0, 1)[None]
         with torch.inference_mode():
             action = self.postprocessor(self.policy.select_action(self.preprocessor(batch)))
-        return (action[0].numpy() > EXPAND_THRESHOLD).astype(np.int8)
+        from lerobot_env_dpr import decode_actions
+
+        return decode_actions(action[0].numpy(), self.actions)
 
 
 def check_policy_fits(config, env) -> None:
@@ -291,6 +305,7 @@ def evaluate(
     torch.set_num_threads(1)
     policy, preprocessor, postprocessor, dataset = load_policy(model, **overrides)
     env_id, env_kwargs = policy_env(model, dataset)
+    actions = policy_actions(model, dataset)
     env_kwargs = {**env_kwargs, **(env_overrides or {})}
     probe = gym.make(env_id, **env_kwargs)
     try:
@@ -305,7 +320,8 @@ def evaluate(
     for seed in seeds:
         env = gym.make(env_id, max_episode_steps=episode_steps(env_kwargs, steps), **env_kwargs, **render)
         try:
-            outcome = roll_out(env, LeRobotPolicyAdapter(policy, preprocessor, postprocessor, env), seed)
+            adapter = LeRobotPolicyAdapter(policy, preprocessor, postprocessor, env, actions)
+            outcome = roll_out(env, adapter, seed)
         finally:
             env.close()
         results.append(episode_result(env_id, name, seed, outcome, env_kwargs))

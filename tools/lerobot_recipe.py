@@ -189,17 +189,18 @@ def ship(run: Path, out: Path, max_megabytes: float = 10.0) -> Path:
     folder = lerobot_policies.policy_folder(run)
     dataset = Path(json.loads((folder / "train_config.json").read_text())["dataset"]["root"])
     env_id, env_kwargs = lerobot_policies.policy_env(folder, dataset)
+    actions = lerobot_policies.policy_actions(folder, dataset)
     size = sum(p.stat().st_size for p in folder.iterdir()) / 1e6
     if size > max_megabytes:
         raise ValueError(f"{folder} is {size:.1f} MB, over {max_megabytes} MB: train a smaller network")
     shutil.copytree(folder, out)
     (out / lerobot_policies.ENV_FILE).write_text(
-        json.dumps({"env_id": env_id, "env_kwargs": env_kwargs}, indent=2) + "\n"
+        json.dumps({"env_id": env_id, "env_kwargs": env_kwargs, "actions": actions}, indent=2) + "\n"
     )
     return out
 
 
-PHASE_SUFFIX = ".phase"  # the action names of a dataset whose actions are phases (robot0.phase, ...)
+PHASE_SUFFIX = ".phase"  # the action names of a dataset whose actions are phases (lerobot_policies.PHASE_SUFFIX)
 
 
 def phases(expand: np.ndarray, cap: int) -> np.ndarray:

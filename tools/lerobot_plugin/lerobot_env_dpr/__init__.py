@@ -9,7 +9,8 @@ does for PushT:
   ``lerobot.envs.utils.preprocess_observation`` turns into ``observation.state`` and
   ``observation.environment_state``, the features dpr datasets record;
 - actions: one continuous value per robot, as the policy's postprocessor returns it, turned into the env's
-  MultiBinary action (a robot expands where its value is above ``expand_above``, 0.5: recorded actions are 0 or 1);
+  MultiBinary action by :func:`decode_actions` (``--env.actions``: "expand", a robot expands where its value is
+  above one half, as recorded actions are 0 or 1; "phase" for a policy trained on phases);
 - a seeded reset also seeds torch, so a policy that samples (Diffusion Policy) draws the same noise as in
   ``tools/lerobot_policies.py evaluate`` on that seed: with ``--eval.batch_size=1`` both score an episode alike;
 - reward: the step's gain in projected displacement (the paper's metric), so LeRobot's ``sum_reward`` of an
@@ -33,20 +34,34 @@ from dpr.envs import TASKS, episode_steps
 
 PACKAGE = "lerobot_env_dpr"
 AGENT_POS, ENVIRONMENT_STATE = "agent_pos", "environment_state"
+ACTION_KINDS = ("expand", "phase")  # what the policy's action values are: 0/1 expansions, or phases
+
+
+def decode_actions(values, kind: str = "expand") -> np.ndarray:
+    """The env's 0/1 action from a policy's per-robot values: for "expand" (trained on 0/1 actions) the robots
+    above one half; for "phase" (trained on phases, 1 = expanding now, 0 = one decision ahead, ...) the robots
+    within half a decision of the most advanced one, which is the recorded action exactly where the most advanced
+    is 1, and always expands some robot (a swarm with none expanded is a state the demonstrations hardly hold)."""
+    values = np.asarray(values, np.float64).reshape(-1)
+    if kind not in ACTION_KINDS:
+        raise ValueError(f"action kind must be one of {ACTION_KINDS}, got {kind!r}")
+    limit = values.max() - 0.5 if kind == "phase" else 0.5
+    return (values > limit).astype(np.int8)
 
 
 class LeRobotObservation(gym.Wrapper):
     """A dpr env as LeRobot's evaluation reads an env: dict observations of ``agent_pos`` and
-    ``environment_state``, continuous per-robot actions thresholded at ``expand_above``, and the step's gain in
+    ``environment_state``, continuous per-robot actions decoded by :func:`decode_actions`, and the step's gain in
     projected displacement as its reward."""
 
-    def __init__(self, env: gym.Env, expand_above: float = 0.5):
+    def __init__(self, env: gym.Env, actions: str = "expand"):
         super().__init__(env)
         base = env.unwrapped
         if base.obs_type != "state" or base.action_type != "multibinary":
             raise ValueError(f"{PACKAGE}: needs obs_type='state' and action_type='multibinary', got "
                              f"{base.obs_type!r} and {base.action_type!r}")  # fmt: skip
-        self.expand_above = expand_above
+        decode_actions([0.0], actions)  # a ValueError for an unknown kind, before the first episode
+        self.actions = actions
         n_state = len(base.environment_state_names)
         self.observation_space = gym.spaces.Dict({
             AGENT_POS: env.observation_space,
@@ -68,17 +83,17 @@ class LeRobotObservation(gym.Wrapper):
         return self._observation(state), info
 
     def step(self, action):
-        expand = (np.asarray(action, np.float64).reshape(-1) > self.expand_above).astype(np.int8)
+        expand = decode_actions(action, self.actions)
         state, _, terminated, truncated, info = self.env.step(expand)
         gain = float(info["projected_displacement"]) - self._displacement
         self._displacement = float(info["projected_displacement"])
         return self._observation(state), gain, terminated, truncated, info
 
 
-def make_env(task: str, env_kwargs: dict | None = None, expand_above: float = 0.5, **make_kwargs) -> gym.Env:
+def make_env(task: str, env_kwargs: dict | None = None, actions: str = "expand", **make_kwargs) -> gym.Env:
     """``dpr/<task>`` made with ``env_kwargs``, wrapped by :class:`LeRobotObservation` (the entry point of the
     ``lerobot_env_dpr/<task>`` ids)."""
-    return LeRobotObservation(gym.make(f"dpr/{task}", **(env_kwargs or {}), **make_kwargs), expand_above)
+    return LeRobotObservation(gym.make(f"dpr/{task}", **(env_kwargs or {}), **make_kwargs), actions)
 
 
 def register_envs() -> None:
@@ -115,7 +130,7 @@ class DprEnv(EnvConfig):
     action_repeat: int = 6
     obs_last_action: bool = True
     episode_physics_steps: int = 2500
-    expand_above: float = 0.5
+    actions: str = "expand"  # "phase" for a policy trained on phases (ACT's recipe): decode_actions
     render_size: int = 128  # lerobot-eval records videos of the first episodes; small frames keep that cheap
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
@@ -158,7 +173,7 @@ class DprEnv(EnvConfig):
         render = {"render_mode": "rgb_array", "render_size": self.render_size}
         return {
             "env_kwargs": {**self.env_kwargs, **render},
-            "expand_above": self.expand_above,
+            "actions": self.actions,
             "max_episode_steps": episode_steps(self.env_kwargs, self.episode_physics_steps),
         }
 
