@@ -111,3 +111,16 @@ def test_bad_input_is_refused_before_any_work(tools, tiny_recipe: dict, tmp_path
     refused = _lerobot_eval(policies.policy_folder(run), 5, tmp_path / "lerobot-eval", "--env.n_robots=5")
     assert refused.returncode != 0 and "does not fit --env" in refused.stderr
     assert "observation.state: policy [" in refused.stderr
+
+
+def test_actions_decode_to_the_env_action(tools) -> None:
+    """0/1 values above one half; phases within half a decision of the most advanced (the recorded action where
+    that one is 1, and some robot always expands)."""
+    sys.path.insert(0, str(TOOLS / "lerobot_plugin"))
+    from lerobot_env_dpr import decode_actions
+
+    assert decode_actions([0.9, 0.2, 0.6]).tolist() == [1, 0, 1]
+    assert decode_actions([1.0, 0.0, -2.0, 1.0], "phase").tolist() == [1, 0, 0, 1]
+    assert decode_actions([0.3, -0.4, 0.1, -3.0], "phase").tolist() == [1, 0, 1, 0]  # none above 1/2: the leaders
+    with pytest.raises(ValueError, match="action kind"):
+        decode_actions([0.0], "angle")
