@@ -42,7 +42,6 @@ TOOLS = Path(__file__).resolve().parent
 RECIPES = TOOLS / "lerobot_recipes"
 LAST = Path("checkpoints") / "last"
 RECORD = "dpr_training.json"
-CURVE = "curve.json"
 
 
 def load_recipe(name: str) -> dict:
@@ -154,10 +153,11 @@ def _scores(path: Path) -> dict[int, float]:
     return {e["seed"]: e["projected_displacement"] for e in json.loads(path.read_text())["episodes"]}
 
 
-def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500) -> list[dict]:
+def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500, **overrides) -> list[dict]:
     """Every checkpoint of ``run`` scored on ``seeds`` (the recipe's validation seeds by default), as IQM % of
-    the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json`` of the wave on them); writes and returns
-    the rows of ``run/curve.json``."""
+    the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json`` of the wave on them), with inference-time
+    config ``overrides`` (e.g. ``n_action_steps=1``; then into ``curve-<name>-<value>``); writes and returns the
+    rows of ``run/curve.json`` (or ``run/curve-<...>.json``)."""
     sys.path.insert(0, str(TOOLS))
     import lerobot_policies
 
@@ -166,15 +166,16 @@ def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 25
     if missing := sorted(set(seeds) - set(wave_scores)):
         raise ValueError(f"--wave: {wave} has no episode of seeds {missing}")
     batch = json.loads((run / LAST / "pretrained_model" / "train_config.json").read_text())["batch_size"]
+    name = "-".join(["curve", *(f"{key}-{value}" for key, value in sorted(overrides.items()))])
     rows = []
     for checkpoint in sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit()):
-        path = run / "curve" / f"{checkpoint.name}.json"
+        path = run / name / f"{checkpoint.name}.json"
         if not path.is_file():
-            lerobot_policies.evaluate(checkpoint / "pretrained_model", seeds, steps, path, label=run.name)
+            lerobot_policies.evaluate(checkpoint / "pretrained_model", seeds, steps, path, run.name, **overrides)
         row = evaluation_row(int(checkpoint.name) * batch, path, wave)
         rows.append({"step": int(checkpoint.name), **row})
         print(f"{run.name} step {rows[-1]['step']}: {rows[-1]['iqm_percent_of_wave']}% of the wave", file=sys.stderr)
-    (run / CURVE).write_text(json.dumps(rows, indent=2) + "\n")
+    (run / f"{name}.json").write_text(json.dumps(rows, indent=2) + "\n")
     return rows
 
 
@@ -297,6 +298,9 @@ def agreement(eval_info: Path, dpr_json: Path) -> dict[int, tuple[float, float]]
 def build_parser() -> argparse.ArgumentParser:
     from dpr.cli.common import parse_seeds
 
+    sys.path.insert(0, str(TOOLS))
+    import lerobot_policies
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     fit = commands.add_parser("train", help="run or resume a recipe with lerobot-train")
@@ -310,6 +314,14 @@ def build_parser() -> argparse.ArgumentParser:
     score.add_argument("--run", type=Path, required=True, help="a `train` output folder")
     score.add_argument("--wave", type=Path, required=True, help="`dpr evaluate --policy wave --json` on the seeds")
     score.add_argument("--seeds", type=parse_seeds, help="default: the wave file's seeds")
+    score.add_argument(
+        "--set",
+        type=lerobot_policies._setting,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="an inference-time config field, e.g. n_action_steps=1",
+    )
     copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
     copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
     copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/lerobot-diffusion-nav9")
@@ -371,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed, (theirs, ours) in sorted(rows.items()):
             print(f"seed {seed}: lerobot-eval sum_reward {theirs:.3f}, dpr projected_displacement {ours:.3f}")
         return 0 if all(abs(a - b) <= AGREEMENT for a, b in rows.values()) else 1
-    curve(args.run, args.wave, args.seeds)
+    curve(args.run, args.wave, args.seeds, **dict(args.set))
     return 0
 
 
