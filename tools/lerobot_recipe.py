@@ -260,7 +260,7 @@ def learning_figure(curves: dict[str, list[dict]], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axes = plt.subplots(figsize=(7, 4))
+    figure, axes = plt.subplots(figsize=(10, 4.2))
     for label, rows in curves.items():
         rows = sorted(rows, key=lambda row: row["frames"])
         axes.plot([r["frames"] for r in rows], [r["iqm_percent_of_wave"] for r in rows], marker="o", label=label)
@@ -268,9 +268,9 @@ def learning_figure(curves: dict[str, list[dict]], path: Path) -> Path:
     axes.set_xscale("log")
     axes.set_xlabel("training frames seen (optimizer steps x batch size)")
     axes.set_ylabel("IQM, % of the wave's")
-    seeds = next(iter(curves.values()))[0]["seeds"]
-    axes.set_title(f"Navigation, N=9: validation seeds {seeds[0]}-{seeds[-1]}")
-    axes.legend()
+    seeds = sorted({seed for rows in curves.values() for row in rows for seed in row["seeds"]})
+    axes.set_title(f"Navigation, N=9: validation seeds (within {seeds[0]}-{seeds[-1]})")
+    axes.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
