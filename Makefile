@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 export SDL_VIDEODRIVER ?= dummy
 
-.PHONY: run test lint test-slow bench clean
+.PHONY: run test lint test-slow bench clean lerobot-env
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -35,6 +35,12 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python tools/bench_env.py
+
+# LeRobot's side environment (LeRobot 0.4.4 beside torch 2.13, pinned: tools/lerobot_requirements.txt), for
+# docs/lerobot-policies.md; LEROBOT_VENV=PATH builds it elsewhere. dpr itself never imports LeRobot.
+LEROBOT_VENV ?= .venv-lerobot
+lerobot-env:
+	tools/lerobot_env.sh $(LEROBOT_VENV)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

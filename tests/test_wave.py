@@ -447,3 +447,18 @@ def test_a_bad_setting_in_a_waves_name_is_refused(name, message):
 
     with pytest.raises(ValueError, match=message):
         check_policy_name(name)
+
+
+@pytest.mark.parametrize("run_folder", [False, True], ids=["policy-folder", "lerobot-train-output"])
+def test_a_lerobot_policy_is_refused_with_how_to_score_it(tmp_path, run_folder: bool) -> None:
+    """dpr does not import LeRobot: a LeRobot checkpoint as --policy says where it runs instead of failing later."""
+    from dpr.policies.registry import LEROBOT_RUN_FOLDER, check_policy_name
+
+    folder = tmp_path / LEROBOT_RUN_FOLDER if run_folder else tmp_path
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.json").write_text('{"type": "diffusion"}')
+    (folder / "model.safetensors").write_bytes(b"")
+    with pytest.raises(
+        ValueError, match=r"LeRobot policy \(diffusion\).*make lerobot-env.*lerobot_policies.py evaluate"
+    ):
+        check_policy_name(str(tmp_path))

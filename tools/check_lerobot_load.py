@@ -77,7 +77,10 @@ def make_torchvision_importable() -> None:
             return
     except OSError:
         pass
-    lib = torch.library.Library("torchvision", "DEF")
+    try:
+        lib = torch.library.Library("torchvision", "DEF")
+    except RuntimeError:  # declared already (the LeRobot side environment's start-up hook)
+        return
     for name in ("nms", "qnms"):
         lib.define(f"{name}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
     _TORCHVISION_FALLBACK_LIB = lib

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parent / "lerobot_plugin"))  # lerobot_env_dpr.decode_actions
 import check_lerobot_load  # noqa: E402  (the LeRobot environment's set-up: offline hub, importable torchvision)
 
 from dpr.datasets import features as F  # noqa: E402
@@ -56,7 +57,8 @@ CPU_DEFAULTS: dict[str, dict[str, Any]] = {
 }  # fmt: skip
 MODEL_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
 TRAINING_RECORD = "dpr_training.json"
-EXPAND_THRESHOLD = 0.5  # a robot expands where the policy's continuous action is above this (actions are 0 or 1)
+ENV_FILE = "dpr_env.json"  # beside a shipped policy: the env id and kwargs it was trained on
+PHASE_SUFFIX = ".phase"  # action names of a dataset of phases (tools/lerobot_recipe.py phase-dataset)
 
 
 def prepare() -> None:
@@ -170,6 +172,38 @@ def training_step(dataset: Path, kind: str, batch_size: int = 4, **overrides: An
     return float(loss.detach()), {**held, F.ACTION: batch[F.ACTION].shape[1]}
 
 
+def policy_folder(model: Path) -> Path:
+    """The policy's own folder: ``model`` itself, or its ``checkpoints/last/pretrained_model`` (a ``train`` output)."""
+    return model / MODEL_FOLDER if (model / MODEL_FOLDER).is_dir() else model
+
+
+def policy_env(model: Path, dataset: Path) -> tuple[str, dict]:
+    """The env id and kwargs the policy in ``model`` was trained on: its :data:`ENV_FILE` (a shipped policy, whose
+    dataset is not at hand), else its dataset's episode rows."""
+    from dpr.datasets.lerobot import LeRobotReader
+    from dpr.imitation.bc import dataset_env
+
+    env_file = policy_folder(model) / ENV_FILE
+    if env_file.is_file():
+        recorded = json.loads(env_file.read_text())
+        return recorded["env_id"], recorded["env_kwargs"]
+    if not dataset.is_dir():
+        raise ValueError(f"--model: {model} has no {ENV_FILE} and its dataset {dataset} is not here")
+    reader = LeRobotReader(dataset)
+    env_id = reader.episodes[0][F.ENV_ID]
+    return env_id, dataset_env(reader, env_id)[0]
+
+
+def policy_actions(model: Path, dataset: Path) -> str:
+    """What the policy's action values are, "expand" (0/1 per robot) or "phase": its :data:`ENV_FILE`'s
+    ``actions``, else its dataset's action names (``robot0.phase``, ...: a phase dataset)."""
+    env_file = policy_folder(model) / ENV_FILE
+    if env_file.is_file():
+        return json.loads(env_file.read_text()).get("actions", "expand")
+    names = json.loads((dataset / "meta" / "info.json").read_text())["features"][F.ACTION].get("names") or []
+    return "phase" if names and all(name.endswith(PHASE_SUFFIX) for name in names) else "expand"
+
+
 def load_policy(model: Path, **overrides: Any):
     """The trained policy in ``model`` (a ``train`` output folder or its ``pretrained_model``), with its
     processors and the dataset it was trained on. ``overrides``: fields of its config that act at inference only
@@ -177,7 +211,7 @@ def load_policy(model: Path, **overrides: Any):
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
-    folder = model / MODEL_FOLDER if (model / MODEL_FOLDER).is_dir() else model
+    folder = policy_folder(model)
     if not (folder / "config.json").is_file():
         raise ValueError(f"--model: {model} holds no trained LeRobot policy (no {MODEL_FOLDER}/config.json)")
     config = PreTrainedConfig.from_pretrained(folder)
@@ -200,14 +234,20 @@ class LeRobotPolicyAdapter:
     and the env's ``environment_state()`` go in (images, for a policy trained on pixels, from the env's render);
     the first action of the policy's queue comes out, thresholded into the env's MultiBinary action."""
 
-    def __init__(self, policy, preprocessor, postprocessor, env):
+    def __init__(self, policy, preprocessor, postprocessor, env, actions: str = "expand"):
         self.policy, self.preprocessor, self.postprocessor = policy, preprocessor, postprocessor
+        self.actions = actions  # "expand" or "phase": lerobot_env_dpr.decode_actions
         self.env = env.unwrapped
         self.features = set(policy.config.input_features)
 
     def reset(self, seed: int | None = None) -> None:
-        """Empty the policy's action and observation queues: a new episode starts."""
+        """Empty the policy's action and observation queues: a new episode starts. A seed also seeds torch, as
+        lerobot_env_dpr's reset does, so a sampling policy draws the same noise on a seed in both evaluations."""
+        import torch
+
         self.policy.reset()
+        if seed is not None:
+            torch.manual_seed(seed)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         import torch
@@ -220,32 +260,58 @@ class LeRobotPolicyAdapter:
             batch[F.IMAGE] = image.permute(2, 0, 1)[None]
         with torch.inference_mode():
             action = self.postprocessor(self.policy.select_action(self.preprocessor(batch)))
-        return (action[0].numpy() > EXPAND_THRESHOLD).astype(np.int8)
+        from lerobot_env_dpr import decode_actions
+
+        return decode_actions(action[0].numpy(), self.actions)
+
+
+def check_policy_fits(config, env) -> None:
+    """The policy's features must be the env's (robots, state size, environment-state size): a ValueError naming
+    each difference before any episode runs."""
+    base = env.unwrapped
+    have = {F.OBSERVATION: [int(np.prod(env.observation_space.shape))], F.ACTION: [base.n_robots]}
+    have[F.ENVIRONMENT_STATE] = [len(base.environment_state_names)]
+    features = {**config.input_features, **config.output_features}
+    wrong = {
+        key: (list(ft.shape), have[key]) for key, ft in features.items() if key in have and list(ft.shape) != have[key]
+    }
+    if wrong:
+        details = "; ".join(f"{key}: policy {policy}, env {got}" for key, (policy, got) in wrong.items())
+        raise ValueError(f"the policy does not fit the env ({base.spec.id if base.spec else base}): {details}")
 
 
 def evaluate(
-    model: Path, seeds: list[int], steps: int, json_path: Path, label: str | None = None, **overrides: Any
+    model: Path,
+    seeds: list[int],
+    steps: int,
+    json_path: Path,
+    label: str | None = None,
+    env_overrides: dict | None = None,
+    **overrides: Any,
 ) -> list:
     """Score the policy in ``model`` (with inference-time config ``overrides``) on ``seeds`` over ``steps`` physics
-    steps in the env its dataset was recorded on, and write ``json_path`` as ``dpr evaluate --json`` does; returns
-    the episodes' results."""
+    steps in the env its dataset was recorded on (with ``env_overrides`` over its kwargs; the policy must fit it),
+    and write ``json_path`` as ``dpr evaluate --json`` does; returns the episodes' results."""
     import gymnasium as gym
     import torch
 
     import dpr  # noqa: F401  (registers the env ids)
-    from dpr.datasets.lerobot import LeRobotReader
     from dpr.envs import episode_steps
     from dpr.evaluation.scoring import episode_result, format_table, save_evaluation
-    from dpr.imitation.bc import dataset_env
     from dpr.rollout import roll_out
 
     if json_path.exists():
         raise ValueError(f"--json: {json_path} exists; choose a new file")
     torch.set_num_threads(1)
     policy, preprocessor, postprocessor, dataset = load_policy(model, **overrides)
-    reader = LeRobotReader(dataset)
-    env_id = reader.episodes[0][F.ENV_ID]
-    env_kwargs, _ = dataset_env(reader, env_id)
+    env_id, env_kwargs = policy_env(model, dataset)
+    actions = policy_actions(model, dataset)
+    env_kwargs = {**env_kwargs, **(env_overrides or {})}
+    probe = gym.make(env_id, **env_kwargs)
+    try:
+        check_policy_fits(policy.config, probe)
+    finally:
+        probe.close()
     name = label or f"lerobot-{policy.config.type}"
     render = {}
     if F.IMAGE in policy.config.input_features:  # trained on pixels: the env renders frames of the dataset's size
@@ -254,7 +320,8 @@ def evaluate(
     for seed in seeds:
         env = gym.make(env_id, max_episode_steps=episode_steps(env_kwargs, steps), **env_kwargs, **render)
         try:
-            outcome = roll_out(env, LeRobotPolicyAdapter(policy, preprocessor, postprocessor, env), seed)
+            adapter = LeRobotPolicyAdapter(policy, preprocessor, postprocessor, env, actions)
+            outcome = roll_out(env, adapter, seed)
         finally:
             env.close()
         results.append(episode_result(env_id, name, seed, outcome, env_kwargs))
@@ -308,13 +375,21 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="a config field that acts at inference, e.g. n_action_steps=1 (re-plan at every decision)",
     )
+    score.add_argument(
+        "--env-kwarg",
+        type=_setting,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="over the dataset's env kwargs, e.g. n_robots=16 (the policy must fit the env)",
+    )
     args = parser.parse_args(argv)
     prepare()
     if args.command == "train":
         folder = train(args.dataset, args.policy, args.steps, args.batch_size, args.out, args.seed, **dict(args.set))
         print(f"trained {args.policy}: {folder}")
     else:
-        evaluate(args.model, args.seeds, args.steps, args.json, args.label, **dict(args.set))
+        evaluate(args.model, args.seeds, args.steps, args.json, args.label, dict(args.env_kwarg), **dict(args.set))
     return 0
 
 

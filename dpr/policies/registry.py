@@ -12,6 +12,9 @@ per episode right after ``env.reset(seed=seed)``.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 from dpr.checks import check_number
 
 WAVE = "wave"  # the paper's hand-crafted policy
@@ -121,8 +124,34 @@ def check_policy_name(name: str) -> str:
     if is_model_path(name):
         read_model_info(name)
         return name
+    refuse_lerobot_policy(name)
     parse_scripted_name(name)
     return name
+
+
+# What LeRobot's save_pretrained writes: a policy folder dpr cannot run without LeRobot (dpr does not import it)
+LEROBOT_POLICY_FILES = ("config.json", "model.safetensors")
+LEROBOT_RUN_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
+
+
+def refuse_lerobot_policy(name: str) -> None:
+    """A LeRobot policy folder (or a ``lerobot-train`` output folder) as ``--policy``: a ValueError that says how
+    to score it, since its network is LeRobot's code and dpr does not depend on LeRobot. Anything else passes."""
+    folder = Path(name)
+    if (folder / LEROBOT_RUN_FOLDER).is_dir():
+        folder = folder / LEROBOT_RUN_FOLDER
+    if not all((folder / file).is_file() for file in LEROBOT_POLICY_FILES):
+        return
+    try:
+        kind = json.loads((folder / "config.json").read_text()).get("type", "?")
+    except (OSError, ValueError, AttributeError):
+        kind = "?"
+    raise ValueError(
+        f"policy {name!r} is a LeRobot policy ({kind}): its network is LeRobot's code, which dpr does not depend on. "
+        f"Build LeRobot's side environment with `make lerobot-env`, then score it there with dpr's metrics: "
+        f".venv-lerobot/bin/python tools/lerobot_policies.py evaluate --model {name} --seeds 320-339 --json OUT.json "
+        "(docs/lerobot-policies.md)"
+    )
 
 
 def make_policy(name: str, env, transfer: bool = False):

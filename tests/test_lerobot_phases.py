@@ -1,0 +1,52 @@
+"""ACT's recipe trains on phases (tools/lerobot_recipe.py): 1 minus the decisions until each robot next expands,
+from which the env's 0/1 action is recovered exactly by thresholding at one half. No LeRobot needed."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dpr.datasets.collect import CollectSpec, collect
+from dpr.datasets.lerobot import LeRobotReader
+
+
+@pytest.fixture(scope="module")
+def recipe():
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "lerobot_recipe.py"
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_phases_count_the_decisions_to_the_next_expansion_and_threshold_back(recipe) -> None:
+    expand = np.array([[1, 0], [0, 0], [0, 1], [1, 0], [0, 0], [0, 0]], dtype=np.float32)
+    phase = recipe.phases(expand, cap=2)
+    assert phase[:, 0].tolist() == [1, -1, 0, 1, -1, -1]  # 0, 2, 1, 0, then capped at 2 (none ahead)
+    assert phase[:, 1].tolist() == [-1, 0, 1, -1, -1, -1]
+    rng = np.random.default_rng(0)
+    random = (rng.random((200, 9)) < 0.25).astype(np.float32)
+    assert np.array_equal(recipe.phases(random, cap=4) > 0.5, random > 0.5)
+
+
+def test_a_phase_dataset_is_a_dpr_dataset_of_the_same_episodes(recipe, tmp_path) -> None:
+    source = tmp_path / "ds"
+    collect(source, CollectSpec("dpr/Navigation-v0", n_robots=4, robot_model="disk", steps=12), episodes=2)
+    out = recipe.phase_dataset(source, tmp_path / "phase")
+    before, after = LeRobotReader(source), LeRobotReader(out)
+    assert [e["seed"] for e in after.episodes] == [e["seed"] for e in before.episodes]
+    for index in range(2):
+        old, new = before.episode(index), after.episode(index)
+        assert np.array_equal(new["action"] > 0.5, old["action"] > 0.5)
+        assert np.array_equal(new["observation.state"], old["observation.state"])
+    names = json.loads((out / "meta" / "info.json").read_text())["features"]["action"]["names"]
+    assert names[0] == "robot0.phase"
+    with pytest.raises(ValueError, match="exists"):
+        recipe.phase_dataset(source, out)
