@@ -40,11 +40,7 @@ def _check_resume(config, out) -> None:
         raise ParameterError("resume", "a run of SB3's learner on the batched engine does not resume; start it again")
     if out is None or not snapshot_file(out).is_file():
         raise ParameterError("out", f"{out} holds no snapshot of a stopped batched run to resume from")
-    recorded = yaml.safe_load((Path(out) / "config.yaml").read_text()).get("config")
-    wanted = yaml.safe_load(yaml.safe_dump(asdict(config)))
-    if recorded != wanted:
-        differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k])
-        raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")
+    resume_state.check_recorded_settings(out, asdict(config), resume_state.added_later(config))
 
 
 def batched_resumable(out, config) -> bool:

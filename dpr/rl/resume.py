@@ -22,6 +22,7 @@ Nothing in a snapshot can run code when it is read: the weights are read by torc
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import shutil
 import time
@@ -104,25 +105,37 @@ def has_snapshot(run_dir: str | Path) -> bool:
     return snapshot_folder(run_dir) is not None
 
 
-# TrainConfig settings added after runs were recorded, at the value those runs had
-SETTINGS_ADDED_LATER = {"engine": "pymunk", "device": "cpu", "learner": "torch", "compile": False}
+# TrainConfig's settings that came after runs were recorded: a run recorded before one ran at its default
+SETTINGS_ADDED_LATER = ("engine", "device", "learner", "compile")
 
 
-def check_resumable(out: str | Path | None, config: dict[str, Any]) -> None:
+def added_later(config) -> dict[str, Any]:
+    """The defaults of ``config``'s (a TrainConfig's) :data:`SETTINGS_ADDED_LATER`."""
+    return {f.name: f.default for f in dataclasses.fields(config) if f.name in SETTINGS_ADDED_LATER}
+
+
+def check_resumable(out: str | Path | None, config: dict[str, Any], later: dict[str, Any] | None = None) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run with a snapshot to resume from whose
-    ``config.yaml`` records ``config`` (the run's settings, as it records them under ``config``)."""
-    import yaml
-
+    ``config.yaml`` records ``config`` (:func:`check_recorded_settings`)."""
     old = None if out is None else old_snapshot_error(out)
     if old is not None:
         raise ParameterError("out", f"{old} (another --out)")
     if out is None or not has_snapshot(out):
         raise ParameterError("out", f"{out} holds no snapshot of a stopped run to resume from")
+    check_recorded_settings(out, config, later)
+
+
+def check_recorded_settings(out: str | Path, config: dict[str, Any], later: dict[str, Any] | None = None) -> None:
+    """A :class:`ParameterError` about ``out`` unless its ``config.yaml`` records ``config`` (the run's settings,
+    as it records them under ``config``); ``later``: settings that came after some runs were recorded, with the
+    value such a run had."""
+    import yaml
+
     config_path = Path(out) / "config.yaml"
     recorded = load_yaml(config_path, "out", MAX_RECORD_BYTES).get("config") if config_path.is_file() else None
     wanted = yaml.safe_load(yaml.safe_dump(config))
-    if recorded is not None:  # settings that came later: a run recorded before them ran at their defaults
-        recorded = {**{k: v for k, v in SETTINGS_ADDED_LATER.items() if k in wanted}, **recorded}
+    if recorded is not None and later:
+        recorded = {**{k: v for k, v in later.items() if k in wanted}, **recorded}
     if recorded != wanted:
         differ = sorted(k for k in wanted if (recorded or {}).get(k) != wanted[k]) if recorded else "all"
         raise ParameterError("out", f"{out} is a run of other settings (differing: {differ}); it cannot be resumed")

@@ -197,7 +197,7 @@ def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
 def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
     """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
     from."""
-    resume_state.check_resumable(out, asdict(config))
+    resume_state.check_resumable(out, asdict(config), resume_state.added_later(config))
 
 
 def checkpoint_spacing(steps: int) -> int:
