@@ -49,7 +49,6 @@ import numpy as np
 # k x 0.1 s for a dataset of decisions every k physics steps: its env kwargs say, independently of its fps)
 DELTA_FRAMES = {"observation.state": [-2, -1, 0], "action": [0, 1]}
 DEFAULT_KEYS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
-_TORCHVISION_FALLBACK_LIB: Any = None  # kept alive: dropping a torch.library.Library removes its schemas
 
 
 def prepare_environment(cache_dir: Path) -> None:
@@ -64,26 +63,15 @@ def make_torchvision_importable() -> None:
     """PyPI's torchvision for torch 2.13 is a CUDA build whose ``_C`` ops fail to load beside the CPU torch, and
     its import then dies registering fake kernels for undeclared ``nms``/``qnms``: declare them. LeRobot's dataset
     code only uses pure-Python transforms."""
-    global _TORCHVISION_FALLBACK_LIB
     spec = importlib.util.find_spec("torchvision")
     if spec is None or spec.origin is None or "torchvision" in sys.modules:
         return
-    import torch
+    hook_folder = str(Path(__file__).parent / "lerobot_plugin")  # the side environment's start-up hook
+    if hook_folder not in sys.path:
+        sys.path.insert(0, hook_folder)
+    from dpr_lerobot_startup import declare_torchvision_ops
 
-    extension = next(iter(sorted(Path(spec.origin).parent.glob("_C*.so"))), None)
-    try:
-        if extension is not None:
-            torch.ops.load_library(str(extension))
-            return
-    except OSError:
-        pass
-    try:
-        lib = torch.library.Library("torchvision", "DEF")
-    except RuntimeError:  # declared already (the LeRobot side environment's start-up hook)
-        return
-    for name in ("nms", "qnms"):
-        lib.define(f"{name}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
-    _TORCHVISION_FALLBACK_LIB = lib
+    declare_torchvision_ops()
 
 
 def record(

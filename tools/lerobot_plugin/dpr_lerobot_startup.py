@@ -18,7 +18,10 @@ from pathlib import Path
 _LIBRARY = None  # kept alive: dropping a torch.library.Library removes its schemas
 
 
-def _declare_torchvision_ops() -> None:
+def declare_torchvision_ops() -> None:
+    """Load torchvision's compiled ops, or, where they do not load beside this torch, declare ``nms`` and
+    ``qnms`` so that torchvision's import can register its fake kernels (also what
+    ``tools/check_lerobot_load.py``'s ``make_torchvision_importable`` calls)."""
     global _LIBRARY
     import torch
 
@@ -32,19 +35,19 @@ def _declare_torchvision_ops() -> None:
         pass
     try:
         _LIBRARY = torch.library.Library("torchvision", "DEF")
-    except RuntimeError:  # declared already (tools/check_lerobot_load.py's make_torchvision_importable)
+    except RuntimeError:  # declared already
         return
     for name in ("nms", "qnms"):
         _LIBRARY.define(f"{name}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
 
 
 class _TorchvisionHook(importlib.abc.MetaPathFinder):
-    """Runs :func:`_declare_torchvision_ops` once, when torchvision is first imported; finds nothing itself."""
+    """Runs :func:`declare_torchvision_ops` once, when torchvision is first imported; finds nothing itself."""
 
     def find_spec(self, name, path=None, target=None):
         if name == "torchvision":
             sys.meta_path.remove(self)
-            _declare_torchvision_ops()
+            declare_torchvision_ops()
         return None
 
 
