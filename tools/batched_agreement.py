@@ -8,7 +8,10 @@ agent (the swarm's centre, or the ball) over the seeds in each engine, their rat
 overlap seen (sampled every ``--overlap-every`` steps). The batched engine agrees when the ratio lies in
 0.9-1.1 and its overlap is no deeper than pymunk's (within 0.5 units).
 
-Pymunk episodes are cached (JSON lines, ``--cache``): a rerun only computes the missing ones.
+Episodes are cached (JSON lines, ``--cache``; the batched ones keyed by the engine's source and solver settings):
+a rerun only computes the missing ones, so a stopped run goes on where it stopped. ``--chunk`` steps the batched
+seeds that many at a time, each chunk cached as it ends (swarms are independent, so a chunk's size changes a swarm's
+trajectory only at the level of float rounding, which a long episode may still amplify).
 
     python tools/batched_agreement.py --cases navigation:9 --seeds 5000-5019
     python tools/batched_agreement.py                      # every case, seeds 5000-5099 (N=1000: --big-seeds)
@@ -17,6 +20,7 @@ Pymunk episodes are cached (JSON lines, ``--cache``): a rerun only computes the 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -155,6 +159,33 @@ def batched_episodes(starts: list[dict], steps: int, overlap_every: int, **world
     return {"displacement": displacement.tolist(), "overlap": overlap.tolist(), "sane": world.is_sane().tolist()}
 
 
+def engine_fingerprint(world_kwargs: dict) -> str:
+    """A short hash of the batched engine's source and the solver settings: what a cached batched episode is
+    only valid for."""
+    digest = hashlib.sha256(json.dumps(world_kwargs, sort_keys=True).encode())
+    for path in sorted((Path(__file__).resolve().parents[1] / "dpr" / "sim" / "batched").glob("*.py")):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def cached_batched_episodes(
+    starts: list[dict], keys: list[str], cache: dict, cache_path: Path | None, chunk: int, **kw
+) -> dict:
+    """:func:`batched_episodes` over the starts whose keys the cache lacks, ``chunk`` at a time (0: all at once),
+    each chunk appended to the cache as it ends; the episodes of every key."""
+    todo = [i for i, key in enumerate(keys) if key not in cache]
+    size = chunk or max(len(todo), 1)
+    for first in range(0, len(todo), size):
+        picked = todo[first : first + size]
+        result = batched_episodes([starts[i] for i in picked], **kw)
+        for j, i in enumerate(picked):
+            cache[keys[i]] = {"key": keys[i], **{name: values[j] for name, values in result.items()}}
+            if cache_path:
+                with cache_path.open("a") as f:
+                    f.write(json.dumps(cache[keys[i]]) + "\n")
+    return {name: [cache[key][name] for key in keys] for name in ("displacement", "overlap", "sane")}
+
+
 def ratio_interval(reference: np.ndarray, ours: np.ndarray, resamples: int = 2000) -> list[float]:
     """A 95% bootstrap interval of median(ours) / median(reference), the seeds resampled in pairs (both engines
     start each seed alike): how far the ratio moves with the draw of starts alone."""
@@ -180,7 +211,9 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=None, help="batched solver iterations (default: its own)")
     parser.add_argument("--relaxation", type=float, default=None, help="batched over-relaxation (default: its own)")
-    parser.add_argument("--cache", type=Path, default=Path("/tmp/batched_agreement_pymunk.jsonl"))
+    parser.add_argument("--cache", type=Path, default=Path("runs/agreement/pymunk.jsonl"))
+    parser.add_argument("--batched-cache", type=Path, default=Path("runs/agreement/batched.jsonl"))
+    parser.add_argument("--chunk", type=int, default=0, help="batched seeds stepped at a time (0: all)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     torch.set_num_threads(args.workers)
@@ -188,7 +221,10 @@ def main() -> int:
     if args.relaxation is not None:
         solver["relaxation"] = args.relaxation
     world_kwargs = solver
-    cache = _load_cache(args.cache)
+    for path in (args.cache, args.batched_cache):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    cache, batched_cache = _load_cache(args.cache), _load_cache(args.batched_cache)
+    fingerprint = engine_fingerprint(world_kwargs)
     rows = []
     for case in args.cases:
         task, n = case.split(":")
@@ -209,7 +245,10 @@ def main() -> int:
                         f.write(json.dumps(cache[key]) + "\n")
         pymunk_seconds = time.perf_counter() - started
         started = time.perf_counter()
-        batched = batched_episodes(starts, args.steps, args.overlap_every, **world_kwargs)
+        batched = cached_batched_episodes(
+            starts, [f"{key}/{fingerprint}" for key in keys], batched_cache, args.batched_cache, args.chunk,
+            steps=args.steps, overlap_every=args.overlap_every, **world_kwargs,
+        )  # fmt: skip
         batched_seconds = time.perf_counter() - started
         reference = np.array([cache[key]["displacement"] for key in keys])
         ours = np.array(batched["displacement"])
