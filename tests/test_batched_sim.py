@@ -166,7 +166,7 @@ def test_compiled_substeps_follow_the_eager_ones():
     """SolverSettings(compile=True) fuses each substep (pairs read through slices): the same trajectory."""
     from dpr.sim.batched import SolverSettings
 
-    few = {"iterations": 2, "substeps": 1}  # a small graph: compiled in seconds, the same code as 20 rounds
+    few = {"iterations": 2, "substeps": 1}  # a small graph: compiled in seconds, the same code as the default rounds
     eager = _world(k=3, n=5, solver=SolverSettings(**few))
     compiled = _world(k=3, n=5, solver=SolverSettings(compile=True, **few))
     for step in range(12):
