@@ -218,3 +218,42 @@ def test_short_wave_agrees_with_pymunk():
     mine = start[0] - ours.position[0].mean(dim=0)[0].item()
     assert theirs > 0 and mine > 0
     assert 0.5 < mine / theirs < 2.0
+
+
+def test_agreement_batched_cache_resumes_in_chunks(tmp_path, monkeypatch):
+    """tools/batched_agreement.py steps only the seeds its batched cache lacks, ``chunk`` at a time, appends each
+    chunk to the cache as it ends, and returns every key's episode in order; the engine's fingerprint changes with
+    the solver settings."""
+    import json
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent.parent / "tools"))
+    import batched_agreement
+
+    calls = []
+
+    def fake_episodes(starts, **kwargs):
+        calls.append([s["seed"] for s in starts])
+        seeds = [s["seed"] for s in starts]
+        return {
+            "displacement": [float(seed) for seed in seeds],
+            "overlap": [0.5] * len(seeds),
+            "sane": [True] * len(seeds),
+        }
+
+    monkeypatch.setattr(batched_agreement, "batched_episodes", fake_episodes)
+    cache_path = tmp_path / "batched.jsonl"
+    keys = [f"k{seed}" for seed in range(5)]
+    cache = {"k1": {"key": "k1", "displacement": 10.0, "overlap": 0.1, "sane": True}}
+    result = batched_agreement.cached_batched_episodes(
+        [{"seed": seed} for seed in range(5)], keys, cache, cache_path, chunk=2, steps=10, overlap_every=1
+    )
+    assert calls == [[0, 2], [3, 4]]
+    assert result["displacement"] == [0.0, 10.0, 2.0, 3.0, 4.0]
+    assert [json.loads(line)["key"] for line in cache_path.read_text().splitlines()] == ["k0", "k2", "k3", "k4"]
+    again = batched_agreement.cached_batched_episodes(
+        [{"seed": seed} for seed in range(5)], keys, batched_agreement._load_cache(cache_path) | cache, cache_path, 2
+    )
+    assert calls == [[0, 2], [3, 4]] and again == result
+    assert batched_agreement.engine_fingerprint({}) != batched_agreement.engine_fingerprint({"iterations": 20})
