@@ -34,7 +34,7 @@ import numpy as np
 from dpr.atomic import is_temporary
 from dpr.checks import ParameterError, check_choice, check_int
 from dpr.datasets import features as F
-from dpr.datasets.collect_summary import CollectSummary, EpisodeRecord, folder_bytes, metric_summary
+from dpr.datasets.collect_summary import CollectSummary, EpisodeRecord, RecordedFrames, folder_bytes, metric_summary
 from dpr.datasets.features import dataset_features
 from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.datasets.lerobot.format import INFO_PATH, load_info
@@ -119,38 +119,22 @@ class SavedEpisode:
 
 
 @dataclass
-class _Frames:
-    """What an episode's frames gather as it runs. States and images are taken before each step, so after a
-    physics error they hold one more (the state the blown-up, unrecorded step started from)."""
+class _Frames(RecordedFrames):
+    """What a pymunk episode's frames gather as it runs: :class:`RecordedFrames`, and the images (taken before each
+    step, as the environment states are)."""
 
-    observations: list = field(default_factory=list)
-    actions: list = field(default_factory=list)
-    dones: list = field(default_factory=list)
-    successes: list = field(default_factory=list)
     images: list = field(default_factory=list)
-    environment_states: list = field(default_factory=list)
 
     def record(self, spec: CollectSpec, base, result, started: float) -> EpisodeRecord:
         """The frames as the arrays of an :class:`EpisodeRecord` (``base``: the unwrapped env)."""
         frames = len(self.actions)
-        if base.action_type == "discrete":
-            action_array = np.array(self.actions, dtype=np.int64).reshape(frames, 1)
-        else:
-            action_array = np.array(self.actions, dtype=np.float32).reshape(frames, base.n_robots)
+        images = np.array(self.images[:frames], dtype=np.uint8) if spec.pixels else None
         return EpisodeRecord(
             seed=result.seed,
-            observations=np.array(self.observations, dtype=np.float32).reshape(frames, base.state_size),
-            actions=action_array,
+            **self.arrays(base),
             rewards=result.rewards.astype(np.float32),
-            dones=np.array(self.dones, dtype=bool),
-            successes=np.array(self.successes, dtype=bool),
             metrics=result.metrics,
-            images=np.array(self.images[:frames], dtype=np.uint8).reshape(frames, spec.image_size, spec.image_size, 3)
-            if spec.pixels
-            else None,
-            environment_states=np.array(self.environment_states[:frames], dtype=np.float32).reshape(
-                frames, len(base.environment_state_names)
-            ),
+            images=None if images is None else images.reshape(frames, spec.image_size, spec.image_size, 3),
             physics_error=result.physics_error,
             seconds=time.perf_counter() - started,
             trajectory=result.trajectory,

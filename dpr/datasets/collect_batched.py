@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from dpr.datasets import features as F
-from dpr.datasets.collect_summary import EpisodeRecord
+from dpr.datasets.collect_summary import EpisodeRecord, RecordedFrames
 from dpr.envs.particle_env import PHYSICS_ERROR
 from dpr.metrics import episode_metrics
 from dpr.policies.batched import make_batched_policy
@@ -67,36 +67,23 @@ def check_batched_spec(spec, device: str = "cpu") -> None:
 
 
 @dataclass
-class _Episode:
-    """What one env of the batch gathers while its episode runs."""
+class _Episode(RecordedFrames):
+    """What one env of the batch gathers while its episode runs: :class:`RecordedFrames`, its rewards and the
+    agent's positions (the metrics' input), and its MCAP writer."""
 
-    seed: int
-    observations: list = field(default_factory=list)
-    actions: list = field(default_factory=list)
+    seed: int = 0
     rewards: list = field(default_factory=list)
-    dones: list = field(default_factory=list)
-    successes: list = field(default_factory=list)
-    environment_states: list = field(default_factory=list)
     trajectory: list = field(default_factory=list)
     physics_error: str | None = None
     writer: object = None  # its McapEpisodeWriter, when logged
 
     def record(self, env, goal: np.ndarray, seconds: float):
-        frames = len(self.actions)
-        discrete = env.template.action_type == "discrete"
-        actions = np.array(self.actions, dtype=np.int64 if discrete else np.float32).reshape(frames, -1)
         trajectory = np.array(self.trajectory, dtype=float)
         return EpisodeRecord(
             seed=self.seed,
-            observations=np.array(self.observations, dtype=np.float32).reshape(frames, env.template.state_size),
-            actions=actions,
+            **self.arrays(env.template),
             rewards=np.array(self.rewards, dtype=np.float32),
-            dones=np.array(self.dones, dtype=bool),
-            successes=np.array(self.successes, dtype=bool),
             metrics=episode_metrics(trajectory, goal),
-            environment_states=np.array(self.environment_states[:frames], dtype=np.float32).reshape(
-                frames, len(env.template.environment_state_names)
-            ),
             physics_error=self.physics_error,
             seconds=seconds,
             trajectory=trajectory,
@@ -109,7 +96,7 @@ def rollout_batch(spec, seeds: list[int], device: str = "cpu", mcap_paths: list[
     written to ``mcap_paths[i]`` when given."""
     started = time.perf_counter()
     env = make_batched_env(spec, len(seeds), device)
-    episodes = [_Episode(seed) for seed in seeds]
+    episodes = [_Episode(seed=seed) for seed in seeds]
     try:
         policy = make_batched_policy(spec.policy, env, seed=seeds[0])
         labeller = None if spec.label_policy is None else make_batched_policy(spec.label_policy, env, seed=seeds[0])

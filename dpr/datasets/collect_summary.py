@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,36 @@ class EpisodeRecord:
     @property
     def frames(self) -> int:
         return len(self.actions)
+
+
+@dataclass
+class RecordedFrames:
+    """What an episode's frames gather as it runs, one entry a frame, on either engine. Environment states are taken
+    before each step, so after a physics error they hold one more (the state the blown-up, unrecorded step started
+    from)."""
+
+    observations: list = field(default_factory=list)
+    actions: list = field(default_factory=list)
+    dones: list = field(default_factory=list)
+    successes: list = field(default_factory=list)
+    environment_states: list = field(default_factory=list)
+
+    def arrays(self, env) -> dict[str, np.ndarray]:
+        """The frames as the arrays of an :class:`EpisodeRecord` (``env``: a single env, unwrapped, whose
+        ``action_type``, ``n_robots``, ``state_size`` and ``environment_state_names`` shape them)."""
+        frames = len(self.actions)
+        discrete = env.action_type == "discrete"
+        return {
+            "observations": np.array(self.observations, dtype=np.float32).reshape(frames, env.state_size),
+            "actions": np.array(self.actions, dtype=np.int64 if discrete else np.float32).reshape(
+                frames, 1 if discrete else env.n_robots
+            ),
+            "dones": np.array(self.dones, dtype=bool),
+            "successes": np.array(self.successes, dtype=bool),
+            "environment_states": np.array(self.environment_states[:frames], dtype=np.float32).reshape(
+                frames, len(env.environment_state_names)
+            ),
+        }
 
 
 @dataclass
