@@ -2,9 +2,11 @@
 measured in one run.
 
 Both train the swarm actor (SwarmPolicy) on the same task and env kwargs (the last action observed, a decision every
-6 physics steps): the pymunk run in SB3's loop with its default rollout size and `--n-envs` processes, the batched
-run in dpr.rl.batched_ppo's loop on `--num-envs` envs of the batched engine. Each rate counts the steps of the whole
-run, rollouts and updates together (model building and saving excluded), over the median of `--repeats` runs.
+6 physics steps), each with what `dpr train` takes by default: the pymunk run in SB3's loop with the env id's entry
+of ppo.yml (10 epochs of 64-step mini-batches) and `--n-envs` processes, the batched run in dpr.rl.batched_ppo's loop
+with the `batched` preset (10 epochs of 512) on `--num-envs` envs of the batched engine. Each rate counts the steps
+of the whole run, rollouts and updates together (model building and saving excluded), over the median of
+`--repeats` runs.
 
     python tools/bench_training.py [--env dpr/Navigation-v0] [--num-envs 1024] [--device cpu] [--compile]
                                    [--threads 2] [--json out.json]
@@ -35,7 +37,7 @@ def pymunk_rate(env_id: str, n_envs: int, timesteps: int) -> float:
         timesteps=timesteps,
         n_envs=n_envs,
         env_kwargs=ENV_KWARGS,
-        hyperparams={"policy": "SwarmPolicy", "n_steps": 512, "batch_size": 128, "n_epochs": 4},
+        hyperparams={"policy": "SwarmPolicy"},
         eval_episodes=0,
     )
     with tempfile.TemporaryDirectory() as folder:
@@ -66,7 +68,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="dpr/Navigation-v0")
     parser.add_argument("--n-envs", type=int, default=2, help="pymunk: envs in subprocesses (default 2, the cores)")
-    parser.add_argument("--pymunk-timesteps", type=int, default=2048)
+    parser.add_argument("--pymunk-timesteps", type=int, default=2048, help="pymunk: whole rollouts of n_steps x n_envs")
     parser.add_argument("--num-envs", type=int, default=1024, help="batched: envs per call (default 1024)")
     parser.add_argument("--updates", type=int, default=3, help="batched: PPO updates per run (default 3)")
     parser.add_argument("--device", default="cpu")
