@@ -50,3 +50,18 @@ def test_a_phase_dataset_is_a_dpr_dataset_of_the_same_episodes(recipe, tmp_path)
     assert names[0] == "robot0.phase"
     with pytest.raises(ValueError, match="exists"):
         recipe.phase_dataset(source, out)
+
+
+def test_agreement_pairs_the_seeds_lerobot_eval_ran(recipe, tmp_path) -> None:
+    """`agree --seed S` pairs lerobot-eval's episodes with seeds S, S+1, ... of a dpr file that holds more; without
+    it the file must hold exactly those seeds; a missing seed is named."""
+    eval_info = tmp_path / "eval_info.json"
+    eval_info.write_text(json.dumps({"per_task": [{"metrics": {"sum_rewards": [1.5, 2.5]}}]}))
+    dpr_file = tmp_path / "dpr.json"
+    episodes = [{"seed": seed, "projected_displacement": seed / 10} for seed in range(320, 325)]
+    dpr_file.write_text(json.dumps({"episodes": episodes}))
+    assert recipe.agreement(eval_info, dpr_file, 321) == {321: (1.5, 32.1), 322: (2.5, 32.2)}
+    with pytest.raises(ValueError, match="give --seed"):
+        recipe.agreement(eval_info, dpr_file)
+    with pytest.raises(ValueError, match=r"seeds \[325\]"):
+        recipe.agreement(eval_info, dpr_file, 324)

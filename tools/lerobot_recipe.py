@@ -281,17 +281,27 @@ def learning_figure(curves: dict[str, list[dict]], path: Path) -> Path:
 AGREEMENT = 1e-3  # units of projected displacement between lerobot-eval's sum_reward and dpr's metric
 
 
-def agreement(eval_info: Path, dpr_json: Path) -> dict[int, tuple[float, float]]:
+def agreement(eval_info: Path, dpr_json: Path, first_seed: int | None = None) -> dict[int, tuple[float, float]]:
     """Per seed: lerobot-eval's ``sum_reward`` (the step gains of projected displacement that lerobot_env_dpr
     returns as rewards) and dpr's ``projected_displacement``. lerobot-eval's ``eval_info.json`` keeps rewards in
-    episode order without seeds; run with ``--seed=S`` its episodes are seeds S, S+1, ..., so the dpr file must
-    hold consecutive seeds as many as lerobot-eval's episodes (a ValueError otherwise)."""
+    episode order without seeds; run with ``--seed=S`` its episodes are seeds S, S+1, .... With ``first_seed`` (that
+    S) the dpr file must hold those seeds, and may hold more; without it, it must hold exactly as many consecutive
+    seeds as lerobot-eval's episodes (a ValueError otherwise)."""
     info = json.loads(eval_info.read_text())
     rewards = [float(r) for task in info["per_task"] for r in task["metrics"]["sum_rewards"]]
     ours = _scores(dpr_json)
-    seeds = sorted(ours)
-    if len(seeds) != len(rewards) or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
-        raise ValueError(f"{dpr_json}: seeds {seeds} are not {len(rewards)} consecutive seeds as lerobot-eval ran")
+    if first_seed is None:
+        seeds = sorted(ours)
+        if len(seeds) != len(rewards) or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
+            raise ValueError(
+                f"{dpr_json}: seeds {seeds} are not {len(rewards)} consecutive seeds as lerobot-eval ran "
+                "(give --seed, lerobot-eval's, to pair part of them)"
+            )
+    else:
+        seeds = list(range(first_seed, first_seed + len(rewards)))
+        missing = [seed for seed in seeds if seed not in ours]
+        if missing:
+            raise ValueError(f"{dpr_json}: holds no episode of seeds {missing}, which lerobot-eval ran")
     return {seed: (reward, ours[seed]) for seed, reward in zip(seeds, rewards, strict=True)}
 
 
@@ -343,6 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
     agree = commands.add_parser("agree", help="lerobot-eval's sum_reward per seed against a dpr evaluation file")
     agree.add_argument("--lerobot-eval", type=Path, required=True, help="lerobot-eval's eval_info.json")
     agree.add_argument("--dpr", type=Path, required=True, help="tools/lerobot_policies.py evaluate --json")
+    agree.add_argument("--seed", type=int, help="lerobot-eval's --seed, when the dpr file holds more seeds")
     return parser
 
 
@@ -379,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         print(ship(args.run, args.out))
         return 0
     if args.command == "agree":
-        rows = agreement(args.lerobot_eval, args.dpr)
+        rows = agreement(args.lerobot_eval, args.dpr, args.seed)
         for seed, (theirs, ours) in sorted(rows.items()):
             print(f"seed {seed}: lerobot-eval sum_reward {theirs:.3f}, dpr projected_displacement {ours:.3f}")
         return 0 if all(abs(a - b) <= AGREEMENT for a, b in rows.values()) else 1
