@@ -179,10 +179,7 @@ def cached_batched_episodes(
         picked = todo[first : first + size]
         result = batched_episodes([starts[i] for i in picked], **kw)
         for j, i in enumerate(picked):
-            cache[keys[i]] = {"key": keys[i], **{name: values[j] for name, values in result.items()}}
-            if cache_path:
-                with cache_path.open("a") as f:
-                    f.write(json.dumps(cache[keys[i]]) + "\n")
+            _remember(cache, cache_path, {"key": keys[i], **{name: values[j] for name, values in result.items()}})
     return {name: [cache[key][name] for key in keys] for name in ("displacement", "overlap", "sane")}
 
 
@@ -193,6 +190,14 @@ def ratio_interval(reference: np.ndarray, ours: np.ndarray, resamples: int = 200
     picks = generator.integers(0, len(reference), size=(resamples, len(reference)))
     ratios = np.median(ours[picks], axis=1) / np.median(reference[picks], axis=1)
     return [float(v) for v in np.percentile(ratios, [2.5, 97.5])]
+
+
+def _remember(cache: dict, path: Path | None, record: dict) -> None:
+    """``record`` into ``cache`` under its key, and appended to the cache file ``path`` (when given) at once."""
+    cache[record["key"]] = record
+    if path:
+        with path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
 
 
 def _load_cache(path: Path | None) -> dict:
@@ -239,10 +244,7 @@ def main() -> int:
                 key: pool.submit(pymunk_episode, task, n, seed, args.steps, args.overlap_every) for key, seed in todo
             }
             for key, future in futures.items():
-                cache[key] = {"key": key, **future.result()}
-                if args.cache:
-                    with args.cache.open("a") as f:
-                        f.write(json.dumps(cache[key]) + "\n")
+                _remember(cache, args.cache, {"key": key, **future.result()})
         pymunk_seconds = time.perf_counter() - started
         started = time.perf_counter()
         batched = cached_batched_episodes(

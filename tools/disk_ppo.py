@@ -50,16 +50,24 @@ def evaluate(model: Path, env_id: str, seeds: str, out: Path) -> None:
             "--json", str(out))  # fmt: skip
 
 
-def finished(run_dir: Path) -> bool:
+def stopped(run_dir: Path, batched: bool) -> bool:
+    """Whether ``run_dir`` keeps the snapshot of a stopped run that `dpr train|finetune --resume` goes on from."""
+    from dpr.rl.batched_resume import snapshot_file
+    from dpr.rl.resume import has_snapshot
+
+    return snapshot_file(run_dir).is_file() if batched else has_snapshot(run_dir)
+
+
+def finished(run_dir: Path, batched: bool) -> bool:
     """A run that wrote its model and keeps no snapshot to resume from (a stopped run keeps one)."""
-    return (run_dir / "model.zip").exists() and not (run_dir / "resume").exists()
+    return (run_dir / "model.zip").exists() and not stopped(run_dir, batched)
 
 
 def run(task: str, seed: int, args) -> None:
     env_id, folder = ENVS[task], args.out / task / f"seed-{seed}"
     pretrain = folder / "pretrain"
-    if not finished(pretrain):
-        resume = ["--resume"] if (pretrain / "resume").exists() else []
+    if not finished(pretrain, batched=True):
+        resume = ["--resume"] if stopped(pretrain, batched=True) else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(args.pretrain_steps), "--n-envs", str(args.num_envs), "--seed", str(seed),
             *(["--compile"] if args.compile else []), "--out", str(pretrain), *resume)  # fmt: skip
@@ -67,11 +75,11 @@ def run(task: str, seed: int, args) -> None:
     if args.finetune_steps == 0:
         return
     finetune = folder / "finetune"
-    if not finished(finetune):
+    if not finished(finetune, batched=False):
         hyper = [item for value in FINETUNE_HYPERPARAMS for item in ("--hyperparam", value)]
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
-            "--out", str(finetune), *(["--resume"] if (finetune / "resume").exists() else []))  # fmt: skip
+            "--out", str(finetune), *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
     evaluate(finetune / "model.zip", env_id, VALIDATION, folder / "finetuned_validation.json")
 
 
