@@ -144,11 +144,6 @@ def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None =
     return status
 
 
-def _iqm(values: list[float]) -> float:
-    cut = len(values) // 4
-    return float(np.mean(sorted(values)[cut : len(values) - cut]))
-
-
 def _scores(path: Path) -> dict[int, float]:
     return {e["seed"]: e["projected_displacement"] for e in json.loads(path.read_text())["episodes"]}
 
@@ -246,9 +241,11 @@ def phase_dataset(dataset: Path, out: Path, cap: int = 4) -> Path:
 
 def evaluation_row(frames: int, evaluation: Path, wave: Path) -> dict:
     """A curve row of one evaluation file (e.g. of BC trained on ``frames`` frames): IQM as % of the wave's."""
+    from dpr.evaluation.statistics import iqm
+
     scores, wave_scores = _scores(evaluation), _scores(wave)
     seeds = sorted(scores)
-    ratio = _iqm([scores[s] for s in seeds]) / _iqm([wave_scores[s] for s in seeds])
+    ratio = float(iqm(np.array([scores[s] for s in seeds])) / iqm(np.array([wave_scores[s] for s in seeds])))
     median = float(np.median([scores[s] for s in seeds]))
     return {"frames": frames, "seeds": seeds, "median": median, "iqm_percent_of_wave": round(100 * ratio, 1)}
 
