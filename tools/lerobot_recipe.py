@@ -148,11 +148,13 @@ def _scores(path: Path) -> dict[int, float]:
     return {e["seed"]: e["projected_displacement"] for e in json.loads(path.read_text())["episodes"]}
 
 
-def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500, **overrides) -> list[dict]:
-    """Every checkpoint of ``run`` scored on ``seeds`` (the recipe's validation seeds by default), as IQM % of
-    the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json`` of the wave on them), with inference-time
-    config ``overrides`` (e.g. ``n_action_steps=1``; then into ``curve-<name>-<value>``); writes and returns the
-    rows of ``run/curve.json`` (or ``run/curve-<...>.json``)."""
+def curve(
+    run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500, every: int = 1, **overrides
+) -> list[dict]:
+    """Every checkpoint of ``run`` (whose step is a multiple of ``every``) scored on ``seeds`` (the recipe's
+    validation seeds by default), as IQM % of the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json``
+    of the wave on them), with inference-time config ``overrides`` (e.g. ``n_action_steps=1``; then into
+    ``curve-<name>-<value>``); writes and returns the rows of ``run/curve.json`` (or ``run/curve-<...>.json``)."""
     sys.path.insert(0, str(TOOLS))
     import lerobot_policies
 
@@ -163,7 +165,8 @@ def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 25
     batch = json.loads((run / LAST / "pretrained_model" / "train_config.json").read_text())["batch_size"]
     name = "-".join(["curve", *(f"{key}-{value}" for key, value in sorted(overrides.items()))])
     rows = []
-    for checkpoint in sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit()):
+    checkpoints = sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit() and int(p.name) % every == 0)
+    for checkpoint in checkpoints:
         path = run / name / f"{checkpoint.name}.json"
         if not path.is_file():
             lerobot_policies.evaluate(checkpoint / "pretrained_model", seeds, steps, path, run.name, **overrides)
@@ -329,6 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="an inference-time config field, e.g. n_action_steps=1",
     )
+    score.add_argument("--every", type=int, default=1, help="score only the checkpoints whose step is a multiple")
     copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
     copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
     copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/lerobot-diffusion-nav9")
@@ -391,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed, (theirs, ours) in sorted(rows.items()):
             print(f"seed {seed}: lerobot-eval sum_reward {theirs:.3f}, dpr projected_displacement {ours:.3f}")
         return 0 if all(abs(a - b) <= AGREEMENT for a, b in rows.values()) else 1
-    curve(args.run, args.wave, args.seeds, **dict(args.set))
+    curve(args.run, args.wave, args.seeds, every=args.every, **dict(args.set))
     return 0
 
 
