@@ -92,8 +92,12 @@ def check_dataset_fits(dataset: Path, recipe: dict) -> None:
         raise ValueError(f"--dataset: recipe {recipe['name']} trains on {wanted}; {dataset} holds the other kind")
 
 
-def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> list[str]:
-    """``lerobot-train``'s command line for a new run of ``recipe``, or its resume where ``out`` holds one."""
+def train_command(
+    recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None, overrides: tuple[str, ...] = ()
+) -> list[str]:
+    """``lerobot-train``'s command line for a new run of ``recipe`` with LeRobot's own ``--NAME=VALUE``
+    ``overrides`` of its config (``policy.horizon=8``), or its resume where ``out`` holds one (whose saved config
+    already holds them)."""
     command = [sys.executable, "-m", "lerobot.scripts.lerobot_train"]
     resume_config = out / LAST / "pretrained_model" / "train_config.json"
     if resume_config.is_file():
@@ -106,6 +110,7 @@ def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int 
         f"--dataset.repo_id=dpr/{dataset.name}",
     ]
     command += [f"--output_dir={out}", f"--seed={seed}", f"--job_name={out.name}"]
+    command += [f"--{override}" for override in overrides]
     return command + ([f"--steps={steps}"] if steps else [])
 
 
@@ -115,7 +120,9 @@ def trained_steps(out: Path) -> int:
     return json.loads(state.read_text())["step"] if state.is_file() else 0
 
 
-def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> int:
+def train(
+    recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None, overrides: tuple[str, ...] = ()
+) -> int:
     """Run (or resume) ``recipe`` on ``dataset`` into ``out`` with LeRobot's training; returns its exit status.
     Each session's wall and CPU seconds are added to ``out/dpr_training.json``."""
     check_dataset_fits(dataset, recipe)
@@ -124,7 +131,7 @@ def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None =
     if trained_steps(out) >= total:
         print(f"{out}: trained {trained_steps(out)} of {total} steps already", file=sys.stderr)
         return 0
-    command = train_command(recipe, dataset, out, seed, steps)
+    command = train_command(recipe, dataset, out, seed, steps, overrides)
     print(" ".join(command[1:]), file=sys.stderr)
     started, cpu_before = time.time(), resource.getrusage(resource.RUSAGE_CHILDREN)
     status = subprocess.run(command).returncode
@@ -319,6 +326,13 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--seed", type=int, default=0)
     fit.add_argument("--steps", type=int, help="optimizer steps (default: the recipe's)")
     fit.add_argument("--out", type=Path, required=True, help="LeRobot's output folder; run again, it resumes")
+    fit.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a lerobot-train config override for a new run, e.g. policy.horizon=8 (a resumed run keeps its own)",
+    )
     fit.add_argument("--allow-unchecked-lerobot", action="store_true", help="run on a LeRobot version not checked")
     score = commands.add_parser("curve", help="score every checkpoint of a run on validation seeds")
     score.add_argument("--run", type=Path, required=True, help="a `train` output folder")
@@ -380,7 +394,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "train":
         recipe = load_recipe(args.recipe)
         check_lerobot_version(recipe, args.allow_unchecked_lerobot)
-        return train(recipe, args.dataset, args.out, args.seed, args.steps)
+        if bad := [item for item in args.set if "=" not in item or item.startswith("-")]:
+            raise SystemExit(f"--set: expected NAME=VALUE (a lerobot-train config field), got {bad}")
+        return train(recipe, args.dataset, args.out, args.seed, args.steps, tuple(args.set))
     if args.command == "plot":
         print(plot_curves(args))
         return 0
