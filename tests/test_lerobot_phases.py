@@ -85,3 +85,20 @@ def test_every_recipe_row_names_a_config_lerobot_train_can_read(recipe) -> None:
         assert row["actions"] in {"expand", "phase"}, name
         assert config["dataset"]["root"].endswith("-phase") == (row["actions"] == "phase"), name
         assert parse_seeds(row["validation_seeds"]) and row["cpu_hours"] <= 3.0, name
+
+
+def test_a_stopped_training_session_is_waited_for_so_that_it_is_still_recorded(recipe) -> None:
+    """SIGTERM to `train` goes on to lerobot-train, and `train` waits for it (then writes the session's CPU time)
+    instead of dying first; its own handler is back afterwards."""
+    import os
+    import signal
+    import sys
+    import threading
+    import time
+
+    before = signal.getsignal(signal.SIGTERM)
+    threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGTERM)).start()
+    started = time.monotonic()
+    status = recipe.run_to_its_end([sys.executable, "-c", "import time; time.sleep(30)"])
+    assert status == -signal.SIGTERM and time.monotonic() - started < 10
+    assert signal.getsignal(signal.SIGTERM) is before

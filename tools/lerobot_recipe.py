@@ -31,6 +31,7 @@ import argparse
 import importlib.metadata
 import json
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -42,6 +43,7 @@ TOOLS = Path(__file__).resolve().parent
 RECIPES = TOOLS / "lerobot_recipes"
 LAST = Path("checkpoints") / "last"
 RECORD = "dpr_training.json"
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)  # passed on to lerobot-train, whose session is then still recorded
 
 
 def load_recipe(name: str) -> dict:
@@ -120,6 +122,18 @@ def trained_steps(out: Path) -> int:
     return json.loads(state.read_text())["step"] if state.is_file() else 0
 
 
+def run_to_its_end(command: list[str]) -> int:
+    """Run ``command``, passing SIGTERM and SIGINT on to it and waiting for it to stop, so that a stopped session is
+    still recorded (its CPU seconds count toward the recipe's budget); returns its exit status."""
+    child = subprocess.Popen(command)
+    previous = {sig: signal.signal(sig, lambda number, _: child.send_signal(number)) for sig in STOP_SIGNALS}
+    try:
+        return child.wait()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def train(
     recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None, overrides: tuple[str, ...] = ()
 ) -> int:
@@ -134,7 +148,7 @@ def train(
     command = train_command(recipe, dataset, out, seed, steps, overrides)
     print(" ".join(command[1:]), file=sys.stderr)
     started, cpu_before = time.time(), resource.getrusage(resource.RUSAGE_CHILDREN)
-    status = subprocess.run(command).returncode
+    status = run_to_its_end(command)
     cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
     record_path = out / RECORD
     record = (
