@@ -363,7 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     score.add_argument("--every", type=int, default=1, help="score only the checkpoints whose step is a multiple")
     copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
     copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
-    copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/lerobot-diffusion-nav9")
+    copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/navigation-lerobot-diffusion")
     plot = commands.add_parser("plot", help="learning curves of runs and BC evaluations, as a PNG")
     plot.add_argument("--curve", action="append", default=[], metavar="LABEL=CURVE.json", help="a run's curve.json")
     plot.add_argument(
