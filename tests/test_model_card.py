@@ -60,6 +60,8 @@ def test_the_repository_card_names_existing_models_of_every_task():
     per_robot = {(model.robot_model, model.method): model.path.name for model in load_per_robot_models(REPO_CARD)}
     assert per_robot[("paddle", "bc-ppo")] == "decentralised-bc-ppo.zip"
     assert per_robot[("disk", "bc-ppo")] == "decentralised-disk-bc-ppo.zip"
+    [diffusion] = load_lerobot_policies(REPO_CARD)
+    assert (diffusion.task, diffusion.policy) == ("navigation", "diffusion")
 
 
 def test_a_card_whose_file_changed_or_names_another_tasks_id_is_refused(tmp_path):
