@@ -65,3 +65,40 @@ def test_agreement_pairs_the_seeds_lerobot_eval_ran(recipe, tmp_path) -> None:
         recipe.agreement(eval_info, dpr_file)
     with pytest.raises(ValueError, match=r"seeds \[325\]"):
         recipe.agreement(eval_info, dpr_file, 324)
+
+
+def test_every_recipe_row_names_a_config_lerobot_train_can_read(recipe) -> None:
+    """Each row of recipes.json: its config file is JSON of a policy LeRobot has, for a dpr env and swarm size, on
+    the kind of actions the row says (a phase recipe trains on a phase dataset), with validation seeds."""
+    import gymnasium
+
+    import dpr.envs  # noqa: F401  (registers the ids)
+    from dpr.cli.common import parse_seeds
+
+    rows = json.loads((recipe.RECIPES / "recipes.json").read_text())
+    assert rows
+    for name in rows:
+        row = recipe.load_recipe(name)
+        config = json.loads(row["config"].read_text())
+        assert config["policy"]["type"] in {"act", "diffusion"}, name
+        assert row["env_id"] in gymnasium.registry and row["n_robots"] > 0, name
+        assert row["actions"] in {"expand", "phase"}, name
+        assert config["dataset"]["root"].endswith("-phase") == (row["actions"] == "phase"), name
+        assert parse_seeds(row["validation_seeds"]) and row["cpu_hours"] <= 3.0, name
+
+
+def test_a_stopped_training_session_is_waited_for_so_that_it_is_still_recorded(recipe) -> None:
+    """SIGTERM to `train` goes on to lerobot-train, and `train` waits for it (then writes the session's CPU time)
+    instead of dying first; its own handler is back afterwards."""
+    import os
+    import signal
+    import sys
+    import threading
+    import time
+
+    before = signal.getsignal(signal.SIGTERM)
+    threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGTERM)).start()
+    started = time.monotonic()
+    status = recipe.run_to_its_end([sys.executable, "-c", "import time; time.sleep(30)"])
+    assert status == -signal.SIGTERM and time.monotonic() - started < 10
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -13,7 +13,7 @@ from helpers import run_cli as run
 
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS
-from dpr.evaluation.model_card import load_model_card, load_per_robot_models
+from dpr.evaluation.model_card import load_lerobot_policies, load_model_card, load_per_robot_models
 from dpr.pipeline.campaign import run_pipeline
 from dpr.pipeline.config import PipelineConfig
 from dpr.rl.train import TrainConfig, train
@@ -60,6 +60,8 @@ def test_the_repository_card_names_existing_models_of_every_task():
     per_robot = {(model.robot_model, model.method): model.path.name for model in load_per_robot_models(REPO_CARD)}
     assert per_robot[("paddle", "bc-ppo")] == "decentralised-bc-ppo.zip"
     assert per_robot[("disk", "bc-ppo")] == "decentralised-disk-bc-ppo.zip"
+    [diffusion] = load_lerobot_policies(REPO_CARD)
+    assert (diffusion.task, diffusion.policy) == ("navigation", "diffusion")
 
 
 def test_a_card_whose_file_changed_or_names_another_tasks_id_is_refused(tmp_path):
@@ -130,6 +132,47 @@ def test_per_robot_models_of_the_card_are_checked_with_it(tmp_path):
     (tmp_path / "card.yaml").write_text(yaml.safe_dump({"format": 1, "models": [central], "extra": []}))
     with pytest.raises(ParameterError, match="per_robot_models"):
         load_model_card(tmp_path / "card.yaml")
+
+
+def test_lerobot_policies_of_the_card_are_checked_without_lerobot(tmp_path):
+    """A LeRobot policy folder on the card: LeRobot's files of the named type, its weights at the card's sha256, at
+    most 10 MB, trained on the entry's task; dpr checks all of it without importing LeRobot."""
+    import hashlib
+
+    shutil.copy(REPO_CARD.parent / "navigation-bc.zip", tmp_path / "central.zip")
+    folder = tmp_path / "nav-diffusion"
+    folder.mkdir()
+    (folder / "config.json").write_text(json.dumps({"type": "diffusion"}))
+    (folder / "model.safetensors").write_bytes(b"weights")
+    (folder / "dpr_env.json").write_text(json.dumps({"env_id": "dpr/Navigation-v0", "env_kwargs": {}}))
+    digest = hashlib.sha256(b"weights").hexdigest()
+    good = {"task": "navigation", "policy": "diffusion", "folder": "nav-diffusion", "made_by": "a test"}
+    good["sha256"] = digest
+
+    def card(*policies: dict) -> Path:
+        path = tmp_path / "card.yaml"
+        central = entry("navigation", "central.zip", "bc")
+        path.write_text(yaml.safe_dump({"format": 1, "models": [central], "lerobot_policies": list(policies)}))
+        return path
+
+    [policy] = load_lerobot_policies(card(good))
+    assert (policy.task, policy.policy, policy.path) == ("navigation", "diffusion", folder)
+    assert [m.task for m in load_model_card(card(good))] == ["navigation"]  # the pipeline's rows: models only
+    for bad, message in [
+        ({**good, "policy": "act"}, "holds a LeRobot 'diffusion' policy, not 'act'"),
+        ({**good, "task": "gate"}, "trained on dpr/Navigation-v0, not on a gate env"),
+        ({**good, "folder": "central.zip"}, "must be a LeRobot policy folder"),
+        ({**good, "sha256": "0" * 64}, "sha256 differs"),
+        ({k: v for k, v in good.items() if k != "made_by"}, "must have the keys"),
+    ]:
+        with pytest.raises(ParameterError, match=message) as raised:
+            load_model_card(card(bad))
+        assert "lerobot_policies[0]" in str(raised.value)
+    with pytest.raises(ParameterError, match=r"lerobot_policies\[1\]: a second navigation diffusion policy"):
+        load_model_card(card(good, good))
+    (folder / "model.safetensors").write_bytes(b"\0" * 10_500_000)
+    with pytest.raises(ParameterError, match="over 10 MB"):
+        load_model_card(card({k: v for k, v in good.items() if k != "sha256"}))
 
 
 def test_a_card_naming_one_task_and_method_twice_is_refused(tmp_path):

@@ -31,6 +31,7 @@ import argparse
 import importlib.metadata
 import json
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -42,6 +43,7 @@ TOOLS = Path(__file__).resolve().parent
 RECIPES = TOOLS / "lerobot_recipes"
 LAST = Path("checkpoints") / "last"
 RECORD = "dpr_training.json"
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)  # passed on to lerobot-train, whose session is then still recorded
 
 
 def load_recipe(name: str) -> dict:
@@ -92,8 +94,12 @@ def check_dataset_fits(dataset: Path, recipe: dict) -> None:
         raise ValueError(f"--dataset: recipe {recipe['name']} trains on {wanted}; {dataset} holds the other kind")
 
 
-def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> list[str]:
-    """``lerobot-train``'s command line for a new run of ``recipe``, or its resume where ``out`` holds one."""
+def train_command(
+    recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None, overrides: tuple[str, ...] = ()
+) -> list[str]:
+    """``lerobot-train``'s command line for a new run of ``recipe`` with LeRobot's own ``--NAME=VALUE``
+    ``overrides`` of its config (``policy.horizon=8``), or its resume where ``out`` holds one (whose saved config
+    already holds them)."""
     command = [sys.executable, "-m", "lerobot.scripts.lerobot_train"]
     resume_config = out / LAST / "pretrained_model" / "train_config.json"
     if resume_config.is_file():
@@ -106,6 +112,7 @@ def train_command(recipe: dict, dataset: Path, out: Path, seed: int, steps: int 
         f"--dataset.repo_id=dpr/{dataset.name}",
     ]
     command += [f"--output_dir={out}", f"--seed={seed}", f"--job_name={out.name}"]
+    command += [f"--{override}" for override in overrides]
     return command + ([f"--steps={steps}"] if steps else [])
 
 
@@ -115,7 +122,21 @@ def trained_steps(out: Path) -> int:
     return json.loads(state.read_text())["step"] if state.is_file() else 0
 
 
-def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None) -> int:
+def run_to_its_end(command: list[str]) -> int:
+    """Run ``command``, passing SIGTERM and SIGINT on to it and waiting for it to stop, so that a stopped session is
+    still recorded (its CPU seconds count toward the recipe's budget); returns its exit status."""
+    child = subprocess.Popen(command)
+    previous = {sig: signal.signal(sig, lambda number, _: child.send_signal(number)) for sig in STOP_SIGNALS}
+    try:
+        return child.wait()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def train(
+    recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None = None, overrides: tuple[str, ...] = ()
+) -> int:
     """Run (or resume) ``recipe`` on ``dataset`` into ``out`` with LeRobot's training; returns its exit status.
     Each session's wall and CPU seconds are added to ``out/dpr_training.json``."""
     check_dataset_fits(dataset, recipe)
@@ -124,10 +145,10 @@ def train(recipe: dict, dataset: Path, out: Path, seed: int, steps: int | None =
     if trained_steps(out) >= total:
         print(f"{out}: trained {trained_steps(out)} of {total} steps already", file=sys.stderr)
         return 0
-    command = train_command(recipe, dataset, out, seed, steps)
+    command = train_command(recipe, dataset, out, seed, steps, overrides)
     print(" ".join(command[1:]), file=sys.stderr)
     started, cpu_before = time.time(), resource.getrusage(resource.RUSAGE_CHILDREN)
-    status = subprocess.run(command).returncode
+    status = run_to_its_end(command)
     cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
     record_path = out / RECORD
     record = (
@@ -148,11 +169,13 @@ def _scores(path: Path) -> dict[int, float]:
     return {e["seed"]: e["projected_displacement"] for e in json.loads(path.read_text())["episodes"]}
 
 
-def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500, **overrides) -> list[dict]:
-    """Every checkpoint of ``run`` scored on ``seeds`` (the recipe's validation seeds by default), as IQM % of
-    the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json`` of the wave on them), with inference-time
-    config ``overrides`` (e.g. ``n_action_steps=1``; then into ``curve-<name>-<value>``); writes and returns the
-    rows of ``run/curve.json`` (or ``run/curve-<...>.json``)."""
+def curve(
+    run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 2500, every: int = 1, **overrides
+) -> list[dict]:
+    """Every checkpoint of ``run`` (whose step is a multiple of ``every``) scored on ``seeds`` (the recipe's
+    validation seeds by default), as IQM % of the wave's IQM on the same seeds (``wave``: ``dpr evaluate --json``
+    of the wave on them), with inference-time config ``overrides`` (e.g. ``n_action_steps=1``; then into
+    ``curve-<name>-<value>``); writes and returns the rows of ``run/curve.json`` (or ``run/curve-<...>.json``)."""
     sys.path.insert(0, str(TOOLS))
     import lerobot_policies
 
@@ -163,7 +186,8 @@ def curve(run: Path, wave: Path, seeds: list[int] | None = None, steps: int = 25
     batch = json.loads((run / LAST / "pretrained_model" / "train_config.json").read_text())["batch_size"]
     name = "-".join(["curve", *(f"{key}-{value}" for key, value in sorted(overrides.items()))])
     rows = []
-    for checkpoint in sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit()):
+    checkpoints = sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit() and int(p.name) % every == 0)
+    for checkpoint in checkpoints:
         path = run / name / f"{checkpoint.name}.json"
         if not path.is_file():
             lerobot_policies.evaluate(checkpoint / "pretrained_model", seeds, steps, path, run.name, **overrides)
@@ -316,6 +340,13 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--seed", type=int, default=0)
     fit.add_argument("--steps", type=int, help="optimizer steps (default: the recipe's)")
     fit.add_argument("--out", type=Path, required=True, help="LeRobot's output folder; run again, it resumes")
+    fit.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a lerobot-train config override for a new run, e.g. policy.horizon=8 (a resumed run keeps its own)",
+    )
     fit.add_argument("--allow-unchecked-lerobot", action="store_true", help="run on a LeRobot version not checked")
     score = commands.add_parser("curve", help="score every checkpoint of a run on validation seeds")
     score.add_argument("--run", type=Path, required=True, help="a `train` output folder")
@@ -329,9 +360,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="an inference-time config field, e.g. n_action_steps=1",
     )
+    score.add_argument("--every", type=int, default=1, help="score only the checkpoints whose step is a multiple")
     copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
     copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
-    copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/lerobot-diffusion-nav9")
+    copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/navigation-lerobot-diffusion")
     plot = commands.add_parser("plot", help="learning curves of runs and BC evaluations, as a PNG")
     plot.add_argument("--curve", action="append", default=[], metavar="LABEL=CURVE.json", help="a run's curve.json")
     plot.add_argument(
@@ -376,7 +408,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "train":
         recipe = load_recipe(args.recipe)
         check_lerobot_version(recipe, args.allow_unchecked_lerobot)
-        return train(recipe, args.dataset, args.out, args.seed, args.steps)
+        if bad := [item for item in args.set if "=" not in item or item.startswith("-")]:
+            raise SystemExit(f"--set: expected NAME=VALUE (a lerobot-train config field), got {bad}")
+        return train(recipe, args.dataset, args.out, args.seed, args.steps, tuple(args.set))
     if args.command == "plot":
         print(plot_curves(args))
         return 0
@@ -391,7 +425,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed, (theirs, ours) in sorted(rows.items()):
             print(f"seed {seed}: lerobot-eval sum_reward {theirs:.3f}, dpr projected_displacement {ours:.3f}")
         return 0 if all(abs(a - b) <= AGREEMENT for a, b in rows.values()) else 1
-    curve(args.run, args.wave, args.seeds, **dict(args.set))
+    curve(args.run, args.wave, args.seeds, every=args.every, **dict(args.set))
     return 0
 
 

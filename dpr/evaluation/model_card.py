@@ -21,6 +21,17 @@ and, optionally, the per-robot models (one robot's local observation in, its act
         made_by: dpr bc-decentralised ... then dpr finetune-decentralised ... (median training seed)
         sha256: 9a0c...           # optional, as above
 
+and, optionally, LeRobot policies trained on dpr's datasets (LeRobot's own ``save_pretrained`` folders, which
+dpr checks but cannot run: their networks are LeRobot's code; ``tools/lerobot_policies.py evaluate`` scores them
+in LeRobot's side environment)::
+
+    lerobot_policies:
+      - task: navigation
+        policy: diffusion         # LeRobot's policy type: its config.json's "type"
+        folder: navigation-lerobot-diffusion   # beside the card: config.json, model.safetensors, dpr_env.json, ...
+        made_by: tools/lerobot_recipe.py train --recipe ... (median training seed)
+        sha256: 3b7e...           # optional: model.safetensors' sha256, checked on load
+
 ``models/README.md`` describes the same models for people; ``dpr pipeline --shipped models/card.yaml`` (what
 ``make run`` does) evaluates each of them on the pipeline's test seeds, so that the claim is checked where the
 user runs it. :func:`load_model_card` checks the whole card, files included (their sha256 where the card gives it,
@@ -44,9 +55,13 @@ CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")
 PER_ROBOT_KEYS = ("robot_model", "method", "file", "made_by")
 PER_ROBOT_OPTIONAL_KEYS = ("sha256",)
-CARD_KEYS = {"format", "models", "per_robot_models"}
+LEROBOT_KEYS = ("task", "policy", "folder", "made_by")
+LEROBOT_OPTIONAL_KEYS = ("sha256",)
+LEROBOT_MAX_MEGABYTES = 10.0  # a shipped LeRobot policy's folder, at most
+CARD_KEYS = {"format", "models", "per_robot_models", "lerobot_policies"}
 # env_id: the task's registered id the model runs on, when not its current one; sha256: the file's, checked
 OPTIONAL_KEYS = ("env_id", "sha256")
+ENV_FILE = "dpr_env.json"  # beside a shipped LeRobot policy: the env it was trained on (tools/lerobot_recipe.py ship)
 
 
 @dataclass(frozen=True)
@@ -74,6 +89,16 @@ class ShippedPerRobotModel:
     made_by: str
 
 
+@dataclass(frozen=True)
+class ShippedLeRobotPolicy:
+    """One entry of the card's ``lerobot_policies``: ``path`` is LeRobot's policy folder (beside the card)."""
+
+    task: str
+    policy: str
+    path: Path
+    made_by: str
+
+
 def load_model_card(card: str | Path, parameter: str = "shipped") -> list[ShippedModel]:
     """The entries of the model card at ``card`` (its per-robot models are checked too, and returned by
     :func:`load_per_robot_models`); a :class:`ParameterError` about ``parameter`` naming the card, the entry and
@@ -88,7 +113,16 @@ def load_per_robot_models(card: str | Path, parameter: str = "shipped") -> list[
     return _load(card, parameter)[1]
 
 
-def _load(card: str | Path, parameter: str) -> tuple[list[ShippedModel], list[ShippedPerRobotModel]]:
+def load_lerobot_policies(card: str | Path, parameter: str = "shipped") -> list[ShippedLeRobotPolicy]:
+    """The card's LeRobot policies, after the whole card is checked as :func:`load_model_card` does; each folder
+    must hold LeRobot's files of the entry's policy type (``model.safetensors`` at the card's sha256), at most
+    :data:`LEROBOT_MAX_MEGABYTES`, and the env it was trained on (its ``dpr_env.json``) must be the entry's task."""
+    return _load(card, parameter)[2]
+
+
+def _load(
+    card: str | Path, parameter: str
+) -> tuple[list[ShippedModel], list[ShippedPerRobotModel], list[ShippedLeRobotPolicy]]:
     card = Path(card)
     if not card.is_file():
         raise ParameterError(parameter, f"no model card at {card}")
@@ -125,7 +159,14 @@ def _load(card: str | Path, parameter: str) -> tuple[list[ShippedModel], list[Sh
         _check_file(f"{card}: models[{index}]", entry, model.path, parameter)
     for index, (entry, model) in enumerate(zip(per_robot_entries, per_robot)):
         _check_per_robot_file(f"{card}: per_robot_models[{index}]", entry, model, parameter)
-    return models, per_robot
+    lerobot: list[ShippedLeRobotPolicy] = []
+    for index, entry in enumerate(_entry_list(card, data.get("lerobot_policies", []), "lerobot_policies", parameter)):
+        where = f"{card}: lerobot_policies[{index}]"
+        policy = _lerobot_entry(where, card, entry, parameter)
+        if any((other.task, other.policy) == (policy.task, policy.policy) for other in lerobot):
+            raise ParameterError(parameter, f"{where}: a second {policy.task} {policy.policy} policy")
+        lerobot.append(policy)
+    return models, per_robot, lerobot
 
 
 def _check_entry(where: str, entry, keys: tuple[str, ...], optional: tuple[str, ...], parameter: str) -> None:
@@ -155,10 +196,8 @@ def _check_file(where: str, entry: dict, path: Path, parameter: str) -> ModelInf
 def _per_robot_entries(card: Path, entries, parameter: str) -> list[ShippedPerRobotModel]:
     from dpr.sim.models import ROBOT_MODELS
 
-    if not isinstance(entries, list):
-        raise ParameterError(parameter, f"{card}: 'per_robot_models' must be a list of entries")
     models: list[ShippedPerRobotModel] = []
-    for index, entry in enumerate(entries):
+    for index, entry in enumerate(_entry_list(card, entries, "per_robot_models", parameter)):
         where = f"{card}: per_robot_models[{index}]"
         _check_entry(where, entry, PER_ROBOT_KEYS, PER_ROBOT_OPTIONAL_KEYS, parameter)
         if entry["robot_model"] not in ROBOT_MODELS:
@@ -184,3 +223,35 @@ def _check_per_robot_file(where: str, entry: dict, model: ShippedPerRobotModel, 
             f"{where}: {model.path} is a per-robot model of the {spec.robot_model} robot model, not of "
             f"{model.robot_model}",
         )
+
+
+def _entry_list(card: Path, entries, key: str, parameter: str) -> list:
+    if not isinstance(entries, list):
+        raise ParameterError(parameter, f"{card}: '{key}' must be a list of entries")
+    return entries
+
+
+def _lerobot_entry(where: str, card: Path, entry, parameter: str) -> ShippedLeRobotPolicy:
+    """One ``lerobot_policies`` entry, its folder checked as :func:`load_lerobot_policies` says (no LeRobot needed)."""
+    import json
+
+    from dpr.policies.registry import LEROBOT_POLICY_FILES
+
+    _check_entry(where, entry, LEROBOT_KEYS, LEROBOT_OPTIONAL_KEYS, parameter)
+    if entry["task"] not in ENV_IDS:
+        raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
+    folder = card.parent / entry["folder"]
+    missing = [name for name in (*LEROBOT_POLICY_FILES, ENV_FILE) if not (folder / name).is_file()]
+    if missing:
+        raise ParameterError(parameter, f"{where}: {folder} must be a LeRobot policy folder; it lacks {missing}")
+    if (kind := json.loads((folder / "config.json").read_text()).get("type")) != entry["policy"]:
+        raise ParameterError(parameter, f"{where}: {folder} holds a LeRobot {kind!r} policy, not {entry['policy']!r}")
+    weights = folder / "model.safetensors"
+    if "sha256" in entry and file_sha256(weights) != entry["sha256"]:
+        raise ParameterError(parameter, f"{where}: {weights} is not the file the card names (its sha256 differs)")
+    if (size := sum(path.stat().st_size for path in folder.iterdir()) / 1e6) > LEROBOT_MAX_MEGABYTES:
+        raise ParameterError(parameter, f"{where}: {folder} is {size:.1f} MB, over {LEROBOT_MAX_MEGABYTES:g} MB")
+    env_id = json.loads((folder / ENV_FILE).read_text()).get("env_id")
+    if TASKS.get(env_id) != entry["task"]:
+        raise ParameterError(parameter, f"{where}: {folder} was trained on {env_id}, not on a {entry['task']} env")
+    return ShippedLeRobotPolicy(entry["task"], entry["policy"], folder, entry["made_by"])
