@@ -165,7 +165,7 @@ def test_a_trained_policy_runs_in_the_env_as_a_multibinary_action(
     assert env.action_space.contains(action)
     policies.evaluate(tmp_path / "act", [5], 40, tmp_path / "act.json")
     record = json.loads((tmp_path / "act.json").read_text())
-    assert record["policy"] == "lerobot-act" and [e["seed"] for e in record["episodes"]] == [5]
+    assert record["policy"] == str(tmp_path / "act") and [e["seed"] for e in record["episodes"]] == [5]
     assert record["episodes"][0]["steps"] == 40
     with pytest.raises(ValueError, match="--json"):
         policies.evaluate(tmp_path / "act", [5], 40, tmp_path / "act.json")

@@ -312,7 +312,7 @@ def evaluate(
         check_policy_fits(policy.config, probe)
     finally:
         probe.close()
-    name = label or f"lerobot-{policy.config.type}"
+    name = label or str(model)  # as `dpr evaluate` names a model: by its path, so that two runs stay apart
     render = {}
     if F.IMAGE in policy.config.input_features:  # trained on pixels: the env renders frames of the dataset's size
         render = {"render_mode": "rgb_array", "render_size": policy.config.input_features[F.IMAGE].shape[-1]}
@@ -366,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     score.add_argument("--seeds", type=parse_seeds, default=list(range(320, 340)), help="e.g. 320-339 (default)")
     score.add_argument("--steps", type=int, default=2500, help="physics steps per episode (default 2500)")
     score.add_argument("--json", type=Path, required=True, help="the evaluation file to write (new)")
-    score.add_argument("--label", help="the policy's name in the file (default lerobot-<type>)")
+    score.add_argument("--label", help="the policy's name in the file (default: --model as given)")
     score.add_argument(
         "--set",
         type=_setting,
