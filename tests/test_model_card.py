@@ -21,9 +21,10 @@ from dpr.rl.train import TrainConfig, train
 REPO_CARD = Path(__file__).resolve().parents[1] / "models" / "card.yaml"
 
 
-def write_card(folder: Path, entries: list[dict]) -> Path:
+def write_card(folder: Path, entries: list[dict], **sections: list[dict]) -> Path:
+    """``folder``/card.yaml with ``entries`` as its models and ``sections`` (``per_robot_models=[...]``, ...)."""
     card = folder / "card.yaml"
-    card.write_text(yaml.safe_dump({"format": 1, "models": entries}))
+    card.write_text(yaml.safe_dump({"format": 1, "models": entries, **sections}))
     return card
 
 
@@ -110,9 +111,7 @@ def test_per_robot_models_of_the_card_are_checked_with_it(tmp_path):
     central = entry("navigation", "central.zip", "bc")
 
     def card(*per_robot: dict) -> Path:
-        path = tmp_path / "card.yaml"
-        path.write_text(yaml.safe_dump({"format": 1, "models": [central], "per_robot_models": list(per_robot)}))
-        return path
+        return write_card(tmp_path, [central], per_robot_models=list(per_robot))
 
     disk = {"robot_model": "disk", "method": "bc", "file": "disk.zip", "made_by": "a test"}
     assert [(m.robot_model, m.path.name) for m in load_per_robot_models(card(disk))] == [("disk", "disk.zip")]
@@ -150,10 +149,7 @@ def test_lerobot_policies_of_the_card_are_checked_without_lerobot(tmp_path):
     good["sha256"] = digest
 
     def card(*policies: dict) -> Path:
-        path = tmp_path / "card.yaml"
-        central = entry("navigation", "central.zip", "bc")
-        path.write_text(yaml.safe_dump({"format": 1, "models": [central], "lerobot_policies": list(policies)}))
-        return path
+        return write_card(tmp_path, [entry("navigation", "central.zip", "bc")], lerobot_policies=list(policies))
 
     [policy] = load_lerobot_policies(card(good))
     assert (policy.task, policy.policy, policy.path) == ("navigation", "diffusion", folder)

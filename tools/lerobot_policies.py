@@ -45,6 +45,7 @@ sys.path.insert(1, str(Path(__file__).resolve().parent / "lerobot_plugin"))  # l
 import check_lerobot_load  # noqa: E402  (the LeRobot environment's set-up: offline hub, importable torchvision)
 
 from dpr.datasets import features as F  # noqa: E402
+from dpr.policies.registry import LEROBOT_ENV_FILE  # noqa: E402
 
 POLICIES = ("act", "diffusion")
 # LeRobot's defaults are sized for GPUs and camera images; these train on two CPU cores in minutes. ACT's backbone
@@ -57,7 +58,6 @@ CPU_DEFAULTS: dict[str, dict[str, Any]] = {
 }  # fmt: skip
 MODEL_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
 TRAINING_RECORD = "dpr_training.json"
-ENV_FILE = "dpr_env.json"  # beside a shipped policy: the env id and kwargs it was trained on
 PHASE_SUFFIX = ".phase"  # action names of a dataset of phases (tools/lerobot_recipe.py phase-dataset)
 
 
@@ -178,26 +178,26 @@ def policy_folder(model: Path) -> Path:
 
 
 def policy_env(model: Path, dataset: Path) -> tuple[str, dict]:
-    """The env id and kwargs the policy in ``model`` was trained on: its :data:`ENV_FILE` (a shipped policy, whose
+    """The env id and kwargs the policy in ``model`` was trained on: its ``dpr_env.json`` (a shipped policy, whose
     dataset is not at hand), else its dataset's episode rows."""
     from dpr.datasets.lerobot import LeRobotReader
     from dpr.imitation.bc import dataset_env
 
-    env_file = policy_folder(model) / ENV_FILE
+    env_file = policy_folder(model) / LEROBOT_ENV_FILE
     if env_file.is_file():
         recorded = json.loads(env_file.read_text())
         return recorded["env_id"], recorded["env_kwargs"]
     if not dataset.is_dir():
-        raise ValueError(f"--model: {model} has no {ENV_FILE} and its dataset {dataset} is not here")
+        raise ValueError(f"--model: {model} has no {LEROBOT_ENV_FILE} and its dataset {dataset} is not here")
     reader = LeRobotReader(dataset)
     env_id = reader.episodes[0][F.ENV_ID]
     return env_id, dataset_env(reader, env_id)[0]
 
 
 def policy_actions(model: Path, dataset: Path) -> str:
-    """What the policy's action values are, "expand" (0/1 per robot) or "phase": its :data:`ENV_FILE`'s
+    """What the policy's action values are, "expand" (0/1 per robot) or "phase": its ``dpr_env.json``'s
     ``actions``, else its dataset's action names (``robot0.phase``, ...: a phase dataset)."""
-    env_file = policy_folder(model) / ENV_FILE
+    env_file = policy_folder(model) / LEROBOT_ENV_FILE
     if env_file.is_file():
         return json.loads(env_file.read_text()).get("actions", "expand")
     names = json.loads((dataset / "meta" / "info.json").read_text())["features"][F.ACTION].get("names") or []

@@ -214,7 +214,7 @@ def ship(run: Path, out: Path, max_megabytes: float = 10.0) -> Path:
     if size > max_megabytes:
         raise ValueError(f"{folder} is {size:.1f} MB, over {max_megabytes} MB: train a smaller network")
     shutil.copytree(folder, out)
-    (out / lerobot_policies.ENV_FILE).write_text(
+    (out / lerobot_policies.LEROBOT_ENV_FILE).write_text(
         json.dumps({"env_id": env_id, "env_kwargs": env_kwargs, "actions": actions}, indent=2) + "\n"
     )
     return out

@@ -61,7 +61,6 @@ LEROBOT_MAX_MEGABYTES = 10.0  # a shipped LeRobot policy's folder, at most
 CARD_KEYS = {"format", "models", "per_robot_models", "lerobot_policies"}
 # env_id: the task's registered id the model runs on, when not its current one; sha256: the file's, checked
 OPTIONAL_KEYS = ("env_id", "sha256")
-ENV_FILE = "dpr_env.json"  # beside a shipped LeRobot policy: the env it was trained on (tools/lerobot_recipe.py ship)
 
 
 @dataclass(frozen=True)
@@ -144,8 +143,7 @@ def _load(
     for index, entry in enumerate(entries):
         where = f"{card}: models[{index}]"
         _check_entry(where, entry, ENTRY_KEYS, OPTIONAL_KEYS, parameter)
-        if entry["task"] not in ENV_IDS:
-            raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
+        _check_task(where, entry, parameter)
         if "env_id" in entry and TASKS.get(entry["env_id"]) != entry["task"]:
             ids = [env_id for env_id, task in TASKS.items() if task == entry["task"]]
             raise ParameterError(parameter, f"{where}: env_id must be one of {ids}, got {entry['env_id']!r}")
@@ -188,8 +186,7 @@ def _entry_file(card: Path, where: str, entry: dict, parameter: str) -> Path:
 
 def _check_file(where: str, entry: dict, path: Path, parameter: str) -> ModelInfo:
     """The file's :class:`ModelInfo`, once its sha256 (where the card gives one) matches and it loads as a model."""
-    if "sha256" in entry and file_sha256(path) != entry["sha256"]:
-        raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
+    _check_sha256(where, entry, path, parameter)
     return load_model(path, parameter=parameter)[1]  # a corrupt or crafted file is refused now, not hours later
 
 
@@ -231,27 +228,35 @@ def _entry_list(card: Path, entries, key: str, parameter: str) -> list:
     return entries
 
 
+def _check_task(where: str, entry: dict, parameter: str) -> None:
+    if entry["task"] not in ENV_IDS:
+        raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
+
+
+def _check_sha256(where: str, entry: dict, path: Path, parameter: str) -> None:
+    """``path``'s content must be the one the entry's ``sha256`` (where it gives one) names."""
+    if "sha256" in entry and file_sha256(path) != entry["sha256"]:
+        raise ParameterError(parameter, f"{where}: {path} is not the file the card names (its sha256 differs)")
+
+
 def _lerobot_entry(where: str, card: Path, entry, parameter: str) -> ShippedLeRobotPolicy:
     """One ``lerobot_policies`` entry, its folder checked as :func:`load_lerobot_policies` says (no LeRobot needed)."""
     import json
 
-    from dpr.policies.registry import LEROBOT_POLICY_FILES
+    from dpr.policies.registry import LEROBOT_ENV_FILE, LEROBOT_POLICY_FILES, lerobot_policy_type
 
     _check_entry(where, entry, LEROBOT_KEYS, LEROBOT_OPTIONAL_KEYS, parameter)
-    if entry["task"] not in ENV_IDS:
-        raise ParameterError(parameter, f"{where}: task must be one of {list(ENV_IDS)}, got {entry['task']!r}")
+    _check_task(where, entry, parameter)
     folder = card.parent / entry["folder"]
-    missing = [name for name in (*LEROBOT_POLICY_FILES, ENV_FILE) if not (folder / name).is_file()]
+    missing = [name for name in (*LEROBOT_POLICY_FILES, LEROBOT_ENV_FILE) if not (folder / name).is_file()]
     if missing:
         raise ParameterError(parameter, f"{where}: {folder} must be a LeRobot policy folder; it lacks {missing}")
-    if (kind := json.loads((folder / "config.json").read_text()).get("type")) != entry["policy"]:
+    if (kind := lerobot_policy_type(folder)) != entry["policy"]:
         raise ParameterError(parameter, f"{where}: {folder} holds a LeRobot {kind!r} policy, not {entry['policy']!r}")
-    weights = folder / "model.safetensors"
-    if "sha256" in entry and file_sha256(weights) != entry["sha256"]:
-        raise ParameterError(parameter, f"{where}: {weights} is not the file the card names (its sha256 differs)")
+    _check_sha256(where, entry, folder / "model.safetensors", parameter)
     if (size := sum(path.stat().st_size for path in folder.iterdir()) / 1e6) > LEROBOT_MAX_MEGABYTES:
         raise ParameterError(parameter, f"{where}: {folder} is {size:.1f} MB, over {LEROBOT_MAX_MEGABYTES:g} MB")
-    env_id = json.loads((folder / ENV_FILE).read_text()).get("env_id")
+    env_id = json.loads((folder / LEROBOT_ENV_FILE).read_text()).get("env_id")
     if TASKS.get(env_id) != entry["task"]:
         raise ParameterError(parameter, f"{where}: {folder} was trained on {env_id}, not on a {entry['task']} env")
     return ShippedLeRobotPolicy(entry["task"], entry["policy"], folder, entry["made_by"])

@@ -132,6 +132,16 @@ def check_policy_name(name: str) -> str:
 # What LeRobot's save_pretrained writes: a policy folder dpr cannot run without LeRobot (dpr does not import it)
 LEROBOT_POLICY_FILES = ("config.json", "model.safetensors")
 LEROBOT_RUN_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
+LEROBOT_ENV_FILE = "dpr_env.json"  # beside a shipped LeRobot policy: the env id and kwargs it was trained on
+
+
+def lerobot_policy_type(folder: Path) -> str:
+    """The LeRobot policy type (``diffusion``, ``act``, ...) its ``config.json`` in ``folder`` names; "?" where it
+    cannot be read."""
+    try:
+        return json.loads((folder / "config.json").read_text()).get("type", "?")
+    except (OSError, ValueError, AttributeError):
+        return "?"
 
 
 def refuse_lerobot_policy(name: str) -> None:
@@ -142,10 +152,7 @@ def refuse_lerobot_policy(name: str) -> None:
         folder = folder / LEROBOT_RUN_FOLDER
     if not all((folder / file).is_file() for file in LEROBOT_POLICY_FILES):
         return
-    try:
-        kind = json.loads((folder / "config.json").read_text()).get("type", "?")
-    except (OSError, ValueError, AttributeError):
-        kind = "?"
+    kind = lerobot_policy_type(folder)
     raise ValueError(
         f"policy {name!r} is a LeRobot policy ({kind}): its network is LeRobot's code, which dpr does not depend on. "
         f"Build LeRobot's side environment with `make lerobot-env`, then score it there with dpr's metrics: "
