@@ -92,8 +92,8 @@ def median_displacement(path: Path) -> float | None:
 
 
 def report(args) -> None:
-    for task, env_id in ENVS.items():
-        runs = sorted((args.out / task).glob("seed-*"))
+    for task in args.tasks:
+        env_id, runs = ENVS[task], sorted((args.out / task).glob("seed-*"))
         if not runs:
             continue
         scores = {}
