@@ -114,10 +114,10 @@ def report(args) -> None:
             print(f"{task}: not tested, its runs are at different stages ({', '.join(sorted(stages))})")
         elif args.test:
             models = {folder: folder / stage / "model.zip" for folder, (_, stage) in scores.items()}
-            test_every_run(task, env_id, models, args.out)
+            score_every_run_on_test_seeds(task, env_id, models, args.out)
 
 
-def test_every_run(task: str, env_id: str, models: dict[Path, Path], out: Path) -> None:
+def score_every_run_on_test_seeds(task: str, env_id: str, models: dict[Path, Path], out: Path) -> None:
     """Each run's model on the test seeds beside the paddle wave, and the median run's score (the issue's figure)."""
     wave = out / task / "wave_test.json"
     if not wave.exists():
