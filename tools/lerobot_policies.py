@@ -45,7 +45,7 @@ sys.path.insert(1, str(Path(__file__).resolve().parent / "lerobot_plugin"))  # l
 import check_lerobot_load  # noqa: E402  (the LeRobot environment's set-up: offline hub, importable torchvision)
 
 from dpr.datasets import features as F  # noqa: E402
-from dpr.policies.registry import LEROBOT_ENV_FILE  # noqa: E402
+from dpr.policies.registry import LEROBOT_ENV_FILE, LEROBOT_RUN_FOLDER  # noqa: E402
 
 POLICIES = ("act", "diffusion")
 # LeRobot's defaults are sized for GPUs and camera images; these train on two CPU cores in minutes. ACT's backbone
@@ -56,7 +56,6 @@ CPU_DEFAULTS: dict[str, dict[str, Any]] = {
     "diffusion": {"down_dims": (64, 128, 256), "horizon": 16, "n_action_steps": 8, "num_inference_steps": 10,
                   "noise_scheduler_type": "DDIM", "crop_shape": None},
 }  # fmt: skip
-MODEL_FOLDER = Path("checkpoints") / "last" / "pretrained_model"
 TRAINING_RECORD = "dpr_training.json"
 PHASE_SUFFIX = ".phase"  # action names of a dataset of phases (tools/lerobot_recipe.py phase-dataset)
 
@@ -142,7 +141,7 @@ def train(dataset: Path, kind: str, steps: int, batch_size: int, out: Path, seed
         "cpu_seconds": round(time.process_time() - cpu_started, 1),
     }
     (out / TRAINING_RECORD).write_text(json.dumps(record, indent=2) + "\n")
-    return out / MODEL_FOLDER
+    return out / LEROBOT_RUN_FOLDER
 
 
 def training_step(dataset: Path, kind: str, batch_size: int = 4, **overrides: Any) -> tuple[float, dict]:
@@ -174,7 +173,7 @@ def training_step(dataset: Path, kind: str, batch_size: int = 4, **overrides: An
 
 def policy_folder(model: Path) -> Path:
     """The policy's own folder: ``model`` itself, or its ``checkpoints/last/pretrained_model`` (a ``train`` output)."""
-    return model / MODEL_FOLDER if (model / MODEL_FOLDER).is_dir() else model
+    return model / LEROBOT_RUN_FOLDER if (model / LEROBOT_RUN_FOLDER).is_dir() else model
 
 
 def policy_env(model: Path, dataset: Path) -> tuple[str, dict]:
@@ -213,7 +212,7 @@ def load_policy(model: Path, **overrides: Any):
 
     folder = policy_folder(model)
     if not (folder / "config.json").is_file():
-        raise ValueError(f"--model: {model} holds no trained LeRobot policy (no {MODEL_FOLDER}/config.json)")
+        raise ValueError(f"--model: {model} holds no trained LeRobot policy (no {LEROBOT_RUN_FOLDER}/config.json)")
     config = PreTrainedConfig.from_pretrained(folder)
     _check_fields(type(config), overrides)
     for name, value in overrides.items():

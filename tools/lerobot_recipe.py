@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dpr.policies.registry import LEROBOT_ENV_FILE, LEROBOT_RUN_FOLDER
+
 TOOLS = Path(__file__).resolve().parent
 RECIPES = TOOLS / "lerobot_recipes"
 LAST = Path("checkpoints") / "last"
@@ -101,7 +103,7 @@ def train_command(
     ``overrides`` of its config (``policy.horizon=8``), or its resume where ``out`` holds one (whose saved config
     already holds them)."""
     command = [sys.executable, "-m", "lerobot.scripts.lerobot_train"]
-    resume_config = out / LAST / "pretrained_model" / "train_config.json"
+    resume_config = out / LEROBOT_RUN_FOLDER / "train_config.json"
     if resume_config.is_file():
         return [*command, f"--config_path={resume_config}", "--resume=true"] + ([f"--steps={steps}"] if steps else [])
     if out.exists():
@@ -183,7 +185,7 @@ def curve(
     seeds = seeds or sorted(wave_scores)  # the seeds evaluated; a row's ratio is over the seeds its file holds
     if missing := sorted(set(seeds) - set(wave_scores)):
         raise ValueError(f"--wave: {wave} has no episode of seeds {missing}")
-    batch = json.loads((run / LAST / "pretrained_model" / "train_config.json").read_text())["batch_size"]
+    batch = json.loads((run / LEROBOT_RUN_FOLDER / "train_config.json").read_text())["batch_size"]
     name = "-".join(["curve", *(f"{key}-{value}" for key, value in sorted(overrides.items()))])
     rows = []
     checkpoints = sorted(p for p in (run / "checkpoints").iterdir() if p.name.isdigit() and int(p.name) % every == 0)
@@ -214,7 +216,7 @@ def ship(run: Path, out: Path, max_megabytes: float = 10.0) -> Path:
     if size > max_megabytes:
         raise ValueError(f"{folder} is {size:.1f} MB, over {max_megabytes} MB: train a smaller network")
     shutil.copytree(folder, out)
-    (out / lerobot_policies.LEROBOT_ENV_FILE).write_text(
+    (out / LEROBOT_ENV_FILE).write_text(
         json.dumps({"env_id": env_id, "env_kwargs": env_kwargs, "actions": actions}, indent=2) + "\n"
     )
     return out
