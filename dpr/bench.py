@@ -193,14 +193,20 @@ def bench_batched(
 
 
 def run_batched_benchmarks(
-    ks=BATCHED_ENVS, sizes=BATCHED_SIZES, seconds: float = 2.0, device="cpu", progress=None, compile: bool = False
+    ks=BATCHED_ENVS,
+    sizes=BATCHED_SIZES,
+    seconds: float = 2.0,
+    device="cpu",
+    progress=None,
+    compile: bool = False,
+    robots: int = BATCHED_ROBOTS,
 ):
-    """The batched engine at N=9 for every K in ``ks`` and at every N in ``sizes`` (K*N near
-    :data:`BATCHED_ROBOTS`), each beside the pymunk disk env at the same N (random actions, :func:`bench_env`; not
-    above N=1000, whose steps take seconds), in one run."""
+    """The batched engine at N=9 for every K in ``ks`` and at every N in ``sizes`` (K*N near ``robots``), each
+    beside the pymunk disk env at the same N (random actions, :func:`bench_env`; not above N=1000, whose steps take
+    seconds), in one run."""
     pymunk = {n: bench_env("disk", n, steps=max(20, 2000 // n), repeats=3) for n in (9, *sizes) if n <= 1000}
     rows = []
-    for k, n in [(k, 9) for k in ks] + [(max(1, BATCHED_ROBOTS // n), n) for n in sizes]:
+    for k, n in [(k, 9) for k in ks] + [(max(1, robots // n), n) for n in sizes]:
         row = bench_batched(k, n, seconds, device, compile=compile)
         row["pymunk_env_steps_per_s"] = pymunk[n]["env_steps_per_s"] if n in pymunk else None
         rows.append(row)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import dpr  # noqa: F401
-from dpr.bench import bench_batched
+from dpr.bench import bench_batched, run_batched_benchmarks
 from dpr.checks import ParameterError
 from dpr.cli import main
 from dpr.evaluation.batched import evaluate_batched
@@ -71,6 +71,12 @@ def test_train_refuses_what_the_batched_engine_cannot_do():
 def test_the_batched_bench_measures_a_rate():
     row = bench_batched(4, 4, seconds=0.0)
     assert row["env_steps_per_s"] > 0 and row["n_robots"] == 4 and row["peak_memory_mb"] > 0
+
+
+def test_the_batched_bench_sizes_rows_hold_the_robots_asked_for():
+    rows = run_batched_benchmarks(ks=(), sizes=(40,), seconds=0.0, robots=120)
+    assert [(row["num_envs"], row["n_robots"]) for row in rows] == [(3, 40)]
+    assert rows[0]["pymunk_env_steps_per_s"] > 0
 
 
 def test_cuda_without_cuda_is_refused_by_name():

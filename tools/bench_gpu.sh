@@ -1,16 +1,37 @@
 #!/usr/bin/env bash
-# The batched engine's figures on a CUDA machine, in a few minutes: env steps/s from K=1 to 65,536 at N=9 and at
-# N = 100 to 10,000 (beside the pymunk disk env on the CPU), then the whole PPO loop against `dpr train` on pymunk.
-# Needs the project installed (`make test` does it, or pip install -e . with torch built for CUDA).
-#   tools/bench_gpu.sh [OUT_DIR]      # writes bench-batched.json and bench-training.json there
-set -euo pipefail
+# The batched engine's figures on a CUDA machine, in about ten minutes: env steps/s from K=1 to 65,536 at N=9 and at
+# N = 100 to 10,000 (beside the pymunk disk env on the CPU), the same with a GPU's worth of robots per call, N=9
+# compiled, then the whole PPO loop against `dpr train` on pymunk. Each part has a time limit and the next one runs
+# whatever became of it, so a short lease still brings back what finished.
+# Needs the project importable (`make test` installs it, or pip install -e . with torch built for CUDA).
+#   tools/bench_gpu.sh [OUT_DIR]      # writes bench-*.json and a log per part there
+#   PYTHON=python3 PART_SECONDS=150 tools/bench_gpu.sh OUT_DIR
+set -uo pipefail
 out="${1:-.}"
+python="${PYTHON:-python}"
+limit="${PART_SECONDS:-150}"
 mkdir -p "$out"
-python -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 'no CUDA device: torch.cuda.is_available() is False')"
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader || true
-python -m dpr.cli bench --engine batched --device cuda --ks 1 64 1024 4096 16384 65536 \
-    --batched-sizes 100 1000 10000 --json "$out/bench-batched.json"
-# the same at N=9 with each physics substep compiled (Triton kernels on the GPU)
-python -m dpr.cli bench --engine batched --device cuda --compile --ks 1024 4096 16384 65536 --batched-sizes \
-    --json "$out/bench-batched-compiled.json"
-python tools/bench_training.py --device cuda --num-envs 4096 --updates 3 --repeats 1 --json "$out/bench-training.json"
+"$python" -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 'no CUDA device: torch.cuda.is_available() is False')" || exit 1
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
+"$python" -c "import torch; print('torch', torch.__version__, torch.cuda.get_device_name())"
+nproc
+
+part() {  # part NAME SECONDS COMMAND...: run it under a limit, its output beside the others
+    local name="$1" seconds="$2"
+    shift 2
+    echo "== $name (at most ${seconds} s)"
+    local started=$SECONDS
+    timeout -s INT -k 10 "$seconds" "$@" 2>"$out/$name.log"
+    echo "== $name: exit $? after $((SECONDS - started)) s"
+}
+
+part bench-batched "$limit" "$python" -m dpr.cli bench --engine batched --device cuda \
+    --ks 1 64 1024 4096 16384 65536 --batched-sizes 100 1000 10000 --json "$out/bench-batched.json"
+part bench-training "$limit" "$python" tools/bench_training.py --device cuda --num-envs 4096 --updates 3 \
+    --repeats 1 --json "$out/bench-training.json"
+# the --batched-sizes rows with 100 times the robots per call: a GPU is not full at 10,000
+part bench-batched-large "$limit" "$python" -m dpr.cli bench --engine batched --device cuda --ks 4096 \
+    --batched-sizes 100 1000 10000 --batched-robots 1000000 --json "$out/bench-batched-large.json"
+# N=9 with each physics substep compiled (Triton kernels on the GPU)
+part bench-batched-compiled "$limit" "$python" -m dpr.cli bench --engine batched --device cuda --compile \
+    --ks 1024 4096 16384 65536 --batched-sizes --json "$out/bench-batched-compiled.json"

@@ -40,7 +40,13 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="*",
         type=positive_int,
         default=list(batched["sizes"]),
-        help=f"batched: N, each with K*N near {BATCHED_ROBOTS} robots (none: N=9 only)",
+        help="batched: N, each with K*N near --batched-robots robots (none: N=9 only)",
+    )
+    parser.add_argument(
+        "--batched-robots",
+        type=positive_int,
+        default=batched["robots"],
+        help=f"batched: robots per call in the --batched-sizes rows (default {BATCHED_ROBOTS}; a GPU fills at more)",
     )
     parser.add_argument("--device", default=batched["device"], help="batched: torch device, cpu or cuda")
     compile_argument(parser)
@@ -81,6 +87,7 @@ def _batched_rows(args) -> tuple[list[dict], str]:
         args.batched_sizes,
         device=args.device,
         compile=args.compile,
+        robots=args.batched_robots,
         progress=lambda r: print(
             f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
             file=sys.stderr,
