@@ -72,6 +72,23 @@ def test_the_tensor_interface_resets_in_the_same_step():
     assert venv.steps.tolist() == [0, 0]
 
 
+def test_manipulations_approach_shaping_adds_the_swarms_approach_to_the_ball():
+    """As ManipulationEnv: reward + weight * (the swarm-ball distance before the step - after it)."""
+    plain = make("dpr/Manipulation-v0", num_envs=2).unwrapped
+    shaped = make("dpr/Manipulation-v0", num_envs=2, approach_reward=2.0).unwrapped
+    plain.reset(seed=8), shaped.reset(seed=8)
+    actions = np.random.default_rng(1).integers(0, 2, size=(20, 2, 9))
+    approached = 0.0
+    for action in actions:
+        before = shaped._swarm_object_gap().numpy()
+        reward = plain.step(action)[1]
+        shaped_reward = shaped.step(action)[1]
+        change = before - shaped._swarm_object_gap().numpy()
+        np.testing.assert_allclose(shaped_reward, reward + 2.0 * change, atol=1e-4)
+        approached += np.abs(change).sum()
+    assert approached > 0.1  # the shaping was exercised, not a zero added to a zero
+
+
 def test_the_paddle_model_is_refused_by_name():
     with pytest.raises(ParameterError, match="robot_model.*paddle"):
         make(robot_model="paddle")

@@ -34,7 +34,9 @@ ENVS = {
 }
 VALIDATION = "200-219"  # the full preset's validation seeds
 TEST = "300-349"  # and its test seeds
-ENV_KWARGS = ["--env-kwarg", "obs_last_action=true", "--env-kwarg", "action_repeat=6"]
+# Manipulation's learners, here as in the pipeline (PipelineConfig.approach_reward), are also paid for the swarm's
+# approach to the ball; the score stays the ball's projected displacement
+TASK_ENV_KWARGS = {"manipulation": ["--env-kwarg", "approach_reward=1.0"]}
 FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
 
 
@@ -70,7 +72,8 @@ def run(task: str, seed: int, args) -> None:
         resume = ["--resume"] if stopped(pretrain, batched=True) else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(args.pretrain_steps), "--n-envs", str(args.num_envs), "--seed", str(seed),
-            *(["--compile"] if args.compile else []), "--out", str(pretrain), *resume)  # fmt: skip
+            *TASK_ENV_KWARGS.get(task, []), *(["--compile"] if args.compile else []), "--out", str(pretrain),
+            *resume)  # fmt: skip
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
     if args.finetune_steps == 0:
         return
@@ -79,7 +82,8 @@ def run(task: str, seed: int, args) -> None:
         hyper = [item for value in FINETUNE_HYPERPARAMS for item in ("--hyperparam", value)]
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
-            "--out", str(finetune), *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
+            *TASK_ENV_KWARGS.get(task, []), "--out", str(finetune),
+            *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
     evaluate(finetune / "model.zip", env_id, VALIDATION, folder / "finetuned_validation.json")
 
 

@@ -53,8 +53,8 @@ class BatchedSwarmVectorEnv(VectorEnv):
     The single env's state observation, batched: ``Box((K, D))``, float32 (``obs_type="state"`` only).
 
     ## Rewards
-    The single env's (``reward``: ``piecewise``, ``projected`` or ``inverse_distance``), summed over
-    ``action_repeat`` physics steps.
+    The single env's (``reward``: ``piecewise``, ``projected`` or ``inverse_distance``; Manipulation's
+    ``approach_reward`` shaping beside it), summed over ``action_repeat`` physics steps.
 
     ## Starting State
     Env ``i`` draws its start as the single env does (:meth:`ParticleSwarmEnv.draw_layout`) from a generator of its
@@ -158,6 +158,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
         self.contact_step = torch.full((k,), -1, dtype=torch.int64, device=device)
         self.last_targets = zeros(k, self.n_robots)
         self.held_steps = torch.zeros(k, dtype=torch.int64, device=device)
+        self.object_gap = zeros(k)  # Manipulation: the swarm's centre to the object, after the last physics step
         self.goal = torch.as_tensor(self.template.goal, dtype=torch.float32, device=device)
 
     def _draw_starts(self, envs: list[int]) -> None:
@@ -205,6 +206,8 @@ class BatchedSwarmVectorEnv(VectorEnv):
         self.contact_step = torch.where(mask, -1, self.contact_step)
         self.last_targets = torch.where(where, 0.0, self.last_targets)
         self.held_steps = torch.where(mask, 0, self.held_steps)
+        if self.template.has_object:
+            self.object_gap = torch.where(mask, self._swarm_object_gap(), self.object_gap)
         if walls is not None:
             # the opening's centre: the mean of the walls' four inner corners (GateEnv._walls)
             centre = (walls[:, 0, 0] + walls[:, 0, 3] + walls[:, 1, 0] + walls[:, 1, 3]) / 4
@@ -220,6 +223,10 @@ class BatchedSwarmVectorEnv(VectorEnv):
         if self.template.has_object:
             return self.world.object_position
         return self.world.position.mean(dim=1)
+
+    def _swarm_object_gap(self) -> torch.Tensor:
+        """The distance from the swarm's centre (the mean of the robots' centres) to the object, [K]."""
+        return (self.world.object_position - self.world.position.mean(dim=1)).norm(dim=1)
 
     def observation(self) -> torch.Tensor:
         """The single env's state observation of every env, [K, D] float32."""
@@ -321,6 +328,15 @@ class BatchedSwarmVectorEnv(VectorEnv):
         self.last_position = position
         distance = (position - self.goal).norm(dim=1)
         self.success |= distance < SUCCESS_RADIUS
+        reward = self._goal_reward(previous, position, distance)
+        weight = getattr(self.template, "approach_reward", 0.0)
+        if weight:  # Manipulation's shaping (ManipulationEnv._reward): the swarm's approach to the object
+            gap = torch.where(live, self._swarm_object_gap(), self.object_gap)
+            reward = reward + weight * (self.object_gap - gap)
+            self.object_gap = gap
+        return reward
+
+    def _goal_reward(self, previous: torch.Tensor, position: torch.Tensor, distance: torch.Tensor) -> torch.Tensor:
         if self.template.reward_type == "inverse_distance":
             return 1.0 / distance.clamp_min(1e-6)
         to_goal = self.goal - previous
