@@ -15,11 +15,13 @@ def write_evaluation(path, medians_of):
     path.write_text(json.dumps({"episodes": episodes}))
 
 
-def campaign(tmp_path, validation, test, stage="finetune"):
+def campaign(tmp_path, validation, test, stage="finetune", zero_shot=0.0):
+    """Runs whose ``stage`` scored ``validation`` (and, fine-tuned, ``zero_shot`` before) and ``test``."""
     for seed, (val, tst) in enumerate(zip(validation, test)):
         folder = tmp_path / "unresponsive" / f"seed-{seed}"
-        name = "finetuned_validation.json" if stage == "finetune" else "zero_shot_validation.json"
-        write_evaluation(folder / name, val)
+        write_evaluation(folder / "zero_shot_validation.json", val if stage == "pretrain" else zero_shot)
+        if stage == "finetune":
+            write_evaluation(folder / "finetuned_validation.json", val)
         (folder / stage).mkdir(parents=True)
         (folder / stage / "model.zip").write_bytes(b"")
         write_evaluation(folder / f"test_{stage}.json", tst)
@@ -41,9 +43,22 @@ def test_report_ships_the_validation_median_run_and_scores_the_median_test_run(t
     assert "median of 3 runs on the test seeds: 130% of the paddle wave" in out
 
 
-def test_report_does_not_test_runs_at_different_stages(tmp_path, capsys):
+def test_report_does_not_test_a_campaign_whose_fine_tunes_are_not_all_done(tmp_path, capsys):
     campaign(tmp_path, validation=[44.0, 41.0], test=[30.0, 22.0])
     write_evaluation(tmp_path / "unresponsive" / "seed-2" / "zero_shot_validation.json", 10.0)
     out = report(tmp_path, capsys)
-    assert "not tested, its runs are at different stages (finetune, pretrain)" in out
+    assert "not tested, 2 of its 3 runs are fine-tuned" in out
     assert "median of" not in out
+
+
+def test_a_run_whose_fine_tune_scored_lower_on_validation_keeps_its_pretrained_actor(tmp_path, capsys):
+    campaign(tmp_path, validation=[44.0, 41.0, 42.0], test=[30.0, 22.0, 26.0], zero_shot=30.0)
+    seed_1 = tmp_path / "unresponsive" / "seed-1"
+    write_evaluation(seed_1 / "zero_shot_validation.json", 50.0)  # above its fine-tune's 41
+    (seed_1 / "pretrain").mkdir()
+    (seed_1 / "pretrain" / "model.zip").write_bytes(b"")
+    write_evaluation(seed_1 / "test_pretrain.json", 40.0)
+    out = report(tmp_path, capsys)
+    assert "the one to ship: seed-0 (finetune)" in out  # 42 < 44 < 50 on validation
+    assert "pretrain/model.zip): test median 40.0" in out
+    assert "median of 3 runs on the test seeds: 150% of the paddle wave" in out  # 30, 40, 26 against 20
