@@ -62,3 +62,20 @@ def test_a_run_whose_fine_tune_scored_lower_on_validation_keeps_its_pretrained_a
     assert "the one to ship: seed-0 (finetune)" in out  # 42 < 44 < 50 on validation
     assert "pretrain/model.zip): test median 40.0" in out
     assert "median of 3 runs on the test seeds: 150% of the paddle wave" in out  # 30, 40, 26 against 20
+
+
+def test_each_task_trains_with_the_full_presets_settings(tmp_path):
+    """Manipulation's runs are paid for the approach; Gate's fine-tune spreads the walls, ships its weights' mean."""
+    tool = load_tool("disk_ppo")
+    commands = []
+    tool.dpr = lambda *arguments: commands.append(arguments)
+    args = argparse.Namespace(out=tmp_path, pretrain_steps=10, num_envs=2, compile=False, finetune_steps=10)
+    tool.run("gate", 0, args)
+    train, _, finetune, validation = commands
+    assert "--training-env-kwarg" not in train and "approach_reward=1.0" not in train
+    assert "gate_distance=[5, 200]" in finetune and "--average-checkpoints" in finetune
+    assert validation[validation.index("--policy") + 1].endswith("finetune/averaged_model.zip")
+    commands.clear()
+    tool.run("manipulation", 0, args)
+    assert all("approach_reward=1.0" in command for command in (commands[0], commands[2]))
+    assert commands[3][commands[3].index("--policy") + 1].endswith("finetune/model.zip")

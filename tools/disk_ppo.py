@@ -35,9 +35,13 @@ ENVS = {
 }
 VALIDATION = "200-219"  # the full preset's validation seeds
 TEST = "300-349"  # and its test seeds
-# Manipulation's learners, here as in the pipeline (PipelineConfig.approach_reward), are also paid for the swarm's
-# approach to the ball; the score stays the ball's projected displacement
+# Per task, what the full preset gives its RL runs (dpr/pipeline/presets/full.yaml); the scores stay the task's own.
+# Manipulation's learners are also paid for the swarm's approach to the ball (approach_reward). Gate's fine-tunes
+# gather experience with the walls drawn 5-200 units ahead and keep the mean of their weights along the run
+# (docs/learning.md: fine-tuned on the walls at 5 alone, PPO pulls Gate's actors down).
 TASK_ENV_KWARGS = {"manipulation": ["--env-kwarg", "approach_reward=1.0"]}
+TASK_FINETUNE_ARGS = {"gate": ["--training-env-kwarg", "gate_distance=[5, 200]", "--average-checkpoints"]}
+FINETUNED_MODEL = {"gate": "averaged_model.zip"}  # the file a task's fine-tune ships (else model.zip)
 FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
 
 
@@ -83,9 +87,13 @@ def run(task: str, seed: int, args) -> None:
         hyper = [item for value in FINETUNE_HYPERPARAMS for item in ("--hyperparam", value)]
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
-            *TASK_ENV_KWARGS.get(task, []), "--out", str(finetune),
+            *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
             *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
-    evaluate(finetune / "model.zip", env_id, VALIDATION, folder / "finetuned_validation.json")
+    evaluate(finetune / model_file(task, "finetune"), env_id, VALIDATION, folder / "finetuned_validation.json")
+
+
+def model_file(task: str, stage: str) -> str:
+    return FINETUNED_MODEL.get(task, "model.zip") if stage == "finetune" else "model.zip"
 
 
 def median_displacement(path: Path) -> float | None:
@@ -118,7 +126,7 @@ def report(args) -> None:
         if args.test and tuned_runs and len(tuned_runs) < len(scores):
             print(f"{task}: not tested, {len(tuned_runs)} of its {len(scores)} runs are fine-tuned")
         elif args.test:
-            models = {folder: folder / stage / "model.zip" for folder, (_, stage) in scores.items()}
+            models = {folder: folder / stage / model_file(task, stage) for folder, (_, stage) in scores.items()}
             score_every_run_on_test_seeds(task, env_id, models, args.out)
 
 
