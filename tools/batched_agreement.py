@@ -145,7 +145,7 @@ def batched_episodes(starts: list[dict], steps: int, overlap_every: int, **world
     wave = BatchedWave(goal, n)
 
     def agent() -> torch.Tensor:
-        return world.object_position.clone() if radius is not None else world.position.mean(dim=1)
+        return world.object_position.clone() if radius is not None else world.centre_of_mass
 
     first = agent().double()
     overlap = torch.zeros(k)

@@ -222,11 +222,11 @@ class BatchedSwarmVectorEnv(VectorEnv):
         """What each task moves, [K, 2]: the swarm's centre, or the object."""
         if self.template.has_object:
             return self.world.object_position
-        return self.world.position.mean(dim=1)
+        return self.world.centre_of_mass
 
     def _swarm_object_gap(self) -> torch.Tensor:
-        """The distance from the swarm's centre (the mean of the robots' centres) to the object, [K]."""
-        return (self.world.object_position - self.world.position.mean(dim=1)).norm(dim=1)
+        """The distance from the swarm's centre to the object, [K]."""
+        return (self.world.object_position - self.world.centre_of_mass).norm(dim=1)
 
     def observation(self) -> torch.Tensor:
         """The single env's state observation of every env, [K, D] float32."""
@@ -261,7 +261,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
             offset = position - self.goal
             return [offset * LENGTH_SCALE, velocity * LENGTH_SCALE, offset.norm(dim=1, keepdim=True) * LENGTH_SCALE]
 
-        centre = world.position.mean(dim=1)
+        centre = world.centre_of_mass
         parts = part(centre, world.velocity.mean(dim=1))
         if self.template.has_object:
             parts += part(world.object_position, world.object_velocity)
@@ -399,7 +399,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
         values = {
             "is_success": self.success,
             AGENT_POSITION: agent,
-            "centre_of_mass": self.world.position.mean(dim=1),
+            "centre_of_mass": self.world.centre_of_mass,
             "projected_displacement": ((agent - self.start) * self.toward_goal).sum(dim=1),
             "net_displacement": (agent - self.start).norm(dim=1),
             "total_distance": self.total_distance,

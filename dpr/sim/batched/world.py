@@ -250,6 +250,8 @@ class BatchedDiskWorld:
     target = property(lambda self: self._target.t())
     moving = property(lambda self: self._moving.t())
     alive = property(lambda self: self._alive.t())
+    # the swarm's centre, [K, 2]: the mean of the robots' centres, dead ones too (World.centre_of_mass)
+    centre_of_mass = property(lambda self: self.position.mean(dim=1))
 
     def _ball(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         if self.object_radius is None:
