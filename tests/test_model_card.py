@@ -37,7 +37,7 @@ def tiny_rollouts(monkeypatch):
     shrink_rollouts(monkeypatch, TINY_PPO)
 
 
-def tiny_model(task: str, folder: Path) -> Path:
+def tiny_model(task: str, folder: Path, robot_model: str = "paddle") -> Path:
     """A PPO model of ``task`` on the tiny pipeline's swarm, copied to ``folder``/<task>.zip."""
     config = TrainConfig(
         "ppo",
@@ -47,6 +47,7 @@ def tiny_model(task: str, folder: Path) -> Path:
         steps_per_episode=TINY_PIPELINE["steps"],
         env_kwargs={"obs_last_action": True},
         eval_episodes=1,
+        robot_model=robot_model,
     )
     result = train(config, folder / f"run-{task}", **QUIET)
     return Path(shutil.copy(result.model_path, folder / f"{task}.zip"))
@@ -196,14 +197,13 @@ def test_a_shipped_model_of_another_swarm_size_is_refused_before_any_work(tmp_pa
 
 
 def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(tmp_path, tiny_rollouts):
-    """A shipped model of the pipeline's task and one of another task: both are scored on the test seeds, the
-    other task gets its wave row, and the report shows them as `shipped <method>`."""
+    """A shipped model of the pipeline's task and one of another task: both are scored on the test seeds, on the
+    wave's paddle model even when learned on the disk model, the other task gets its wave row, and the report shows
+    them as `shipped <method>`."""
     models = tmp_path / "models"
     models.mkdir()
-    card = write_card(
-        models,
-        [entry("navigation", tiny_model("navigation", models).name), entry("gate", tiny_model("gate", models).name)],
-    )
+    navigation, gate = tiny_model("navigation", models), tiny_model("gate", models, robot_model="disk")
+    card = write_card(models, [entry("navigation", navigation.name), entry("gate", gate.name)])
     config = PipelineConfig(**TINY_PIPELINE, scratch_algos=[], test_seeds=[300, 301])
     out = tmp_path / "run"
     report = run_pipeline(config, out, shipped=load_model_card(card), **QUIET)
@@ -211,6 +211,7 @@ def test_the_pipeline_reports_shipped_models_beside_the_wave_on_its_test_seeds(t
         (evaluation,) = (out / "eval" / "shipped").glob(f"{stem}-*.json")
         payload = json.loads(evaluation.read_text())
         assert payload["seeds"] == [300, 301] and payload["policy"].endswith(f"{stem}.zip")
+        assert payload["env_kwargs"]["robot_model"] == "paddle"
     assert json.loads((out / "eval" / "shipped" / "wave-Gate-v2.json").read_text())["seeds"] == [300, 301]
     text = (report / "results.md").read_text()
     for row in ("| Navigation | shipped bc-ppo |", "| Gate | wave |", "| Gate | shipped bc-ppo |"):

@@ -50,7 +50,7 @@ from dpr.evaluation.model_card import ShippedModel
 from dpr.limits import MAX_RECORD_BYTES
 from dpr.locks import FolderLock
 from dpr.pipeline import stage_builders as build
-from dpr.pipeline.config import BASELINE, BC_ALGO, PIPELINE_ENV_KWARGS, TEACHER, PipelineConfig
+from dpr.pipeline.config import BASELINE, BC_ALGO, PIPELINE_ENV_KWARGS, SHIPPED_ROBOT_MODEL, TEACHER, PipelineConfig
 from dpr.pipeline.run_folder import (
     evaluation_path,
     evaluation_splits,
@@ -181,8 +181,9 @@ def _evaluation_stages(config: PipelineConfig, task: str, env: dict[str, Any], s
 
 def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> list[tuple[Stage, str, str]]:
     """(evaluation stage, report label, file name in ``eval/shipped``) of each shipped model on the test seeds, and
-    of the wave on the ids of theirs that the run's tasks do not cover (the bar of their rows). A model is keyed,
-    and named, by its content's SHA-256: a model replaced in ``models/`` is evaluated again, beside the old one."""
+    of the wave on the ids of theirs that the run's tasks do not cover (the bar of their rows), all on the paddle
+    model (a model learned on the disk model runs there as it is). A model is keyed, and named, by its content's
+    SHA-256: a model replaced in ``models/`` is evaluated again, beside the old one."""
     scoring = {"steps": config.steps, "seeds": config.test_seeds}
     own = {config.env_id(task) for task in config.tasks}
     out = []
@@ -194,6 +195,7 @@ def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> l
     for model in shipped:
         digest = file_sha256(model.path)
         settings = {**scoring, "env_id": model.env_id, "sha256": digest, "label": str(model.path)}
+        settings["env_kwargs"] = {"robot_model": SHIPPED_ROBOT_MODEL}  # the wave's, whatever model it learned on
         stage = Stage(
             "evaluate",
             f"shipped {model.path.name}",

@@ -50,6 +50,7 @@ COUNT_BOUNDS = {
 MAX_TEACHER_CHOICES = 1_000  # teacher holds, and teacher bin widths, to choose among
 ENGINES = ("pymunk", "batched")
 BATCHED_ROBOT_MODEL = "disk"  # the batched engine's only robot model
+SHIPPED_ROBOT_MODEL = "paddle"  # the model card's rows, as the paper's wave: the pymunk paddle model
 PIPELINE_ENV_KWARGS = {"obs_last_action": True}  # the Markov wave needs it; every learner gets it too
 EXPERT = WAVE_MARKOV  # the teacher: the Markov wave, at the hold chosen per task (teacher_holds)
 BASELINE = WAVE  # what every result is a percentage of: the paper's wave, its hold 10
