@@ -31,7 +31,7 @@ def campaign(tmp_path, validation, test, stage="finetune", zero_shot=0.0):
 def report(tmp_path, capsys, test=True):
     tool = load_tool("disk_ppo")
     tool.dpr = pytest.fail  # every evaluation is on disk: nothing may run
-    tool.report(argparse.Namespace(tasks=["unresponsive"], out=tmp_path, test=test))
+    tool.report(argparse.Namespace(tasks=["unresponsive"], out=tmp_path, test=test, pretrained_in=None))
     return capsys.readouterr().out
 
 
@@ -69,7 +69,15 @@ def test_each_task_trains_with_the_full_presets_settings(tmp_path):
     tool = load_tool("disk_ppo")
     commands = []
     tool.dpr = lambda *arguments: commands.append(arguments)
-    args = argparse.Namespace(out=tmp_path, pretrain_steps=10, num_envs=2, compile=False, finetune_steps=10)
+    args = argparse.Namespace(
+        out=tmp_path,
+        pretrain_steps=10,
+        num_envs=2,
+        compile=False,
+        finetune_steps=10,
+        finetune_hyperparam=[],
+        pretrained_in=None,
+    )
     tool.run("gate", 0, args)
     train, _, finetune, validation = commands
     assert "--training-env-kwarg" not in train and "approach_reward=1.0" not in train
@@ -79,3 +87,36 @@ def test_each_task_trains_with_the_full_presets_settings(tmp_path):
     tool.run("manipulation", 0, args)
     assert all("approach_reward=1.0" in command for command in (commands[0], commands[2]))
     assert commands[3][commands[3].index("--policy") + 1].endswith("finetune/model.zip")
+
+
+def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another_campaign(tmp_path):
+    """--pretrained-in: no pretraining runs, the zero-shot score is taken over, the fine-tune starts from the other
+    campaign's actor with the hyperparameter given over the recipe's, and the other campaign is not written."""
+    tool = load_tool("disk_ppo")
+    commands = []
+    tool.dpr = lambda *arguments: commands.append(arguments)
+    source = tmp_path / "disk-ppo" / "navigation" / "seed-1"
+    (source / "pretrain").mkdir(parents=True)
+    (source / "pretrain" / "model.zip").write_bytes(b"")
+    write_evaluation(source / "zero_shot_validation.json", 30.0)
+    before = sorted(p.name for p in source.rglob("*"))
+    args = argparse.Namespace(
+        out=tmp_path / "variant",
+        pretrain_steps=10,
+        num_envs=2,
+        compile=False,
+        finetune_steps=10,
+        finetune_hyperparam=["learning_rate=3e-4"],
+        pretrained_in=tmp_path / "disk-ppo",
+    )
+    tool.run("navigation", 1, args)
+    finetune, _ = commands  # the fine-tune and its validation; the pretraining and zero-shot are the other campaign's
+    assert finetune[0] == "finetune"
+    assert finetune[finetune.index("--from") + 1] == str(source / "pretrain" / "model.zip")
+    hyper = [finetune[i + 1] for i, word in enumerate(finetune) if word == "--hyperparam"]
+    assert hyper[-1] == "learning_rate=3e-4" and "gamma=0.941" in hyper  # given last: it wins over the recipe's
+    assert finetune[finetune.index("--out") + 1] == str(tmp_path / "variant" / "navigation" / "seed-1" / "finetune")
+    assert (tmp_path / "variant" / "navigation" / "seed-1" / "zero_shot_validation.json").is_file()
+    assert sorted(p.name for p in source.rglob("*")) == before
+    with pytest.raises(SystemExit, match="--pretrained-in"):
+        tool.run("navigation", 2, args)  # seed 2 was never pretrained there

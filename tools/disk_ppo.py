@@ -16,12 +16,18 @@ model is its checkpoint, pretrained or fine-tuned, that scored higher on the val
 
     python tools/disk_ppo.py --tasks navigation unresponsive --seeds 0 1 2 --out runs/disk-ppo
     python tools/disk_ppo.py --out runs/disk-ppo --report --test
+
+Another fine-tuning recipe on the same pretrained actors (read from ``--pretrained-in``, never written):
+
+    python tools/disk_ppo.py --tasks navigation --pretrained-in runs/disk-ppo --out runs/disk-ppo-lr3e-4 \
+        --finetune-hyperparam learning_rate=3e-4
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -70,10 +76,22 @@ def finished(run_dir: Path, batched: bool) -> bool:
     return (run_dir / "model.zip").exists() and not stopped(run_dir, batched)
 
 
+def pretrain_folder(args, task: str, seed: int) -> Path:
+    """Where the run's pretrained actor is: its own folder, or ``--pretrained-in``'s run of the same task and seed."""
+    return (args.pretrained_in or args.out) / task / f"seed-{seed}" / "pretrain"
+
+
 def run(task: str, seed: int, args) -> None:
     env_id, folder = ENVS[task], args.out / task / f"seed-{seed}"
-    pretrain = folder / "pretrain"
-    if not finished(pretrain, batched=True):
+    pretrain = pretrain_folder(args, task, seed)
+    if args.pretrained_in:
+        if not finished(pretrain, batched=True):
+            raise SystemExit(f"--pretrained-in: {pretrain} holds no finished pretraining; run it there first")
+        folder.mkdir(parents=True, exist_ok=True)
+        zero_shot = pretrain.parent / "zero_shot_validation.json"
+        if zero_shot.exists() and not (folder / zero_shot.name).exists():
+            shutil.copy(zero_shot, folder / zero_shot.name)
+    elif not finished(pretrain, batched=True):
         resume = ["--resume"] if stopped(pretrain, batched=True) else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(args.pretrain_steps), "--n-envs", str(args.num_envs), "--seed", str(seed),
@@ -84,7 +102,7 @@ def run(task: str, seed: int, args) -> None:
         return
     finetune = folder / "finetune"
     if not finished(finetune, batched=False):
-        hyper = [item for value in FINETUNE_HYPERPARAMS for item in ("--hyperparam", value)]
+        hyper = [item for value in FINETUNE_HYPERPARAMS + args.finetune_hyperparam for item in ("--hyperparam", value)]
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
             *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
@@ -126,8 +144,16 @@ def report(args) -> None:
         if args.test and tuned_runs and len(tuned_runs) < len(scores):
             print(f"{task}: not tested, {len(tuned_runs)} of its {len(scores)} runs are fine-tuned")
         elif args.test:
-            models = {folder: folder / stage / model_file(task, stage) for folder, (_, stage) in scores.items()}
+            models = {
+                folder: (folder / "finetune" if stage == "finetune" else pretrain_folder(args, task, run_seed(folder)))
+                / model_file(task, stage)
+                for folder, (_, stage) in scores.items()
+            }
             score_every_run_on_test_seeds(task, env_id, models, args.out)
+
+
+def run_seed(folder: Path) -> int:
+    return int(folder.name.removeprefix("seed-"))
 
 
 def score_every_run_on_test_seeds(task: str, env_id: str, models: dict[Path, Path], out: Path) -> None:
@@ -157,6 +183,16 @@ def main() -> int:
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
     parser.add_argument("--finetune-steps", type=int, default=100_000, help="env steps on paddle (0: none)")
+    parser.add_argument(
+        "--finetune-hyperparam",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a fine-tuning hyperparameter over the recipe's (e.g. learning_rate=3e-4); repeatable",
+    )
+    parser.add_argument(
+        "--pretrained-in", type=Path, help="fine-tune the pretrained actors of this campaign folder (read only)"
+    )
     parser.add_argument("--report", action="store_true", help="print the runs' validation medians")
     parser.add_argument("--test", action="store_true", help="with --report: score every run on the test seeds")
     args = parser.parse_args()
