@@ -64,20 +64,18 @@ def test_a_run_whose_fine_tune_scored_lower_on_validation_keeps_its_pretrained_a
     assert "median of 3 runs on the test seeds: 150% of the paddle wave" in out  # 30, 40, 26 against 20
 
 
+def run_args(**given) -> argparse.Namespace:
+    """The tool's command line for tiny runs, with ``given`` over its defaults."""
+    defaults = dict(pretrain_steps=10, num_envs=2, compile=False, finetune_steps=10, finetune_hyperparam=[])
+    return argparse.Namespace(**{**defaults, "pretrained_in": None, **given})
+
+
 def test_each_task_trains_with_the_full_presets_settings(tmp_path):
     """Manipulation's runs are paid for the approach; Gate's fine-tune spreads the walls, ships its weights' mean."""
     tool = load_tool("disk_ppo")
     commands = []
     tool.dpr = lambda *arguments: commands.append(arguments)
-    args = argparse.Namespace(
-        out=tmp_path,
-        pretrain_steps=10,
-        num_envs=2,
-        compile=False,
-        finetune_steps=10,
-        finetune_hyperparam=[],
-        pretrained_in=None,
-    )
+    args = run_args(out=tmp_path)
     tool.run("gate", 0, args)
     train, _, finetune, validation = commands
     assert "--training-env-kwarg" not in train and "approach_reward=1.0" not in train
@@ -100,14 +98,8 @@ def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another
     (source / "pretrain" / "model.zip").write_bytes(b"")
     write_evaluation(source / "zero_shot_validation.json", 30.0)
     before = sorted(p.name for p in source.rglob("*"))
-    args = argparse.Namespace(
-        out=tmp_path / "variant",
-        pretrain_steps=10,
-        num_envs=2,
-        compile=False,
-        finetune_steps=10,
-        finetune_hyperparam=["learning_rate=3e-4"],
-        pretrained_in=tmp_path / "disk-ppo",
+    args = run_args(
+        out=tmp_path / "variant", finetune_hyperparam=["learning_rate=3e-4"], pretrained_in=tmp_path / "disk-ppo"
     )
     tool.run("navigation", 1, args)
     finetune, _ = commands  # the fine-tune and its validation; the pretraining and zero-shot are the other campaign's

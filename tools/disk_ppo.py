@@ -76,14 +76,14 @@ def finished(run_dir: Path, batched: bool) -> bool:
     return (run_dir / "model.zip").exists() and not stopped(run_dir, batched)
 
 
-def pretrain_folder(args, task: str, seed: int) -> Path:
-    """Where the run's pretrained actor is: its own folder, or ``--pretrained-in``'s run of the same task and seed."""
-    return (args.pretrained_in or args.out) / task / f"seed-{seed}" / "pretrain"
+def pretrain_folder(args, folder: Path) -> Path:
+    """Where the run ``folder``'s pretrained actor is: in it, or in the same run under ``--pretrained-in``."""
+    return (args.pretrained_in / folder.relative_to(args.out) if args.pretrained_in else folder) / "pretrain"
 
 
 def run(task: str, seed: int, args) -> None:
     env_id, folder = ENVS[task], args.out / task / f"seed-{seed}"
-    pretrain = pretrain_folder(args, task, seed)
+    pretrain = pretrain_folder(args, folder)
     if args.pretrained_in:
         if not finished(pretrain, batched=True):
             raise SystemExit(f"--pretrained-in: {pretrain} holds no finished pretraining; run it there first")
@@ -144,16 +144,11 @@ def report(args) -> None:
         if args.test and tuned_runs and len(tuned_runs) < len(scores):
             print(f"{task}: not tested, {len(tuned_runs)} of its {len(scores)} runs are fine-tuned")
         elif args.test:
-            models = {
-                folder: (folder / "finetune" if stage == "finetune" else pretrain_folder(args, task, run_seed(folder)))
-                / model_file(task, stage)
-                for folder, (_, stage) in scores.items()
-            }
+            models = {}
+            for folder, (_, stage) in scores.items():
+                stage_folder = folder / "finetune" if stage == "finetune" else pretrain_folder(args, folder)
+                models[folder] = stage_folder / model_file(task, stage)
             score_every_run_on_test_seeds(task, env_id, models, args.out)
-
-
-def run_seed(folder: Path) -> int:
-    return int(folder.name.removeprefix("seed-"))
 
 
 def score_every_run_on_test_seeds(task: str, env_id: str, models: dict[Path, Path], out: Path) -> None:
