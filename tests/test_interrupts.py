@@ -1,9 +1,12 @@
-"""A Ctrl-C that a callback from C code swallowed still stops the work at the next step."""
+"""A Ctrl-C that a callback from C code swallowed still stops the work at the next step; a Ctrl-C that arrives while
+a result is awaited is raised after the wait, never inside a lock's wait."""
 
 from __future__ import annotations
 
 import os
 import signal
+import time
+from concurrent.futures import ThreadPoolExecutor
 
 import gymnasium as gym
 import pytest
@@ -58,3 +61,32 @@ def test_training_stops_at_the_next_step_after_a_swallowed_ctrl_c(installed, tmp
     result = train(config, tmp_path / "run", show_progress=False, log=lambda line: None)
     assert result.interrupted
     assert result.model_path.is_file()  # what was learned so far is kept
+
+
+def test_ctrl_c_while_awaiting_a_result_is_raised_after_the_wait(installed):
+    """Raised inside a lock's wait (a pool's next result, a future's), KeyboardInterrupt can leave the lock released
+    twice and surface as RuntimeError("release unlocked lock"): the wait runs to its end first."""
+    calls: list[str] = []
+
+    def wait(timeout: float) -> str:
+        calls.append("wait")
+        if len(calls) == 1:
+            raise TimeoutError  # no result yet: waited again
+        os.kill(os.getpid(), signal.SIGINT)  # Python would raise at the next bytecode, inside the wait
+        calls.append("ran to its end")
+        return "result"
+
+    with pytest.raises(KeyboardInterrupt):
+        interrupts.wait_deferring_sigint(wait)
+    assert calls == ["wait", "wait", "ran to its end"]
+    assert signal.getsignal(signal.SIGINT) is interrupts._on_sigint
+
+
+def test_first_completed_returns_the_finished_futures_and_delivers_a_ctrl_c(installed):
+    with ThreadPoolExecutor(2) as pool:
+        quick, slow = pool.submit(time.sleep, 0.0), pool.submit(time.sleep, 0.5)
+        assert quick in interrupts.first_completed([quick, slow])
+        pool.submit(lambda: (time.sleep(0.05), os.kill(os.getpid(), signal.SIGINT)))
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.first_completed([slow])
+        assert interrupts.first_completed([slow]) == {slow}  # the future's lock still works

@@ -20,11 +20,9 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import signal
-import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +39,7 @@ from dpr.datasets.lerobot.format import INFO_PATH, load_info
 from dpr.datasets.timing import check_dataset_time, dataset_fps, time_info
 from dpr.envs import TASKS, episode_steps
 from dpr.envs.particle_env import IMAGE_SIZE_RANGE
+from dpr.interrupts import sigint_deferred, wait_deferring_sigint
 from dpr.metrics import EpisodeMetrics
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.rollout import roll_out
@@ -250,27 +249,6 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-@contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C back until the block ends, then deliver it: for bookkeeping that must not be cut in
-    half (handing an episode to the saver thread and noting it). Only the main thread can set signal
-    handlers; elsewhere this does nothing."""
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
-        yield
-        return
-    received: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if received:
-        if callable(previous):
-            previous(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
-        elif previous == signal.SIG_DFL:
-            signal.raise_signal(signal.SIGINT)
-
-
 def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
     return rollout(*job)
 
@@ -360,7 +338,9 @@ def _results(jobs: list, workers: RolloutWorkers) -> Iterator[EpisodeRecord]:
     context = mp.get_context("spawn")
     pool = context.Pool(min(workers.count, len(jobs)), initializer=_ignore_sigint)
     try:
-        yield from pool.imap(_rollout_job, jobs)  # in job (seed) order, whatever order they finish in
+        results = pool.imap(_rollout_job, jobs)  # in job (seed) order, whatever order they finish in
+        for _ in jobs:
+            yield wait_deferring_sigint(results.next)
         pool.close()
     finally:
         pool.terminate()
@@ -501,8 +481,8 @@ def _record(
     def settle() -> None:
         while in_flight:
             future, record = in_flight[0]
-            index = future.result()
-            with _sigint_deferred():
+            index = wait_deferring_sigint(future.result)
+            with sigint_deferred():
                 in_flight.pop(0)
                 added.append(SavedEpisode(record.seed, record.frames, record.metrics))
             if progress is not None:
@@ -513,7 +493,7 @@ def _record(
             saver.submit(int).result()  # start the thread now, not inside a later submit()
             for record in _results(jobs, workers):
                 settle()
-                with _sigint_deferred():
+                with sigint_deferred():
                     in_flight.append((saver.submit(save, record), record))
             settle()
         except KeyboardInterrupt:

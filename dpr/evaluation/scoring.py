@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import re
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,6 +15,7 @@ from dpr.atomic import atomic_write_text
 from dpr.checks import check_choice, check_seeds
 from dpr.envs import MAX_EPISODE_STEPS, TASKS, episode_steps
 from dpr.envs.particle_env import action_repeat
+from dpr.interrupts import first_completed
 from dpr.metrics import EpisodeMetrics, summarize
 from dpr.policies.registry import check_policy_name, make_policy
 from dpr.policies.sb3 import is_model_path, load_model, model_env_kwargs
@@ -191,10 +192,13 @@ def evaluate(
     else:
         with ProcessPoolExecutor(workers) as pool:
             futures = {pool.submit(run_episode, *job): i for i, job in enumerate(jobs)}
-            for future in as_completed(futures):
-                results[futures[future]] = future.result()
-                if progress:
-                    progress(results[futures[future]])
+            pending = set(futures)
+            while pending:
+                for future in first_completed(pending):
+                    pending.remove(future)
+                    results[futures[future]] = future.result()
+                    if progress:
+                        progress(results[futures[future]])
     return results  # type: ignore[return-value]
 
 

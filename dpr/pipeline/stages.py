@@ -41,6 +41,7 @@ from typing import Any
 
 from dpr.atomic import atomic_write_text, file_sha256
 from dpr.checks import ParameterError, check_choice, check_int
+from dpr.interrupts import first_completed
 from dpr.locks import FolderLock, LockHeld
 
 BACKENDS = ("local", "ray")
@@ -310,7 +311,7 @@ def _run_in_processes(needed: list[Stage], store: StageStore, workers: int, fini
     """Build ``needed`` in ``workers`` processes, each stage once all it needs is built; of the stages ready, the one
     with the longest chain of stages behind it first (:func:`chain_lengths`; the order never changes an output)."""
     import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import ProcessPoolExecutor
 
     waiting, done, running = list(needed), set(), {}
     building = {stage.key for stage in needed}
@@ -326,8 +327,7 @@ def _run_in_processes(needed: list[Stage], store: StageStore, workers: int, fini
                 for stage in ready[: workers - len(running)]:  # a free worker takes the ready stage first in line
                     waiting.remove(stage)
                     running[pool.submit(build_stage, stage, str(store.root), False)] = stage
-                complete, _ = wait(running, return_when=FIRST_COMPLETED)
-                for future in complete:
+                for future in first_completed(running):
                     stage = running.pop(future)
                     finished(len(done) + 1, *future.result())
                     done.add(stage.key)
