@@ -455,3 +455,18 @@ def test_a_bad_out_or_shipped_model_is_refused_before_any_work(tmp_path):
         run_pipeline(PipelineConfig(**PIPELINE), tmp_path / "run", backend=Backend("slurm"), **QUIET)
     with pytest.raises(ParameterError, match="address: joins a Ray cluster"):
         run_pipeline(PipelineConfig(**PIPELINE), tmp_path / "run2", backend=Backend(address="127.0.0.1:1"), **QUIET)
+
+
+def test_shipped_rows_and_their_wave_run_on_the_paddle_model_whatever_the_run_engine(tmp_path):
+    from dpr.evaluation.model_card import ShippedModel
+    from dpr.pipeline.campaign import shipped_stages
+
+    model = tmp_path / "gate-disk-ppo.zip"
+    model.write_bytes(b"a model's bytes")
+    config = PipelineConfig(**{**PIPELINE, "tasks": ["navigation"], "engine": "batched"})
+    stages = shipped_stages(config, [ShippedModel("gate", "disk-ppo", model, "a test")])
+    (wave, wave_label, _), (shipped, shipped_label, _) = stages
+    assert (wave_label, shipped_label) == ("wave", "shipped disk-ppo")
+    for stage in (wave, shipped):
+        assert stage.settings["env_kwargs"]["robot_model"] == "paddle"
+        assert "engine" not in stage.settings
