@@ -189,7 +189,8 @@ def shipped_stages(config: PipelineConfig, shipped: Sequence[ShippedModel]) -> l
     out = []
     for env_id in dict.fromkeys(model.env_id for model in shipped if model.env_id not in own):
         settings = {**scoring, "env_id": env_id, "policy": BASELINE, "label": BASELINE}
-        settings["env_kwargs"] = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS, "robot_model": SHIPPED_ROBOT_MODEL}
+        settings["env_kwargs"] = {"n_robots": config.n_robots, **PIPELINE_ENV_KWARGS}
+        settings["env_kwargs"]["robot_model"] = SHIPPED_ROBOT_MODEL  # as the shipped rows, whatever the run's engine
         stage = Stage("evaluate", f"{env_id}: evaluate the wave", settings, build.evaluate_policy)
         out.append((stage, BASELINE, f"{BASELINE}-{env_id.removeprefix('dpr/')}.json"))
     for model in shipped:
