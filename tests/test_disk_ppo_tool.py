@@ -112,3 +112,19 @@ def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another
     assert sorted(p.name for p in source.rglob("*")) == before
     with pytest.raises(SystemExit, match="--pretrained-in"):
         tool.run("navigation", 2, args)  # seed 2 was never pretrained there
+
+
+def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):
+    tool = load_tool("disk_ppo")
+    commands = []
+    tool.dpr = lambda *arguments: commands.append(arguments)
+
+    def pretrain_steps(task, **given):
+        commands.clear()
+        tool.run(task, 0, run_args(out=tmp_path / task / str(given), finetune_steps=0, **given))
+        train = commands[0]
+        return int(train[train.index("--timesteps") + 1])
+
+    assert pretrain_steps("gate", pretrain_steps=None) == 1_200_000
+    assert pretrain_steps("navigation", pretrain_steps=None) == 600_000
+    assert pretrain_steps("gate", pretrain_steps=10) == 10

@@ -48,6 +48,8 @@ TEST = "300-349"  # and its test seeds
 TASK_ENV_KWARGS = {"manipulation": ["--env-kwarg", "approach_reward=1.0"]}
 TASK_FINETUNE_ARGS = {"gate": ["--training-env-kwarg", "gate_distance=[5, 200]", "--average-checkpoints"]}
 FINETUNED_MODEL = {"gate": "averaged_model.zip"}  # the file a task's fine-tune ships (else model.zip)
+# Gate's actors, pretrained twice as long, run nearer the paddle wave zero-shot (research log, disk-pretraining)
+PRETRAIN_STEPS, TASK_PRETRAIN_STEPS = 600_000, {"gate": 1_200_000}
 FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
 
 
@@ -94,7 +96,7 @@ def run(task: str, seed: int, args) -> None:
     elif not finished(pretrain, batched=True):
         resume = ["--resume"] if stopped(pretrain, batched=True) else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
-            "--timesteps", str(args.pretrain_steps), "--n-envs", str(args.num_envs), "--seed", str(seed),
+            "--timesteps", str(pretrain_steps(task, args)), "--n-envs", str(args.num_envs), "--seed", str(seed),
             *TASK_ENV_KWARGS.get(task, []), *(["--compile"] if args.compile else []), "--out", str(pretrain),
             *resume)  # fmt: skip
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
@@ -108,6 +110,11 @@ def run(task: str, seed: int, args) -> None:
             *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
             *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
     evaluate(finetune / model_file(task, "finetune"), env_id, VALIDATION, folder / "finetuned_validation.json")
+
+
+def pretrain_steps(task: str, args) -> int:
+    """``--pretrain-steps`` where given, else the task's own."""
+    return args.pretrain_steps or TASK_PRETRAIN_STEPS.get(task, PRETRAIN_STEPS)
 
 
 def model_file(task: str, stage: str) -> str:
@@ -174,7 +181,11 @@ def main() -> int:
     parser.add_argument("--tasks", nargs="+", choices=list(ENVS), default=list(ENVS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--out", type=Path, default=Path("runs/disk-ppo"))
-    parser.add_argument("--pretrain-steps", type=int, default=600_000, help="env steps on the batched engine")
+    parser.add_argument(
+        "--pretrain-steps",
+        type=int,
+        help=f"env steps on the batched engine (default: {PRETRAIN_STEPS:,}; Gate {TASK_PRETRAIN_STEPS['gate']:,})",
+    )
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
     parser.add_argument("--finetune-steps", type=int, default=100_000, help="env steps on paddle (0: none)")
