@@ -128,3 +128,4 @@ def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):
     assert pretrain_steps("gate", pretrain_steps=None) == 1_200_000
     assert pretrain_steps("navigation", pretrain_steps=None) == 600_000
     assert pretrain_steps("gate", pretrain_steps=10) == 10
+    assert pretrain_steps("gate", pretrain_steps=0) == 0  # given, so passed on (dpr train judges it), not replaced

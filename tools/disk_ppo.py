@@ -114,7 +114,7 @@ def run(task: str, seed: int, args) -> None:
 
 def pretrain_steps(task: str, args) -> int:
     """``--pretrain-steps`` where given, else the task's own."""
-    return args.pretrain_steps or TASK_PRETRAIN_STEPS.get(task, PRETRAIN_STEPS)
+    return TASK_PRETRAIN_STEPS.get(task, PRETRAIN_STEPS) if args.pretrain_steps is None else args.pretrain_steps
 
 
 def model_file(task: str, stage: str) -> str:
