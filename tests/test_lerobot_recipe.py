@@ -90,6 +90,37 @@ def test_a_recipe_trains_resumes_and_both_evaluations_agree(tools, tiny_recipe: 
     assert theirs == pytest.approx(ours, abs=recipe.AGREEMENT)
 
 
+def test_checkpoints_average_into_a_policy_that_scores(tools, tiny_recipe: dict, tmp_path: Path) -> None:
+    """``average`` writes the mean of a run's checkpoint weights as a policy folder that dpr's evaluation scores;
+    an existing --out, a missing checkpoint and a single step are refused, and nothing is written."""
+    import torch
+    from safetensors.torch import load_file
+
+    check, policies, recipe = tools
+    dataset = check.record(tmp_path / "ds", pixels=False, episodes=2, steps=10, action_repeat=2)
+    run = tmp_path / "run"
+    assert recipe.train(tiny_recipe, dataset, run, seed=0, steps=4) == 0  # checkpoints at steps 2 and 4
+    out = recipe.average(run, [4, 2], tmp_path / "averaged")
+    first, last = (
+        load_file(run / "checkpoints" / f"00000{s}" / "pretrained_model" / "model.safetensors") for s in (2, 4)
+    )
+    mean = load_file(out / "model.safetensors")
+    changed = [
+        name for name, tensor in last.items() if tensor.is_floating_point() and not torch.equal(tensor, first[name])
+    ]
+    assert changed and all(torch.allclose(mean[n], (first[n] + last[n]) / 2, atol=1e-7) for n in changed)
+    assert json.loads((out / recipe.AVERAGED_FILE).read_text())["steps"] == [2, 4]
+    policies.evaluate(out, [5], 40, tmp_path / "dpr.json")
+    assert len(json.loads((tmp_path / "dpr.json").read_text())["episodes"]) == 1
+    with pytest.raises(ValueError, match="exists"):
+        recipe.average(run, [2, 4], out)
+    with pytest.raises(ValueError, match="no checkpoint weights at .*000006"):
+        recipe.average(run, [2, 6], tmp_path / "other")
+    with pytest.raises(ValueError, match="at least two"):
+        recipe.average(run, [4, 4], tmp_path / "other")
+    assert not (tmp_path / "other").exists() and not (tmp_path / "other.partial").exists()
+
+
 def test_bad_input_is_refused_before_any_work(tools, tiny_recipe: dict, tmp_path: Path) -> None:
     """A dataset of another env or swarm size than the recipe's, a LeRobot version it was not checked with, and a
     policy whose features do not fit the env (in both evaluations): errors that name what differs."""

@@ -45,6 +45,7 @@ TOOLS = Path(__file__).resolve().parent
 RECIPES = TOOLS / "lerobot_recipes"
 LAST = Path("checkpoints") / "last"
 RECORD = "dpr_training.json"
+AVERAGED_FILE = "dpr_averaged.json"  # beside averaged weights: the run and the checkpoint steps averaged
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)  # passed on to lerobot-train, whose session is then still recorded
 
 
@@ -222,6 +223,43 @@ def ship(run: Path, out: Path, max_megabytes: float = 10.0) -> Path:
     return out
 
 
+def average(run: Path, steps: list[int], out: Path) -> Path:
+    """The mean of the weights of ``run``'s checkpoints at ``steps``, as a policy folder ``out`` (the last
+    checkpoint's folder with its weights replaced), which ``evaluate``, ``curve`` and ``ship`` take like a run.
+    LeRobot's Diffusion Policy keeps no moving average of its weights; the mean of the last checkpoints of a cosine
+    schedule stands in for one. Refused before any work: an ``out`` that exists, a missing checkpoint, fewer than
+    two steps."""
+    import shutil
+
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    if out.exists():
+        raise ValueError(f"--out: {out} exists; averaging writes a new folder")
+    if len(set(steps)) < 2:
+        raise ValueError(f"--steps: expected at least two checkpoint steps, got {steps}")
+    folders = [run / "checkpoints" / f"{step:06d}" / "pretrained_model" for step in sorted(set(steps))]
+    if missing := [str(folder) for folder in folders if not (folder / "model.safetensors").is_file()]:
+        raise ValueError(f"--steps: no checkpoint weights at {missing}")
+    weights = [load_file(folder / "model.safetensors") for folder in folders]
+    if any(w.keys() != weights[-1].keys() for w in weights):
+        raise ValueError(f"--steps: the checkpoints of {run} hold different tensors; they are not one run's")
+    with safe_open(folders[-1] / "model.safetensors", framework="pt") as last:
+        metadata = last.metadata()
+    mean = {
+        name: (sum(w[name].double() for w in weights) / len(weights)).to(tensor.dtype)
+        if tensor.is_floating_point() else tensor
+        for name, tensor in weights[-1].items()
+    }  # fmt: skip
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    shutil.copytree(folders[-1], partial)
+    save_file(mean, partial / "model.safetensors", metadata=metadata)
+    (partial / AVERAGED_FILE).write_text(json.dumps({"run": str(run), "steps": sorted(set(steps))}, indent=2) + "\n")
+    partial.rename(out)
+    return out
+
+
 PHASE_SUFFIX = ".phase"  # the action names of a dataset whose actions are phases (lerobot_policies.PHASE_SUFFIX)
 
 
@@ -366,6 +404,10 @@ def build_parser() -> argparse.ArgumentParser:
     copy = commands.add_parser("ship", help="copy a run's policy (at most 10 MB) with its env, to score anywhere")
     copy.add_argument("--run", type=Path, required=True, help="a `train` output folder")
     copy.add_argument("--out", type=Path, required=True, help="a new folder, e.g. models/navigation-lerobot-diffusion")
+    mean = commands.add_parser("average", help="the mean of a run's checkpoints' weights, as a policy folder")
+    mean.add_argument("--run", type=Path, required=True, help="a `train` output folder")
+    mean.add_argument("--steps", type=int, nargs="+", required=True, help="checkpoint steps, e.g. 4000 5000 6000")
+    mean.add_argument("--out", type=Path, required=True, help="a new folder, e.g. RUN-averaged")
     plot = commands.add_parser("plot", help="learning curves of runs and BC evaluations, as a PNG")
     plot.add_argument("--curve", action="append", default=[], metavar="LABEL=CURVE.json", help="a run's curve.json")
     plot.add_argument(
@@ -418,6 +460,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "phase-dataset":
         print(phase_dataset(args.dataset, args.out, args.cap))
+        return 0
+    if args.command == "average":
+        print(average(args.run, args.steps, args.out))
         return 0
     if args.command == "ship":
         print(ship(args.run, args.out))
