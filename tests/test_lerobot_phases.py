@@ -69,7 +69,8 @@ def test_agreement_pairs_the_seeds_lerobot_eval_ran(recipe, tmp_path) -> None:
 
 def test_every_recipe_row_names_a_config_lerobot_train_can_read(recipe) -> None:
     """Each row of recipes.json: its config file is JSON of a policy LeRobot has, for a dpr env and swarm size, on
-    the kind of actions the row says (a phase recipe trains on a phase dataset), with validation seeds."""
+    the kind of actions the row says (a phase recipe trains on a phase dataset), with validation seeds; the
+    checkpoints it averages into its policy are ones its run saves."""
     import gymnasium
 
     import dpr.envs  # noqa: F401  (registers the ids)
@@ -85,6 +86,9 @@ def test_every_recipe_row_names_a_config_lerobot_train_can_read(recipe) -> None:
         assert row["actions"] in {"expand", "phase"}, name
         assert config["dataset"]["root"].endswith("-phase") == (row["actions"] == "phase"), name
         assert parse_seeds(row["validation_seeds"]) and row["cpu_hours"] <= 3.0, name
+        averaged = row.get("average_steps", [])  # checkpoints the run saves, at least two of them
+        assert not averaged or len(set(averaged)) >= 2, name
+        assert all(0 < step <= config["steps"] and step % config["save_freq"] == 0 for step in averaged), name
 
 
 def test_a_stopped_training_session_is_waited_for_so_that_it_is_still_recorded(recipe) -> None:

@@ -91,16 +91,20 @@ def test_a_recipe_trains_resumes_and_both_evaluations_agree(tools, tiny_recipe: 
 
 
 def test_checkpoints_average_into_a_policy_that_scores(tools, tiny_recipe: dict, tmp_path: Path) -> None:
-    """``average`` writes the mean of a run's checkpoint weights as a policy folder that dpr's evaluation scores;
-    an existing --out, a missing checkpoint and a single step are refused, and nothing is written."""
+    """A recipe that names ``average_steps`` leaves in its finished run the mean of those checkpoints' weights, a
+    policy folder that dpr's evaluation scores; ``average`` refuses an existing --out, a missing checkpoint and a
+    single step, and writes nothing then."""
     import torch
     from safetensors.torch import load_file
 
     check, policies, recipe = tools
     dataset = check.record(tmp_path / "ds", pixels=False, episodes=2, steps=10, action_repeat=2)
     run = tmp_path / "run"
-    assert recipe.train(tiny_recipe, dataset, run, seed=0, steps=4) == 0  # checkpoints at steps 2 and 4
-    out = recipe.average(run, [4, 2], tmp_path / "averaged")
+    averaging = {**tiny_recipe, "average_steps": [4, 2]}
+    assert recipe.train(averaging, dataset, run, seed=0, steps=2) == 0
+    assert not (run / recipe.AVERAGED_FOLDER).exists()  # a run short of the averaged checkpoints has no average
+    assert recipe.train(averaging, dataset, run, seed=0, steps=4) == 0  # checkpoints at steps 2 and 4
+    out = run / recipe.AVERAGED_FOLDER
     first, last = (
         load_file(run / "checkpoints" / f"00000{s}" / "pretrained_model" / "model.safetensors") for s in (2, 4)
     )

@@ -45,6 +45,7 @@ TOOLS = Path(__file__).resolve().parent
 RECIPES = TOOLS / "lerobot_recipes"
 LAST = Path("checkpoints") / "last"
 RECORD = "dpr_training.json"
+AVERAGED_FOLDER = "averaged"  # in a run whose recipe names average_steps: the policy to score and ship
 AVERAGED_FILE = "dpr_averaged.json"  # beside averaged weights: the run and the checkpoint steps averaged
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)  # passed on to lerobot-train, whose session is then still recorded
 
@@ -147,6 +148,7 @@ def train(
     total = steps or config["steps"]
     if trained_steps(out) >= total:
         print(f"{out}: trained {trained_steps(out)} of {total} steps already", file=sys.stderr)
+        average_when_done(recipe, out, total)
         return 0
     command = train_command(recipe, dataset, out, seed, steps, overrides)
     print(" ".join(command[1:]), file=sys.stderr)
@@ -165,7 +167,19 @@ def train(
     record["cpu_hours"] = round(sum(s["cpu_seconds"] for s in record["sessions"]) / 3600, 3)
     if out.is_dir():
         record_path.write_text(json.dumps(record, indent=2) + "\n")
+    if status == 0:
+        average_when_done(recipe, out, total)
     return status
+
+
+def average_when_done(recipe: dict, out: Path, total: int) -> Path | None:
+    """The recipe's policy, ``out/averaged``: the mean of the checkpoints its row names (``average_steps``), written
+    once the run has trained ``total`` steps and holds them all (a run trained to fewer steps has none)."""
+    steps, averaged = recipe.get("average_steps", []), out / AVERAGED_FOLDER
+    if not steps or averaged.exists() or trained_steps(out) < total or max(steps) > total:
+        return None
+    print(f"{averaged}: the mean of the checkpoints at steps {steps}", file=sys.stderr)
+    return average(out, steps, averaged)
 
 
 def _scores(path: Path) -> dict[int, float]:
