@@ -182,10 +182,22 @@ def test_labels_override_policy_names(synthetic, tmp_path):
         write_report(synthetic, tmp_path / "other", labels=["BC"])
 
 
-def test_same_policy_and_task_in_two_files_is_refused(synthetic, tmp_path):
-    copy = _write(tmp_path / "wave-again.json", "wave", [_episode(NAV, 3, 1.0)])
-    with pytest.raises(ValueError, match="in both .*wave.json and .*wave-again.json"):
+def test_same_policy_and_task_on_the_same_seed_in_two_files_is_refused(synthetic, tmp_path):
+    copy = _write(tmp_path / "wave-again.json", "wave", [_episode(NAV, 2, 1.0)])
+    with pytest.raises(ValueError, match=r"in both .*wave.json and .*wave-again.json \(seeds 2\)"):
         results_table([load_evaluation(path) for path in [*synthetic, copy]])
+    longer = _write(tmp_path / "wave-longer.json", "wave", [_episode(NAV, 3, 1.0)], steps=200)
+    with pytest.raises(ValueError, match=r"wave-longer.json \(200 steps, not 100\)"):
+        results_table([load_evaluation(path) for path in [*synthetic, longer]])
+
+
+def test_one_run_scored_in_parts_is_one_run(synthetic, tmp_path):
+    """The same policy in two files on other seeds each (a run scored on more seeds later) is one run of its
+    label: its episodes together, as if scored in one file."""
+    more = _write(tmp_path / "wave-more.json", "wave", [_episode(NAV, 3, 30.0)])
+    table = results_table([load_evaluation(path) for path in [*synthetic, more]])
+    assert "| Navigation | wave | 25.0 | 10.0 | 40.0 |" in table and "| 4 | 0-3 |" in table  # its 4 episodes
+    assert "| Gate | wave | 6.0 |" in table and "| 3 | 0-2 |" in table  # the other task keeps its own
 
 
 def test_report_never_overwrites(synthetic, tmp_path, capsys):

@@ -157,7 +157,8 @@ def report_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         metavar="NAME",
         help="display name of each file's policy, one per file "
-        "in order (default: the policy's name; a model file's stem, e.g. navigation-bc-ppo)",
+        "in order (default: the policy's name; a model file's stem, e.g. navigation-bc-ppo). Files of one label "
+        "are training runs of one method; the same policy in two of them, on other seeds, is one run scored in parts",
     )
     parser.add_argument(
         "--seed",

@@ -192,30 +192,49 @@ def _task_key(task: str) -> tuple[int, str]:
     return (TASK_ORDER.index(base), task) if base in TASK_ORDER else (len(TASK_ORDER), task)
 
 
+def _run_key(group: _Group, index: int, evaluation: dict, source: str, seeds: set[int]) -> int:
+    """The run of ``group`` that the episodes of ``evaluation`` (file ``index``) on its task join: a new one, or the
+    run of the same policy in an earlier file, scored there on other seeds (one run scored in parts). The same
+    policy on a seed of an earlier file is a ValueError (one run counted twice)."""
+    if index in group.runs:
+        return index
+    for key, (earlier, policy, episodes) in group.runs.items():
+        if policy != evaluation["policy"]:
+            continue
+        twice = sorted(seeds & {episode["seed"] for episode in episodes})
+        if twice or evaluation["steps"] != group.steps:
+            what = f"seeds {format_seeds(twice)}" if twice else f"{evaluation['steps']} steps, not {group.steps}"
+            raise ValueError(
+                f"policy {group.label!r} on {group.task} is in both {earlier} and {source} ({what}); "
+                "give them different labels (--label) or report them separately"
+            )
+        return key
+    group.runs[index] = (source, evaluation["policy"], [])
+    return index
+
+
 def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
     """task -> label -> its episodes, tasks in the paper's order and policies in the order given. One label in
-    several files is several training runs of one method (models trained from different seeds); the same
-    policy under one label in two files is a ValueError (one run counted twice)."""
+    several files is several training runs of one method (models trained from different seeds), or one run scored
+    in parts: the same policy in two files, on other seeds each."""
     if not evaluations:
         raise ValueError("no evaluations to report")
     by_task: dict[str, dict[str, _Group]] = {}
     for index, evaluation in enumerate(evaluations):
         label, source = _label(evaluation), evaluation.get("source", f"evaluation {index}")
+        seeds_by_task: dict[str, set[int]] = {}
+        for episode in evaluation["episodes"]:
+            seeds_by_task.setdefault(task_name(episode["env_id"]), set()).add(episode["seed"])
+        keys: dict[str, int] = {}
         for episode in evaluation["episodes"]:
             task = task_name(episode["env_id"])
             groups = by_task.setdefault(task, {})
             group = groups.get(label)
             if group is None:
                 group = groups[label] = _Group(task, label, evaluation["policy"], source, evaluation["steps"])
-            if index not in group.runs:
-                earlier = next((s for s, policy, _ in group.runs.values() if policy == evaluation["policy"]), None)
-                if earlier is not None:
-                    raise ValueError(
-                        f"policy {label!r} on {task} is in both {earlier} and {source}; "
-                        "give them different labels (--label) or report them separately"
-                    )
-                group.runs[index] = (source, evaluation["policy"], [])
-            group.runs[index][2].append(episode)
+            if task not in keys:
+                keys[task] = _run_key(group, index, evaluation, source, seeds_by_task[task])
+            group.runs[keys[task]][2].append(episode)
     order = _labels_in_order(evaluations)
     return {
         task: {label: by_task[task][label] for label in order if label in by_task[task]}
