@@ -196,8 +196,6 @@ def _run_key(group: _Group, index: int, evaluation: dict, source: str, seeds: se
     """The run of ``group`` that the episodes of ``evaluation`` (file ``index``) on its task join: a new one, or the
     run of the same policy in an earlier file, scored there on other seeds (one run scored in parts). The same
     policy on a seed of an earlier file is a ValueError (one run counted twice)."""
-    if index in group.runs:
-        return index
     for key, (earlier, policy, episodes) in group.runs.items():
         if policy != evaluation["policy"]:
             continue
@@ -222,19 +220,16 @@ def _groups(evaluations: list[dict]) -> dict[str, dict[str, _Group]]:
     by_task: dict[str, dict[str, _Group]] = {}
     for index, evaluation in enumerate(evaluations):
         label, source = _label(evaluation), evaluation.get("source", f"evaluation {index}")
-        seeds_by_task: dict[str, set[int]] = {}
+        episodes_by_task: dict[str, list[dict]] = {}
         for episode in evaluation["episodes"]:
-            seeds_by_task.setdefault(task_name(episode["env_id"]), set()).add(episode["seed"])
-        keys: dict[str, int] = {}
-        for episode in evaluation["episodes"]:
-            task = task_name(episode["env_id"])
+            episodes_by_task.setdefault(task_name(episode["env_id"]), []).append(episode)
+        for task, episodes in episodes_by_task.items():
             groups = by_task.setdefault(task, {})
             group = groups.get(label)
             if group is None:
                 group = groups[label] = _Group(task, label, evaluation["policy"], source, evaluation["steps"])
-            if task not in keys:
-                keys[task] = _run_key(group, index, evaluation, source, seeds_by_task[task])
-            group.runs[keys[task]][2].append(episode)
+            key = _run_key(group, index, evaluation, source, {episode["seed"] for episode in episodes})
+            group.runs[key][2].extend(episodes)
     order = _labels_in_order(evaluations)
     return {
         task: {label: by_task[task][label] for label in order if label in by_task[task]}
