@@ -66,7 +66,9 @@ def test_a_run_whose_fine_tune_scored_lower_on_validation_keeps_its_pretrained_a
 
 def run_args(**given) -> argparse.Namespace:
     """The tool's command line for tiny runs, with ``given`` over its defaults."""
-    defaults = dict(pretrain_steps=10, num_envs=2, compile=False, finetune_steps=10, finetune_hyperparam=[])
+    defaults = dict(
+        pretrain_steps=10, num_envs=2, compile=False, finetune_steps=10, finetune_hyperparam=[], pretrain_env_kwarg=[]
+    )
     return argparse.Namespace(**{**defaults, "pretrained_in": None, **given})
 
 
@@ -112,6 +114,18 @@ def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another
     assert sorted(p.name for p in source.rglob("*")) == before
     with pytest.raises(SystemExit, match="--pretrained-in"):
         tool.run("navigation", 2, args)  # seed 2 was never pretrained there
+
+
+def test_pretraining_on_a_variant_of_the_task_changes_its_experience_only(tmp_path):
+    """--pretrain-env-kwarg reaches the pretraining as a training-env kwarg; the evaluations and the fine-tune run
+    the task as it is."""
+    tool = load_tool("disk_ppo")
+    commands = []
+    tool.dpr = lambda *arguments: commands.append(arguments)
+    tool.run("gate", 0, run_args(out=tmp_path, pretrain_env_kwarg=["gate_width=200"]))
+    train, zero_shot, finetune, validation = commands
+    assert train[train.index("--training-env-kwarg") + 1] == "gate_width=200"
+    assert all("gate_width=200" not in command for command in (zero_shot, finetune, validation))
 
 
 def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):

@@ -17,6 +17,10 @@ model is its checkpoint, pretrained or fine-tuned, that scored higher on the val
     python tools/disk_ppo.py --tasks navigation unresponsive --seeds 0 1 2 --out runs/disk-ppo
     python tools/disk_ppo.py --out runs/disk-ppo --report --test
 
+Pretraining on a variant of the task (the experience only; validation and test run the task as it is):
+
+    python tools/disk_ppo.py --tasks gate --pretrain-env-kwarg gate_width=200 --out runs/disk-ppo-gate-w200
+
 Another fine-tuning recipe on the same pretrained actors (read from ``--pretrained-in``, never written):
 
     python tools/disk_ppo.py --tasks navigation --pretrained-in runs/disk-ppo --out runs/disk-ppo-lr3e-4 \
@@ -97,8 +101,8 @@ def run(task: str, seed: int, args) -> None:
         resume = ["--resume"] if stopped(pretrain, batched=True) else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(pretrain_steps(task, args)), "--n-envs", str(args.num_envs), "--seed", str(seed),
-            *TASK_ENV_KWARGS.get(task, []), *(["--compile"] if args.compile else []), "--out", str(pretrain),
-            *resume)  # fmt: skip
+            *TASK_ENV_KWARGS.get(task, []), *pretrain_env_kwargs(args), *(["--compile"] if args.compile else []),
+            "--out", str(pretrain), *resume)  # fmt: skip
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
     if args.finetune_steps == 0:
         return
@@ -110,6 +114,12 @@ def run(task: str, seed: int, args) -> None:
             *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
             *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
     evaluate(finetune / model_file(task, "finetune"), env_id, VALIDATION, folder / "finetuned_validation.json")
+
+
+def pretrain_env_kwargs(args) -> list[str]:
+    """``--pretrain-env-kwarg`` as `dpr train`'s ``--training-env-kwarg``: the pretraining's experience only (the
+    model records the task's own kwargs, so validation and test run the task as it is)."""
+    return [item for value in args.pretrain_env_kwarg for item in ("--training-env-kwarg", value)]
 
 
 def pretrain_steps(task: str, args) -> int:
@@ -185,6 +195,14 @@ def main() -> int:
         "--pretrain-steps",
         type=int,
         help=f"env steps on the batched engine (default: {PRETRAIN_STEPS:,}; Gate {TASK_PRETRAIN_STEPS['gate']:,})",
+    )
+    parser.add_argument(
+        "--pretrain-env-kwarg",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a kwarg of the pretraining's envs only, e.g. gate_width=200 (a wider opening on the disk model); "
+        "repeatable",
     )
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
