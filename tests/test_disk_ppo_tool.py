@@ -80,7 +80,8 @@ def test_each_task_trains_with_the_full_presets_settings(tmp_path):
     args = run_args(out=tmp_path)
     tool.run("gate", 0, args)
     train, _, finetune, validation = commands
-    assert "--training-env-kwarg" not in train and "approach_reward=1.0" not in train
+    assert train[train.index("--training-env-kwarg") + 1] == "gate_width=200"  # a wider opening, experience only
+    assert "approach_reward=1.0" not in train
     assert "gate_distance=[5, 200]" in finetune and "--average-checkpoints" in finetune
     assert validation[validation.index("--policy") + 1].endswith("finetune/averaged_model.zip")
     commands.clear()
@@ -122,10 +123,14 @@ def test_pretraining_on_a_variant_of_the_task_changes_its_experience_only(tmp_pa
     tool = load_tool("disk_ppo")
     commands = []
     tool.dpr = lambda *arguments: commands.append(arguments)
-    tool.run("gate", 0, run_args(out=tmp_path, pretrain_env_kwarg=["gate_width=200"]))
+    tool.run("navigation", 0, run_args(out=tmp_path, pretrain_env_kwarg=["n_robots=16"]))
     train, zero_shot, finetune, validation = commands
-    assert train[train.index("--training-env-kwarg") + 1] == "gate_width=200"
-    assert all("gate_width=200" not in command for command in (zero_shot, finetune, validation))
+    assert train[train.index("--training-env-kwarg") + 1] == "n_robots=16"
+    assert all("n_robots=16" not in command for command in (zero_shot, finetune, validation))
+    commands.clear()
+    tool.run("gate", 0, run_args(out=tmp_path, pretrain_env_kwarg=["gate_width=250"]))
+    kwargs = [commands[0][i + 1] for i, word in enumerate(commands[0]) if word == "--training-env-kwarg"]
+    assert kwargs == ["gate_width=200", "gate_width=250"]  # the task's, then the one given, which wins
 
 
 def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):

@@ -19,7 +19,7 @@ model is its checkpoint, pretrained or fine-tuned, that scored higher on the val
 
 Pretraining on a variant of the task (the experience only; validation and test run the task as it is):
 
-    python tools/disk_ppo.py --tasks gate --pretrain-env-kwarg gate_width=200 --out runs/disk-ppo-gate-w200
+    python tools/disk_ppo.py --tasks gate --pretrain-env-kwarg gate_width=250 --out runs/disk-ppo-gate-w250
 
 Another fine-tuning recipe on the same pretrained actors (read from ``--pretrained-in``, never written):
 
@@ -54,6 +54,9 @@ TASK_FINETUNE_ARGS = {"gate": ["--training-env-kwarg", "gate_distance=[5, 200]",
 FINETUNED_MODEL = {"gate": "averaged_model.zip"}  # the file a task's fine-tune ships (else model.zip)
 # Gate's actors, pretrained twice as long, run nearer the paddle wave zero-shot (research log, disk-pretraining)
 PRETRAIN_STEPS, TASK_PRETRAIN_STEPS = 600_000, {"gate": 1_200_000}
+# Gate's disk swarms squeeze through the opening less than the paddle swarms do; pretrained with it 200 wide (150 in
+# the task), Gate's actors run nearer the paddle wave (research log, disk-pretraining)
+TASK_PRETRAIN_ENV_KWARGS = {"gate": ["gate_width=200"]}
 FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
 
 
@@ -101,7 +104,7 @@ def run(task: str, seed: int, args) -> None:
         resume = ["--resume"] if stopped(pretrain, batched=True) else []
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(pretrain_steps(task, args)), "--n-envs", str(args.num_envs), "--seed", str(seed),
-            *TASK_ENV_KWARGS.get(task, []), *pretrain_env_kwargs(args), *(["--compile"] if args.compile else []),
+            *TASK_ENV_KWARGS.get(task, []), *pretrain_env_kwargs(task, args), *(["--compile"] if args.compile else []),
             "--out", str(pretrain), *resume)  # fmt: skip
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
     if args.finetune_steps == 0:
@@ -116,10 +119,12 @@ def run(task: str, seed: int, args) -> None:
     evaluate(finetune / model_file(task, "finetune"), env_id, VALIDATION, folder / "finetuned_validation.json")
 
 
-def pretrain_env_kwargs(args) -> list[str]:
-    """``--pretrain-env-kwarg`` as `dpr train`'s ``--training-env-kwarg``: the pretraining's experience only (the
-    model records the task's own kwargs, so validation and test run the task as it is)."""
-    return [item for value in args.pretrain_env_kwarg for item in ("--training-env-kwarg", value)]
+def pretrain_env_kwargs(task: str, args) -> list[str]:
+    """The task's pretraining kwargs, then ``--pretrain-env-kwarg`` (the later wins), as `dpr train`'s
+    ``--training-env-kwarg``: the pretraining's experience only (the model records the task's own kwargs, so
+    validation and test run the task as it is)."""
+    given = TASK_PRETRAIN_ENV_KWARGS.get(task, []) + args.pretrain_env_kwarg
+    return [item for value in given for item in ("--training-env-kwarg", value)]
 
 
 def pretrain_steps(task: str, args) -> int:
@@ -201,8 +206,8 @@ def main() -> int:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="a kwarg of the pretraining's envs only, e.g. gate_width=200 (a wider opening on the disk model); "
-        "repeatable",
+        help="a kwarg of the pretraining's envs only, over the task's own (Gate: gate_width=200, a wider opening "
+        "than the task's 150); repeatable",
     )
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
