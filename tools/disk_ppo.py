@@ -111,7 +111,7 @@ def run(task: str, seed: int, args) -> None:
         return
     finetune = folder / "finetune"
     if not finished(finetune, batched=False):
-        hyper = [item for value in FINETUNE_HYPERPARAMS + args.finetune_hyperparam for item in ("--hyperparam", value)]
+        hyper = repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
             *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
@@ -123,8 +123,12 @@ def pretrain_env_kwargs(task: str, args) -> list[str]:
     """The task's pretraining kwargs, then ``--pretrain-env-kwarg`` (the later wins), as `dpr train`'s
     ``--training-env-kwarg``: the pretraining's experience only (the model records the task's own kwargs, so
     validation and test run the task as it is)."""
-    given = TASK_PRETRAIN_ENV_KWARGS.get(task, []) + args.pretrain_env_kwarg
-    return [item for value in given for item in ("--training-env-kwarg", value)]
+    return repeated("--training-env-kwarg", TASK_PRETRAIN_ENV_KWARGS.get(task, []) + args.pretrain_env_kwarg)
+
+
+def repeated(flag: str, values: list[str]) -> list[str]:
+    """``flag`` before each of ``values``: a repeatable option of the dpr command line."""
+    return [item for value in values for item in (flag, value)]
 
 
 def pretrain_steps(task: str, args) -> int:
