@@ -350,6 +350,21 @@ def test_collect_names_the_image_size_flag_for_a_frame_size_out_of_range(size, t
 
 
 @pytest.mark.parametrize(
+    "width, message",
+    [
+        ([150.0], "gate_width: expected a number or \\[low, high\\]"),
+        ([250.0, 150.0], "gate_width: expected \\[low, high\\] with low <= high"),
+        ([150.0, float("inf")], "gate_width: must be finite"),
+        ([150.0, 1e9], "gate_width: must be <= 100000"),
+        ([50.0, 250.0], "gate_width must be wider than one expanded robot"),
+    ],
+)
+def test_gate_width_range_out_of_range_is_one_error_naming_it(width, message):
+    with pytest.raises(ValueError, match=message):
+        gym.make("dpr/Gate-v2", gate_width=width)
+
+
+@pytest.mark.parametrize(
     "distance, message",
     [
         (-1.0, "gate_distance: must be >= 0"),

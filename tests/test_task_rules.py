@@ -164,6 +164,41 @@ def test_gate_distance_range_is_drawn_each_episode(make_env):
     assert fixed[20.0].unwrapped.start_shift == 0.0
 
 
+def opening_width(env) -> float:
+    """The gap between the two walls' inner corners on the near face (their first corners, as ``gate_polygons``)."""
+    first, second = env.unwrapped.world.walls
+    return float(np.linalg.norm(first[0] - second[0]))
+
+
+def test_gate_width_range_is_drawn_each_episode(make_env):
+    """``gate_width=[low, high]``: each reset opens the walls by a draw in [low, high], reproducibly per seed, with
+    the walls where that width puts them; the starts are drawn as for ``low``; ``[w, w]`` is the number ``w``."""
+    spread = make_env("dpr/Gate-v2", n_robots=9, gate_width=[150.0, 250.0])
+    widths = []
+    for seed in range(12):
+        spread.reset(seed=seed)
+        width = opening_width(spread)
+        widths.append(width)
+        fixed = make_env("dpr/Gate-v2", n_robots=9, gate_width=width)
+        fixed.reset(seed=seed)
+        assert opening_width(fixed) == pytest.approx(width)
+        assert fixed.unwrapped._gate_near == pytest.approx(spread.unwrapped._gate_near)  # as that width places them
+    assert min(widths) >= 150.0 - 1e-6 and max(widths) <= 250.0 + 1e-6 and np.std(widths) > 15.0
+    again = []
+    for seed in range(12):
+        spread.reset(seed=seed)
+        again.append(opening_width(spread))
+    assert again == widths
+    narrowest = make_env("dpr/Gate-v2", n_robots=9, gate_width=150.0)
+    assert spread.unwrapped.start_shift == narrowest.unwrapped.start_shift
+    assert spread.unwrapped.gate_width == [150.0, 250.0] and narrowest.unwrapped.gate_width == 150.0
+    one, same = make_env("dpr/Gate-v2", gate_width=[180.0, 180.0]), make_env("dpr/Gate-v2", gate_width=180.0)
+    for env in (one, same):
+        env.reset(seed=3)
+    np.testing.assert_array_equal(one.unwrapped.world.swarm.position, same.unwrapped.world.swarm.position)
+    assert opening_width(one) == pytest.approx(opening_width(same)) == pytest.approx(180.0)
+
+
 @pytest.mark.parametrize("robot_model", ROBOT_MODELS)
 def test_gate_v1_the_wave_meets_the_walls_and_the_passage_measure_says_when(make_env, robot_model):
     """The wave touches the v1 walls early while v0's stay out of reach; the passage measure counts robots past

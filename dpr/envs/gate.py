@@ -61,10 +61,11 @@ class GateEnv(ParticleSwarmEnv):
 
     ## Arguments
     Navigation's, plus ``gate_width=150.0``, which must exceed one expanded robot's diameter (77.5) and be
-    finite and <= 1e5, ``gate_distance`` (v1, v2: 5.0; None: halfway, v0's placement; ``[low, high]``: drawn
-    uniformly each episode, to train on a spread of placements, every start then drawn as for ``high``),
-    finite, >= 0 and at most the near end of ``start_radius``, and ``observe_opening`` (v2: True; see
-    Observation Space).
+    finite and <= 1e5 (``[low, high]``: drawn uniformly each episode, to train on a spread of openings, every
+    start then drawn as for ``low``), ``gate_distance`` (v1, v2: 5.0; None: halfway, v0's placement;
+    ``[low, high]``: drawn uniformly each episode, to train on a spread of placements, every start then drawn as
+    for ``high``), finite, >= 0 and at most the near end of ``start_radius``, and ``observe_opening`` (v2: True;
+    see Observation Space).
 
     ## Version History
     * v2: the opening's centre in the state observation (``observe_opening``).
@@ -92,17 +93,17 @@ class GateEnv(ParticleSwarmEnv):
         self.landmark_names = (OPENING,) if self.observe_opening else ()  # before the spaces are built
         super().__init__(**kwargs)
         diameter = 2 * self.swarm_class.expanded_radius
-        check_number("gate_width", gate_width, maximum=MAX_DISTANCE)
-        if not gate_width > diameter:
+        self._gate_widths = _number_range("gate_width", gate_width, maximum=MAX_DISTANCE)
+        if not self._gate_widths[0] > diameter:
             raise ValueError(
                 f"gate_width must be wider than one expanded robot ({diameter:g} for robot_model="
                 f"{self.robot_model!r}), got {gate_width!r}"
             )
-        self.gate_width = float(gate_width)
+        self.gate_width = _checked(gate_width, self._gate_widths)
+        self._width = self._gate_widths[0]  # this episode's opening
         self._gate_distances = None if gate_distance is None else self._distance_range(gate_distance)
-        if self._gate_distances is not None:  # the checked values: a float, or [low, high]
-            low, high = self._gate_distances
-            gate_distance = [low, high] if isinstance(gate_distance, (list, tuple)) else low
+        if self._gate_distances is not None:
+            gate_distance = _checked(gate_distance, self._gate_distances)
         self.gate_distance = gate_distance
         self._gate_along = np.zeros(2)  # unit vector from the start toward the goal
         self._gate_near = 0.0  # the walls' near face, in units from the start along it
@@ -110,15 +111,15 @@ class GateEnv(ParticleSwarmEnv):
         self._contact_step = -1
 
     def _blocked_front(
-        self, offsets: np.ndarray, directions: np.ndarray, radius: float, corners: bool = False
+        self, offsets: np.ndarray, directions: np.ndarray, radius: float, width: float, corners: bool = False
     ) -> np.ndarray:
         """For each unit direction (A, 2) toward the goal: the farthest point along it of the robots (offsets
-        (N, 2) from the swarm's centre, disks of ``radius``) that the opening does not hold (-inf if it holds
-        them all). With ``corners``, a robot that overlaps the opening's edge reaches only as far as it meets the
-        wall's corner: the walls placed there touch it and every robot it holds beside them."""
+        (N, 2) from the swarm's centre, disks of ``radius``) that an opening ``width`` wide does not hold (-inf if
+        it holds them all). With ``corners``, a robot that overlaps the opening's edge reaches only as far as it
+        meets the wall's corner: the walls placed there touch it and every robot it holds beside them."""
         along = offsets @ directions.T
         across = np.abs(offsets @ np.stack([-directions[:, 1], directions[:, 0]], axis=1).T)
-        half = self.gate_width / 2
+        half = width / 2
         reach = radius
         if corners:
             reach = np.where(across >= half, radius, np.sqrt(np.maximum(radius**2 - (half - across) ** 2, 0.0)))
@@ -126,14 +127,7 @@ class GateEnv(ParticleSwarmEnv):
 
     def _distance_range(self, gate_distance) -> tuple[float, float]:
         """``gate_distance`` as the (low, high) it is drawn from (one number: both)."""
-        if isinstance(gate_distance, (list, tuple)):
-            if len(gate_distance) != 2:
-                raise ParameterError("gate_distance", f"expected a number or [low, high], got {gate_distance!r}")
-            low, high = (check_number("gate_distance", value, minimum=0.0) for value in gate_distance)
-            if low > high:
-                raise ParameterError("gate_distance", f"expected [low, high] with low <= high, got {gate_distance!r}")
-        else:
-            low = high = check_number("gate_distance", gate_distance, minimum=0.0)
+        low, high = _number_range("gate_distance", gate_distance, minimum=0.0)
         nearest_goal = self.start_radius[0]
         if high > nearest_goal:
             raise ParameterError(
@@ -143,24 +137,26 @@ class GateEnv(ParticleSwarmEnv):
             )
         return low, high
 
-    def _near_face(self, offsets: np.ndarray, directions: np.ndarray, gate_distance: float) -> np.ndarray:
+    def _near_face(self, offsets: np.ndarray, directions: np.ndarray, gate_distance: float, width: float) -> np.ndarray:
         """Gate-v1: the walls' near face for each direction, in units from the swarm's centre: ``gate_distance``
-        beyond the front of the contracted robots that the opening does not hold, where they meet the walls (of
-        every robot if it holds them all)."""
+        beyond the front of the contracted robots that an opening ``width`` wide does not hold, where they meet
+        the walls (of every robot if it holds them all)."""
         contracted = self.swarm_class.contracted_radius
-        front = self._blocked_front(offsets, directions, contracted, corners=True)
+        front = self._blocked_front(offsets, directions, contracted, width, corners=True)
         whole = (offsets @ directions.T).max(axis=0) + contracted
         return np.where(np.isfinite(front), front, whole) + gate_distance
 
     def _start_distances(self, offsets: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Besides the goal's clearance, v0: every contracted robot that the opening does not hold stays
         WALL_CLEARANCE in front of the walls, which stand halfway to the goal; v1: the goal lies GOAL_CLEARANCE
-        beyond the walls' far face."""
+        beyond the walls' far face. The narrowest opening holds the fewest robots: its walls stand farthest."""
+        narrowest = self._gate_widths[0]
         if self.gate_distance is None:
-            front = self._blocked_front(offsets, directions, self.swarm_class.contracted_radius)
+            front = self._blocked_front(offsets, directions, self.swarm_class.contracted_radius, narrowest)
             walls = 2 * (front + WALL_CLEARANCE + WALL_THICKNESS / 2)
         else:
-            walls = self._near_face(offsets, directions, self._gate_distances[1]) + WALL_THICKNESS + GOAL_CLEARANCE
+            farthest = self._gate_distances[1]
+            walls = self._near_face(offsets, directions, farthest, narrowest) + WALL_THICKNESS + GOAL_CLEARANCE
         return np.maximum(super()._start_distances(offsets, directions), walls)
 
     def _walls(self, start: np.ndarray) -> list[np.ndarray]:
@@ -168,17 +164,22 @@ class GateEnv(ParticleSwarmEnv):
         distance = np.linalg.norm(self.goal - start)
         self._gate_along = (self.goal - start) / distance
         self._contact_step = -1
+        self._width = self._draw(self._gate_widths)
         if self.gate_distance is None:
             self._gate_near = distance / 2 - WALL_THICKNESS / 2
         else:
-            low, high = self._gate_distances
-            gate_distance = low if low == high else self.np_random.uniform(low, high)  # a number draws nothing
+            gate_distance = self._draw(self._gate_distances)
             offsets = grid_centres(self.n_robots, (0.0, 0.0))
-            self._gate_near = float(self._near_face(offsets, self._gate_along[None, :], gate_distance)[0])
+            self._gate_near = float(self._near_face(offsets, self._gate_along[None, :], gate_distance, self._width)[0])
         at = None if self.gate_distance is None else self._gate_near  # v0's walls as they always were, to the bit
-        walls = gate_polygons(start, self.goal, self.gate_width, thickness=WALL_THICKNESS, at=at)
+        walls = gate_polygons(start, self.goal, self._width, thickness=WALL_THICKNESS, at=at)
         self._gate_centre = (walls[0][0] + walls[0][3] + walls[1][0] + walls[1][3]) / 4  # the walls' inner corners
         return walls
+
+    def _draw(self, bounds: tuple[float, float]) -> float:
+        """This episode's value from ``bounds`` (low, high): uniform, or the one number, which draws nothing."""
+        low, high = bounds
+        return low if low == high else float(self.np_random.uniform(low, high))
 
     def _environment_extra(self) -> list[float]:
         """The opening's centre relative to the swarm's centre (``gate.dx``, ``gate.dy``)."""
@@ -198,3 +199,21 @@ class GateEnv(ParticleSwarmEnv):
         info[GATE_PASSAGE] = float(past.mean())
         info[GATE_CONTACT_STEP] = self._contact_step
         return info
+
+
+def _number_range(name: str, value, minimum: float | None = None, maximum: float | None = None) -> tuple[float, float]:
+    """``value``, a number or ``[low, high]``, as the checked (low, high) it is drawn from (a number: both)."""
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ParameterError(name, f"expected a number or [low, high], got {value!r}")
+        low, high = (check_number(name, item, minimum, maximum) for item in value)
+        if low > high:
+            raise ParameterError(name, f"expected [low, high] with low <= high, got {value!r}")
+        return low, high
+    low = check_number(name, value, minimum, maximum)
+    return low, low
+
+
+def _checked(value, bounds: tuple[float, float]):
+    """What the env keeps of a number-or-range argument: the checked float, or [low, high]."""
+    return list(bounds) if isinstance(value, (list, tuple)) else bounds[0]
