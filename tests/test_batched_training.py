@@ -108,6 +108,14 @@ def test_a_stopped_batched_run_resumes_to_the_uninterrupted_runs_model(tmp_path,
     assert_same_policy(resumed.model_path, whole.model_path)
     progress = (tmp_path / "run" / "progress.yaml").read_text()
     assert progress == (tmp_path / "whole" / "progress.yaml").read_text()
+    # the checkpoints of the stopped and the resumed part are the uninterrupted run's: one after each of its four
+    # updates here (32 steps each, checkpoints every 128 / 4), the last of them the final model
+    names = [f"model_{steps}_steps.zip" for steps in (32, 64, 96, 128)]
+    for run in ("whole", "run"):
+        assert sorted(path.name for path in (tmp_path / run / "checkpoints").iterdir()) == sorted(names)
+    for name in names:
+        assert_same_policy(tmp_path / "run" / "checkpoints" / name, tmp_path / "whole" / "checkpoints" / name)
+    assert_same_policy(tmp_path / "whole" / "checkpoints" / names[-1], whole.model_path)
 
 
 def test_dpr_train_engine_batched_resume_needs_a_snapshot(tmp_path, capsys):

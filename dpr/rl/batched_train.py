@@ -1,9 +1,10 @@
 """``dpr train --engine batched``: a run on the batched disk engine, written as ``dpr train`` writes one.
 
 The run folder holds ``config.yaml`` (what the run was asked and what it made, the engine, device and learner among
-it), ``model.zip`` (an ordinary SB3 model file, runnable on either engine) and ``progress.yaml`` (per-update
-statistics). The learner is the tensor PPO of :mod:`dpr.rl.batched_ppo` (``learner="torch"``), or SB3's own
-``learn()`` through the ``VecEnv`` adapter of :mod:`dpr.rl.sb3_batched` (``learner="sb3"``: any SB3 algorithm).
+it), ``model.zip`` (an ordinary SB3 model file, runnable on either engine), ``progress.yaml`` (per-update
+statistics) and, for the tensor PPO, ``checkpoints/`` (as ``dpr train`` writes them). The learner is the tensor PPO
+of :mod:`dpr.rl.batched_ppo` (``learner="torch"``), or SB3's own ``learn()`` through the ``VecEnv`` adapter of
+:mod:`dpr.rl.sb3_batched` (``learner="sb3"``: any SB3 algorithm).
 
 A tensor-PPO run keeps a snapshot of its training state in ``resume/`` (:mod:`dpr.rl.batched_resume`), written after
 an update once every :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; ``resume=True`` goes on from it to the model the run
@@ -30,6 +31,7 @@ from dpr.policies.sb3 import ModelInfo, build_model, model_architecture, save_mo
 from dpr.rl import resume as resume_state
 from dpr.rl.batched_ppo import build_learner, learn
 from dpr.rl.batched_resume import resume_batched, save_batched_snapshot, snapshot_file
+from dpr.rl.train import TrainResult, checkpoint_spacing, prepare_run_dir
 
 SB3_LEARNER = "sb3"
 
@@ -96,7 +98,6 @@ def train_batched(
     """Train ``config`` (a :class:`dpr.rl.train.TrainConfig` with ``engine="batched"``) on ``config.n_envs`` envs
     of the batched engine (module docstring); a :class:`TrainResult`. ``snapshot_seconds``: between snapshots
     (default :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; 0: after every update)."""
-    from dpr.rl.train import TrainResult, prepare_run_dir
 
     hyper, env_kwargs, timesteps = config.resolve()
     if resume:
@@ -120,14 +121,14 @@ def train_batched(
         f"dpr train: {config.algo} on the batched engine ({config.device}, {config.n_envs} envs, {config.learner} "
         f"learner), {config.env_id} {env_kwargs}{again}"
     )
-    started = time.perf_counter()
-    with tqdm(total=timesteps, desc=f"train ppo {config.env_id}", unit="step", disable=not show_progress) as bar:
-        history, interrupted = _learn(config, model, venv, timesteps, bar, (run_dir, resume, snapshot_seconds))
-    seconds = time.perf_counter() - started
-    venv.close()
     info = ModelInfo(
         config.algo, config.env_id, env_kwargs, config.steps_per_episode, architecture=model_architecture(hyper)
     )
+    started = time.perf_counter()
+    with tqdm(total=timesteps, desc=f"train ppo {config.env_id}", unit="step", disable=not show_progress) as bar:
+        history, interrupted = _learn(config, model, venv, timesteps, bar, (run_dir, resume, snapshot_seconds, info))
+    seconds = time.perf_counter() - started
+    venv.close()
     model_path = save_model(model, run_dir / "model.zip", info)
     (run_dir / "progress.yaml").write_text(yaml.safe_dump(history, sort_keys=False))
     made = int(model.num_timesteps)
@@ -142,21 +143,28 @@ def train_batched(
 
 def _learn(config, model, venv, timesteps: int, bar, snapshots: tuple) -> tuple[list, bool]:
     """Run the learner; its statistics, and whether Ctrl-C stopped it. ``snapshots``: (run folder, whether to resume
-    from its snapshot, seconds between snapshots)."""
+    from its snapshot, seconds between snapshots, the ModelInfo its checkpoints carry). The tensor PPO writes
+    ``checkpoints/model_<steps>_steps.zip`` after the update that passes each of the
+    :data:`dpr.rl.train.CHECKPOINTS` evenly spaced points of the run, as SB3's checkpoints do."""
     if config.learner == SB3_LEARNER:
         try:
             model.learn(total_timesteps=timesteps, callback=_sb3_progress(bar))
         except KeyboardInterrupt:
             return [], True
         return [], False
-    run_dir, resume, every = snapshots
+    run_dir, resume, every, info = snapshots
     every = resume_state.SNAPSHOT_SECONDS if every is None else every
+    spacing = max(checkpoint_spacing(timesteps), 1)
     env = venv.unwrapped
     start = resume_batched(run_dir, model, env) if resume else None
     kept = {"history": [] if start is None else start.history, "at": time.monotonic()}
 
     def on_update(loop) -> None:
         kept["history"] = loop.history
+        steps = loop.history[-1]["steps"]
+        before = loop.history[-2]["steps"] if len(loop.history) > 1 else 0
+        if steps // spacing > before // spacing:  # this update passed a checkpoint's point
+            save_model(model, run_dir / "checkpoints" / f"model_{steps}_steps.zip", info)
         if time.monotonic() - kept["at"] >= every:
             save_batched_snapshot(run_dir, model, env, loop)
             kept["at"] = time.monotonic()
