@@ -67,7 +67,13 @@ def test_a_run_whose_fine_tune_scored_lower_on_validation_keeps_its_pretrained_a
 def run_args(**given) -> argparse.Namespace:
     """The tool's command line for tiny runs, with ``given`` over its defaults."""
     defaults = dict(
-        pretrain_steps=10, num_envs=2, compile=False, finetune_steps=10, finetune_hyperparam=[], pretrain_env_kwarg=[]
+        pretrain_steps=10,
+        num_envs=2,
+        compile=False,
+        finetune_steps=10,
+        finetune_hyperparam=[],
+        pretrain_env_kwarg=[],
+        pretrain_hyperparam=[],
     )
     return argparse.Namespace(**{**defaults, "pretrained_in": None, **given})
 
@@ -118,15 +124,18 @@ def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another
 
 
 def test_pretraining_on_a_variant_of_the_task_changes_its_experience_only(tmp_path):
-    """--pretrain-env-kwarg reaches the pretraining as a training-env kwarg; the evaluations and the fine-tune run
-    the task as it is."""
+    """--pretrain-env-kwarg reaches the pretraining as a training-env kwarg, --pretrain-hyperparam as a hyperparameter;
+    the evaluations and the fine-tune run the task as it is, with their own hyperparameters."""
     tool = load_tool("disk_ppo")
     commands = []
     tool.dpr = lambda *arguments: commands.append(arguments)
-    tool.run("navigation", 0, run_args(out=tmp_path, pretrain_env_kwarg=["n_robots=16"]))
+    given = dict(pretrain_env_kwarg=["n_robots=16"], pretrain_hyperparam=["ent_coef=0.01"])
+    tool.run("navigation", 0, run_args(out=tmp_path, **given))
     train, zero_shot, finetune, validation = commands
     assert train[train.index("--training-env-kwarg") + 1] == "n_robots=16"
+    assert train[train.index("--hyperparam") + 1] == "ent_coef=0.01"
     assert all("n_robots=16" not in command for command in (zero_shot, finetune, validation))
+    assert "ent_coef=0.01" not in finetune
     commands.clear()
     tool.run("gate", 0, run_args(out=tmp_path, pretrain_env_kwarg=["gate_width=250"]))
     kwargs = [commands[0][i + 1] for i, word in enumerate(commands[0]) if word == "--training-env-kwarg"]

@@ -105,6 +105,7 @@ def run(task: str, seed: int, args) -> None:
         dpr("train", "--algo", "ppo", "--engine", "batched", "--robot-model", "disk", "--env", env_id,
             "--timesteps", str(pretrain_steps(task, args)), "--n-envs", str(args.num_envs), "--seed", str(seed),
             *TASK_ENV_KWARGS.get(task, []), *pretrain_env_kwargs(task, args), *(["--compile"] if args.compile else []),
+            *repeated("--hyperparam", args.pretrain_hyperparam),
             "--out", str(pretrain), *resume)  # fmt: skip
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
     if args.finetune_steps == 0:
@@ -212,6 +213,13 @@ def main() -> int:
         metavar="NAME=VALUE",
         help="a kwarg of the pretraining's envs only, over the task's own (Gate: gate_width=200, a wider opening "
         "than the task's 150); repeatable",
+    )
+    parser.add_argument(
+        "--pretrain-hyperparam",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a pretraining hyperparameter over the batched preset's (e.g. ent_coef=0.01); repeatable",
     )
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
