@@ -141,8 +141,8 @@ def train_batched(
     return TrainResult(run_dir, model_path, config_path, None, timesteps, seconds, interrupted)
 
 
-def _learn(config, model, venv, timesteps: int, bar, snapshots: tuple) -> tuple[list, bool]:
-    """Run the learner; its statistics, and whether Ctrl-C stopped it. ``snapshots``: (run folder, whether to resume
+def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[list, bool]:
+    """Run the learner; its statistics, and whether Ctrl-C stopped it. ``saving``: (run folder, whether to resume
     from its snapshot, seconds between snapshots, the ModelInfo its checkpoints carry). The tensor PPO writes
     ``checkpoints/model_<steps>_steps.zip`` after the update that passes each of the
     :data:`dpr.rl.train.CHECKPOINTS` evenly spaced points of the run, as SB3's checkpoints do."""
@@ -152,7 +152,7 @@ def _learn(config, model, venv, timesteps: int, bar, snapshots: tuple) -> tuple[
         except KeyboardInterrupt:
             return [], True
         return [], False
-    run_dir, resume, every, info = snapshots
+    run_dir, resume, every, info = saving
     every = resume_state.SNAPSHOT_SECONDS if every is None else every
     spacing = max(checkpoint_spacing(timesteps), 1)
     env = venv.unwrapped
