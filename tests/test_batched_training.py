@@ -15,6 +15,7 @@ import dpr  # noqa: F401
 import dpr.rl.batched_ppo as batched_ppo
 from dpr.checks import ParameterError
 from dpr.cli import main
+from dpr.policies.sb3 import load_model
 from dpr.rl.batched_resume import snapshot_file
 from dpr.rl.batched_train import train_batched
 from dpr.rl.sb3_batched import BatchedSB3VecEnv
@@ -131,6 +132,9 @@ def test_dpr_train_learner_sb3_trains_any_algorithm_on_the_batched_engine(tmp_pa
     assert main([*argv, "--n-robots", "4", "--n-envs", "4", "--timesteps", "80", "--out", str(out)]) == 0
     record = (out / "config.yaml").read_text()
     assert "learner: sb3" in record and "engine: batched" in record and (out / "model.zip").is_file()
+    checkpoints = sorted((out / "checkpoints").iterdir(), key=lambda path: int(path.stem.split("_")[1]))
+    assert [path.name for path in checkpoints] == [f"model_{steps}_steps.zip" for steps in (20, 40, 60, 80)]
+    assert load_model(checkpoints[0])[1].env_id == NAV  # each a model file that dpr evaluate runs
     with pytest.raises(ParameterError, match="learner"):
         small_config(engine="pymunk", learner="sb3")
 

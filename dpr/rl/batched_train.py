@@ -2,7 +2,7 @@
 
 The run folder holds ``config.yaml`` (what the run was asked and what it made, the engine, device and learner among
 it), ``model.zip`` (an ordinary SB3 model file, runnable on either engine), ``progress.yaml`` (per-update
-statistics) and, for the tensor PPO, ``checkpoints/`` (as ``dpr train`` writes them). The learner is the tensor PPO
+statistics) and ``checkpoints/`` (as ``dpr train`` writes them). The learner is the tensor PPO
 of :mod:`dpr.rl.batched_ppo` (``learner="torch"``), or SB3's own ``learn()`` through the ``VecEnv`` adapter of
 :mod:`dpr.rl.sb3_batched` (``learner="sb3"``: any SB3 algorithm).
 
@@ -143,28 +143,25 @@ def train_batched(
 
 def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[list, bool]:
     """Run the learner; its statistics, and whether Ctrl-C stopped it. ``saving``: (run folder, whether to resume
-    from its snapshot, seconds between snapshots, the ModelInfo its checkpoints carry). The tensor PPO writes
-    ``checkpoints/model_<steps>_steps.zip`` after the update that passes each of the
-    :data:`dpr.rl.train.CHECKPOINTS` evenly spaced points of the run, as SB3's checkpoints do."""
+    from its snapshot, seconds between snapshots, the ModelInfo its checkpoints carry). Either learner writes
+    ``checkpoints/model_<steps>_steps.zip`` once its steps pass each of the :data:`dpr.rl.train.CHECKPOINTS` evenly
+    spaced points of the run, as pymunk runs do."""
+    run_dir, resume, every, info = saving
+    checkpoint = _checkpointer(model, run_dir, info, timesteps)
     if config.learner == SB3_LEARNER:
         try:
-            model.learn(total_timesteps=timesteps, callback=_sb3_progress(bar))
+            model.learn(total_timesteps=timesteps, callback=_sb3_progress(bar, checkpoint))
         except KeyboardInterrupt:
             return [], True
         return [], False
-    run_dir, resume, every, info = saving
     every = resume_state.SNAPSHOT_SECONDS if every is None else every
-    spacing = max(checkpoint_spacing(timesteps), 1)
     env = venv.unwrapped
     start = resume_batched(run_dir, model, env) if resume else None
     kept = {"history": [] if start is None else start.history, "at": time.monotonic()}
 
     def on_update(loop) -> None:
         kept["history"] = loop.history
-        steps = loop.history[-1]["steps"]
-        before = loop.history[-2]["steps"] if len(loop.history) > 1 else 0
-        if steps // spacing > before // spacing:  # this update passed a checkpoint's point
-            save_model(model, run_dir / "checkpoints" / f"model_{steps}_steps.zip", info)
+        checkpoint(loop.history[-2]["steps"] if len(loop.history) > 1 else 0, loop.history[-1]["steps"])
         if time.monotonic() - kept["at"] >= every:
             save_batched_snapshot(run_dir, model, env, loop)
             kept["at"] = time.monotonic()
@@ -175,13 +172,27 @@ def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[lis
         return list(kept["history"]), True
 
 
-def _sb3_progress(bar):
-    """An SB3 callback moving ``bar`` by the steps of all envs."""
+def _checkpointer(model, run_dir: Path, info: ModelInfo, timesteps: int) -> Callable[[int, int], None]:
+    """``checkpoint(before, steps)``: saves ``model`` as ``checkpoints/model_<steps>_steps.zip`` when going from
+    ``before`` to ``steps`` env steps passed one of the run's evenly spaced checkpoint points."""
+    spacing = max(checkpoint_spacing(timesteps), 1)
+
+    def checkpoint(before: int, steps: int) -> None:
+        if steps // spacing > before // spacing:
+            save_model(model, run_dir / "checkpoints" / f"model_{steps}_steps.zip", info)
+
+    return checkpoint
+
+
+def _sb3_progress(bar, checkpoint: Callable[[int, int], None]):
+    """An SB3 callback moving ``bar`` by the steps of all envs and writing the run's checkpoints."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class Progress(BaseCallback):
         def _on_step(self) -> bool:
-            bar.update(self.training_env.num_envs)
+            envs = self.training_env.num_envs
+            bar.update(envs)
+            checkpoint(self.num_timesteps - envs, self.num_timesteps)
             return True
 
     return Progress()
