@@ -98,7 +98,6 @@ def train_batched(
     """Train ``config`` (a :class:`dpr.rl.train.TrainConfig` with ``engine="batched"``) on ``config.n_envs`` envs
     of the batched engine (module docstring); a :class:`TrainResult`. ``snapshot_seconds``: between snapshots
     (default :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; 0: after every update)."""
-
     hyper, env_kwargs, timesteps = config.resolve()
     if resume:
         _check_resume(config, out)
