@@ -65,6 +65,21 @@ def check_number(
     return value
 
 
+def check_number_range(
+    name: str, value: Any, minimum: float | None = None, maximum: float | None = None
+) -> tuple[float, float]:
+    """``value``, a number or ``[low, high]``, as the checked (low, high) it is drawn from (a number: both)."""
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ParameterError(name, f"expected a number or [low, high], got {value!r}")
+        low, high = (check_number(name, item, minimum, maximum) for item in value)
+        if low > high:
+            raise ParameterError(name, f"expected [low, high] with low <= high, got {value!r}")
+        return low, high
+    low = check_number(name, value, minimum, maximum)
+    return low, low
+
+
 def check_seeds(
     name: str,
     seeds: Iterable[Any],

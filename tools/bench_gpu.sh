@@ -5,11 +5,12 @@
 # whatever became of it, so a short lease still brings back what finished.
 # Needs the project importable (`make test` installs it, or pip install -e . with torch built for CUDA).
 #   tools/bench_gpu.sh [OUT_DIR]      # writes bench-*.json and a log per part there
-#   PYTHON=python3 PART_SECONDS=150 tools/bench_gpu.sh OUT_DIR
+#   PYTHON=python3 PART_SECONDS=150 PYMUNK_PROCESSES=16 tools/bench_gpu.sh OUT_DIR
 set -uo pipefail
 out="${1:-.}"
 python="${PYTHON:-python}"
 limit="${PART_SECONDS:-150}"
+processes="${PYMUNK_PROCESSES:-$(nproc)}"  # the pymunk side of the training loop gets the machine's cores
 mkdir -p "$out"
 "$python" -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 'no CUDA device: torch.cuda.is_available() is False')" || exit 1
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
@@ -28,7 +29,7 @@ part() {  # part NAME SECONDS COMMAND...: run it under a limit, its output besid
 part bench-batched "$limit" "$python" -m dpr.cli bench --engine batched --device cuda \
     --ks 1 64 1024 4096 16384 65536 --batched-sizes 100 1000 10000 --json "$out/bench-batched.json"
 part bench-training "$limit" "$python" tools/bench_training.py --device cuda --num-envs 4096 --updates 3 \
-    --repeats 1 --json "$out/bench-training.json"
+    --n-envs "$processes" --repeats 1 --json "$out/bench-training.json"
 # the --batched-sizes rows with 100 times the robots per call: a GPU is not full at 10,000
 part bench-batched-large "$limit" "$python" -m dpr.cli bench --engine batched --device cuda --ks 4096 \
     --batched-sizes 100 1000 10000 --batched-robots 1000000 --json "$out/bench-batched-large.json"

@@ -15,7 +15,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from dpr.checks import ParameterError, check_int
+from dpr.checks import ParameterError, check_int, check_number_range
 from dpr.envs.gate import GATE_CONTACT_STEP, GATE_PASSAGE, GateEnv
 from dpr.envs.manipulation import ManipulationEnv
 from dpr.envs.navigation import NavigationEnv
@@ -30,10 +30,11 @@ from dpr.envs.particle_env import (
 )
 from dpr.envs.unresponsive import UnresponsiveEnv
 from dpr.metrics import SUCCESS_RADIUS
-from dpr.sim.batched import BatchedDiskWorld, SolverSettings
+from dpr.sim.batched import DYNAMICS, BatchedDiskWorld, SolverSettings
 
 ROBOT_MODEL = "disk"  # the only robot model the batched engine has
 METRICS = ("projected_displacement", "net_displacement", "total_distance")
+DYNAMICS_SCALE_BOUNDS = (0.1, 10.0)  # what dynamics_scale may multiply a constant by
 
 
 class BatchedSwarmVectorEnv(VectorEnv):
@@ -75,8 +76,16 @@ class BatchedSwarmVectorEnv(VectorEnv):
 
     ## Arguments
     ``num_envs``, ``max_episode_steps``, ``device``, ``compile`` (``torch.compile`` each physics substep: seconds
-    of compiling at the first step, then about 3 times faster on a CPU; :class:`dpr.sim.batched.SolverSettings`)
-    and the single env's kwargs (``robot_model`` must be ``"disk"``, ``obs_type`` ``"state"``).
+    of compiling at the first step, then about 3 times faster on a CPU; :class:`dpr.sim.batched.SolverSettings`),
+    ``dynamics_scale`` (below) and the single env's kwargs (``robot_model`` must be ``"disk"``, ``obs_type``
+    ``"state"``).
+
+    ``dynamics_scale`` (default None: the model's constants) multiplies the disk model's constants per env, for
+    training that must not lean on one set of them: a dict from any of ``push_force`` (the rods' push limit),
+    ``magnet_force`` (their pull limit) and ``ground_friction`` (both ground friction limits) to a factor or
+    ``[low, high]``, within 0.1 to 10. A range is drawn log-uniformly (so ``[0.5, 2]`` halves as often as it
+    doubles) at every episode's start, after the start, from the env's generator: the same seed draws the same
+    dynamics. Only the batched engine has it; the observation does not show it.
 
     ## Tensor interface
     :meth:`reset_tensors` and :meth:`step_tensors` return torch tensors on ``device`` and reset an ended env in the
@@ -113,6 +122,8 @@ class BatchedSwarmVectorEnv(VectorEnv):
             )
         if env_kwargs.get("render_mode") is not None:
             raise ParameterError("render_mode", "the batched engine does not render: use gymnasium.make to render")
+        self.dynamics_scale = env_kwargs.pop("dynamics_scale", None)
+        self._dynamics_ranges = _dynamics_ranges(self.dynamics_scale)
         self.template = self.task_class(**env_kwargs)  # the single env: its checks, spaces and start draws
         if self.template.has_object and self.template.object_type != "ball":
             raise ParameterError(
@@ -169,9 +180,11 @@ class BatchedSwarmVectorEnv(VectorEnv):
         walls = np.zeros((self.num_envs, walls_per_env, 4, 2), dtype=np.float32)
         objects = np.zeros((self.num_envs, 2), dtype=np.float32)
         starts = np.zeros((self.num_envs, 2), dtype=np.float32)
+        dynamics = np.ones((self.num_envs, len(DYNAMICS)), dtype=np.float32)
         for env in envs:
             self.template.np_random = self._generators[env]
             layout = self.template.draw_layout()
+            dynamics[env] = self._draw_dynamics(self._generators[env])
             starts[env], centres[env] = layout.start, layout.centres
             dead[env, layout.dead] = True
             if walls_per_env:
@@ -188,9 +201,18 @@ class BatchedSwarmVectorEnv(VectorEnv):
             tensor(dead),
             walls=tensor(walls) if walls_per_env else None,
             object_position=tensor(objects) if self.template.has_object else None,
+            dynamics=tensor(dynamics) if self.dynamics_scale is not None else None,
         )
         self._reset_trackers(mask, tensor(starts), tensor(walls) if walls_per_env else None)
         self._last_observation = self.observation()
+
+    def _draw_dynamics(self, generator: np.random.Generator) -> list[float]:
+        """One episode's multiples of the constants in :data:`DYNAMICS`: each range drawn log-uniformly, in that
+        order; a single factor draws nothing."""
+        return [
+            low if low == high else float(np.exp(generator.uniform(np.log(low), np.log(high))))
+            for low, high in self._dynamics_ranges
+        ]
 
     def _reset_trackers(self, mask: torch.Tensor, starts: torch.Tensor, walls: torch.Tensor | None) -> None:
         where = mask[:, None]
@@ -421,6 +443,23 @@ class BatchedSwarmVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
+
+
+def _dynamics_ranges(dynamics_scale) -> list[tuple[float, float]]:
+    """``dynamics_scale`` checked, as a (low, high) per constant of :data:`DYNAMICS` ((1, 1) for one not named)."""
+    if dynamics_scale is None:
+        return [(1.0, 1.0)] * len(DYNAMICS)
+    if not isinstance(dynamics_scale, dict) or not dynamics_scale:
+        raise ParameterError(
+            "dynamics_scale",
+            f"expected a dict from any of {', '.join(DYNAMICS)} to a factor or [low, high], got {dynamics_scale!r}",
+        )
+    unknown = sorted(set(dynamics_scale) - set(DYNAMICS), key=str)
+    if unknown:
+        expected = ", ".join(DYNAMICS)
+        raise ParameterError("dynamics_scale", f"no constant named {unknown[0]!r}: expected any of {expected}")
+    low, high = DYNAMICS_SCALE_BOUNDS
+    return [check_number_range(f"dynamics_scale.{name}", dynamics_scale.get(name, 1.0), low, high) for name in DYNAMICS]
 
 
 class NavigationVectorEnv(BatchedSwarmVectorEnv):

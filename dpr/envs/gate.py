@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dpr.checks import ParameterError, check_number
+from dpr.checks import ParameterError, check_number_range
 from dpr.envs.particle_env import GOAL_CLEARANCE, MAX_DISTANCE, ParticleSwarmEnv
 from dpr.sim.objects import gate_polygons
 from dpr.sim.world import grid_centres
@@ -93,7 +93,7 @@ class GateEnv(ParticleSwarmEnv):
         self.landmark_names = (OPENING,) if self.observe_opening else ()  # before the spaces are built
         super().__init__(**kwargs)
         diameter = 2 * self.swarm_class.expanded_radius
-        self._gate_widths = _number_range("gate_width", gate_width, maximum=MAX_DISTANCE)
+        self._gate_widths = check_number_range("gate_width", gate_width, maximum=MAX_DISTANCE)
         if not self._gate_widths[0] > diameter:
             raise ValueError(
                 f"gate_width must be wider than one expanded robot ({diameter:g} for robot_model="
@@ -127,7 +127,7 @@ class GateEnv(ParticleSwarmEnv):
 
     def _distance_range(self, gate_distance) -> tuple[float, float]:
         """``gate_distance`` as the (low, high) it is drawn from (one number: both)."""
-        low, high = _number_range("gate_distance", gate_distance, minimum=0.0)
+        low, high = check_number_range("gate_distance", gate_distance, minimum=0.0)
         nearest_goal = self.start_radius[0]
         if high > nearest_goal:
             raise ParameterError(
@@ -199,19 +199,6 @@ class GateEnv(ParticleSwarmEnv):
         info[GATE_PASSAGE] = float(past.mean())
         info[GATE_CONTACT_STEP] = self._contact_step
         return info
-
-
-def _number_range(name: str, value, minimum: float | None = None, maximum: float | None = None) -> tuple[float, float]:
-    """``value``, a number or ``[low, high]``, as the checked (low, high) it is drawn from (a number: both)."""
-    if isinstance(value, (list, tuple)):
-        if len(value) != 2:
-            raise ParameterError(name, f"expected a number or [low, high], got {value!r}")
-        low, high = (check_number(name, item, minimum, maximum) for item in value)
-        if low > high:
-            raise ParameterError(name, f"expected [low, high] with low <= high, got {value!r}")
-        return low, high
-    low = check_number(name, value, minimum, maximum)
-    return low, low
 
 
 def _checked(value, bounds: tuple[float, float]):

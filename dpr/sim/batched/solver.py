@@ -28,7 +28,8 @@ DISK_MOMENT = C.DISK_MASS * C.DISK_CONTRACTED_RADIUS**2 / 2  # fixed at creation
 @dataclass
 class Bodies:
     """Every body's state, ``[B, K]`` each: position, velocity, spin, the contacts' bias velocity (moves positions,
-    never momentum), ground friction's accumulated impulses, and the radius; masses ``[B, 1]``."""
+    never momentum), ground friction's accumulated impulses, and the radius; masses ``[B, 1]``; each swarm's
+    ground friction as a multiple of the model's, ``[1, K]``."""
 
     px: torch.Tensor
     py: torch.Tensor
@@ -43,6 +44,7 @@ class Bodies:
     radius: torch.Tensor
     mass: torch.Tensor
     moment: torch.Tensor
+    friction_scale: torch.Tensor
 
     def __post_init__(self):
         self.inv_mass, self.inv_moment = 1.0 / self.mass, 1.0 / self.moment
@@ -118,8 +120,8 @@ def measure(bodies: Bodies, pairs, elasticity, rods: Rods, walls, impulses: Impu
     Each body's masses are split between the contacts acting on it (mass splitting), so that contacts solved at
     once sum to one body's worth."""
     rows = _Rows()
-    rows.friction_limit = C.GROUND_LINEAR_FRICTION * k.dt
-    rows.spin_friction_limit = C.GROUND_ANGULAR_FRICTION * k.dt
+    rows.friction_limit = C.GROUND_LINEAR_FRICTION * k.dt * bodies.friction_scale
+    rows.spin_friction_limit = C.GROUND_ANGULAR_FRICTION * k.dt * bodies.friction_scale
     dx, dy, dvx, dvy = pairs.difference(bodies.px, bodies.py, bodies.vx, bodies.vy)
     distance = torch.sqrt(dx * dx + dy * dy)
     inverse = 1.0 / distance.clamp(min=1e-12)
@@ -269,7 +271,9 @@ def _ground_friction(bodies: Bodies, rows: _Rows) -> None:
     accumulated impulse clamped in length to the friction's limit."""
     linear, angular = rows.friction_limit, rows.spin_friction_limit
     wanted_x, wanted_y = bodies.gx + bodies.vx * bodies.mass, bodies.gy + bodies.vy * bodies.mass
-    scale = linear / torch.sqrt(wanted_x * wanted_x + wanted_y * wanted_y).clamp(min=linear)
+    # reciprocal, then product: what `float / tensor` computes, so swarms at scale 1 keep the bits they had when
+    # the limits were Python floats
+    scale = torch.reciprocal(torch.sqrt(wanted_x * wanted_x + wanted_y * wanted_y).clamp(min=linear)) * linear
     gx, gy = wanted_x * scale, wanted_y * scale
     bodies.vx = bodies.vx - (gx - bodies.gx) * bodies.inv_mass
     bodies.vy = bodies.vy - (gy - bodies.gy) * bodies.inv_mass

@@ -55,6 +55,9 @@ from dpr.sim.batched.solver import (
 from dpr.sim.batched.walls import disk_wall_distance, wall_geometry
 from dpr.sim.swarm import REACHED_FRACTION
 
+# What BatchedDiskWorld.reset's ``dynamics [K, 3]`` multiplies, per swarm, in this order: the rods' push limit
+# (C.DISK_PUSH_FORCE), their pull limit (C.MAGNET_MAX_FORCE) and the ground friction's limits (linear and angular).
+DYNAMICS = ("push_force", "magnet_force", "ground_friction")
 # Solver rounds per substep. Chipmunk does 10, one constraint after another; rounds that solve every constraint
 # of a kind at once converge more slowly, so each round's impulse updates are over-relaxed (scaled up, which only
 # scales the effective masses): 10 rounds over-relaxed by 1.5 come as close to pymunk's wave displacement on the
@@ -132,7 +135,8 @@ class BatchedDiskWorld:
     State (float32 on ``device``, read freely, written by :meth:`reset` and :meth:`step` only): ``position
     [K, N, 2]``, ``velocity [K, N, 2]``, ``angular_velocity [K, N]``, ``radius [K, N]``, ``expansion [K, N]`` in
     [0, 1], ``target [K, N]``, ``moving [K, N]``, ``alive [K, N]``; with a ball, ``object_position [K, 2]`` and
-    ``object_velocity [K, 2]``; ``walls [K, W, 4, 2]``.
+    ``object_velocity [K, 2]``; ``walls [K, W, 4, 2]``; ``dynamics [K, 3]``, each swarm's multiples of the model's
+    constants named in :data:`DYNAMICS` (1 unless :meth:`reset` sets them).
     """
 
     def __init__(
@@ -201,7 +205,9 @@ class BatchedDiskWorld:
             radius=radius,
             mass=torch.tensor(masses, device=self.device)[:, None],
             moment=torch.tensor(moments, device=self.device)[:, None],
+            friction_scale=torch.ones(1, k, device=self.device),
         )
+        self._dynamics = torch.ones(len(DYNAMICS), k, device=self.device)
         self._commanded = torch.full((n, k), C.DISK_CONTRACTED_RADIUS, device=self.device)  # radius with no load
         self._expansion, self._target = self._zeros(n, k), self._zeros(n, k)
         self._moving = self._zeros(n, k, dtype=torch.bool)
@@ -250,6 +256,7 @@ class BatchedDiskWorld:
     target = property(lambda self: self._target.t())
     moving = property(lambda self: self._moving.t())
     alive = property(lambda self: self._alive.t())
+    dynamics = property(lambda self: self._dynamics.t())
     # the swarm's centre, [K, 2]: the mean of the robots' centres, dead ones too (World.centre_of_mass)
     centre_of_mass = property(lambda self: self.position.mean(dim=1))
 
@@ -270,10 +277,12 @@ class BatchedDiskWorld:
         dead: torch.Tensor,
         walls: torch.Tensor | None = None,
         object_position: torch.Tensor | None = None,
+        dynamics: torch.Tensor | None = None,
     ) -> None:
         """Start the swarms where ``mask [K]`` is True: robots at ``centres [K, N, 2]``, contracted and at rest,
-        ``dead [K, N]`` unresponsive; ``walls [K, W, 4, 2]`` and ``object_position [K, 2]`` where given. Rows of
-        the other swarms are ignored."""
+        ``dead [K, N]`` unresponsive; ``walls [K, W, 4, 2]``, ``object_position [K, 2]`` and ``dynamics [K, 3]``
+        (multiples of the constants named in :data:`DYNAMICS`, > 0) where given. Rows of the other swarms are
+        ignored."""
         k, n = self.num_envs, self.n_robots
         mask = self._checked("mask", mask, (k,), torch.bool)
         centres = self._checked("centres", centres, (k, n, 2), torch.float32)
@@ -299,9 +308,15 @@ class BatchedDiskWorld:
             walls = self._checked("walls", walls, (k, self.n_walls, 4, 2), torch.float32)
             self.walls = torch.where(mask[:, None, None, None], walls, self.walls)
             self._set_wall_geometry()
+        if dynamics is not None:
+            dynamics = self._checked("dynamics", dynamics, (k, len(DYNAMICS)), torch.float32)
+            if not bool((dynamics[mask] > 0).all()):
+                raise ParameterError("dynamics", f"expected multiples > 0 of {', '.join(DYNAMICS)}")
+            self._dynamics = torch.where(mask, dynamics.t(), self._dynamics)
+            self.bodies.friction_scale = self._dynamics[2:3]
 
     # -- snapshots ----------------------------------------------------------------------------------------
-    _STATE = ("_commanded", "_expansion", "_target", "_moving", "_alive", "walls")
+    _STATE = ("_commanded", "_expansion", "_target", "_moving", "_alive", "walls", "_dynamics")
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Every tensor that stepping changes (bodies, accumulated impulses, this step's pairs, the robots'
@@ -457,7 +472,8 @@ class BatchedDiskWorld:
         new_radius = torch.minimum(commanded, bodies.radius[:n] + (room + C.DISK_GROWTH_OVERLAP).clamp(min=0.0))
         # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink)
         pushing = commanded_sum > radius_sum
-        limit = torch.where(pushing, C.DISK_PUSH_FORCE, C.MAGNET_MAX_FORCE) * self.constants.dt * rod
+        push, pull = self._dynamics[:2, pairs.env] if self.use_cells else self._dynamics[:2, None]
+        limit = torch.where(pushing, C.DISK_PUSH_FORCE * push, C.MAGNET_MAX_FORCE * pull) * self.constants.dt * rod
         self._commanded = commanded
         bodies.radius = torch.cat((new_radius, bodies.radius[n:]))
         self._expansion = (new_radius - C.DISK_CONTRACTED_RADIUS) / (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
