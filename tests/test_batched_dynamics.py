@@ -37,7 +37,7 @@ def _scales(**factors) -> list[float]:
     return [factors.get(name, 1.0) for name in DYNAMICS]
 
 
-def test_the_model_constants_are_the_default_and_scale_1_keeps_every_bit():
+def test_the_model_constants_are_the_default_and_ones_given_run_as_none_given():
     default = _world()
     assert torch.equal(default.dynamics, torch.ones(3, len(DYNAMICS)))
     ones = _world(dynamics=torch.ones(3, len(DYNAMICS)))
