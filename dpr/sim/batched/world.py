@@ -207,7 +207,7 @@ class BatchedDiskWorld:
             moment=torch.tensor(moments, device=self.device)[:, None],
             friction_scale=torch.ones(1, k, device=self.device),
         )
-        self._dynamics = torch.ones(len(DYNAMICS), k, device=self.device)
+        self._rod_scales = torch.ones(2, k, device=self.device)  # DYNAMICS' first two; the friction's is in bodies
         self._commanded = torch.full((n, k), C.DISK_CONTRACTED_RADIUS, device=self.device)  # radius with no load
         self._expansion, self._target = self._zeros(n, k), self._zeros(n, k)
         self._moving = self._zeros(n, k, dtype=torch.bool)
@@ -256,7 +256,7 @@ class BatchedDiskWorld:
     target = property(lambda self: self._target.t())
     moving = property(lambda self: self._moving.t())
     alive = property(lambda self: self._alive.t())
-    dynamics = property(lambda self: self._dynamics.t())
+    dynamics = property(lambda self: torch.cat((self._rod_scales, self.bodies.friction_scale)).t())
     # the swarm's centre, [K, 2]: the mean of the robots' centres, dead ones too (World.centre_of_mass)
     centre_of_mass = property(lambda self: self.position.mean(dim=1))
 
@@ -312,11 +312,11 @@ class BatchedDiskWorld:
             dynamics = self._checked("dynamics", dynamics, (k, len(DYNAMICS)), torch.float32)
             if not bool((dynamics[mask] > 0).all()):
                 raise ParameterError("dynamics", f"expected multiples > 0 of {', '.join(DYNAMICS)}")
-            self._dynamics = torch.where(mask, dynamics.t(), self._dynamics)
-            self.bodies.friction_scale = self._dynamics[2:3]
+            self._rod_scales = torch.where(mask, dynamics[:, :2].t(), self._rod_scales)
+            self.bodies.friction_scale = torch.where(mask, dynamics[:, 2:].t(), self.bodies.friction_scale)
 
     # -- snapshots ----------------------------------------------------------------------------------------
-    _STATE = ("_commanded", "_expansion", "_target", "_moving", "_alive", "walls", "_dynamics")
+    _STATE = ("_commanded", "_expansion", "_target", "_moving", "_alive", "walls", "_rod_scales")
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Every tensor that stepping changes (bodies, accumulated impulses, this step's pairs, the robots'
@@ -472,7 +472,7 @@ class BatchedDiskWorld:
         new_radius = torch.minimum(commanded, bodies.radius[:n] + (room + C.DISK_GROWTH_OVERLAP).clamp(min=0.0))
         # each rod pushes (or pulls) its pair apart by what the two robots still have to grow (or shrink)
         pushing = commanded_sum > radius_sum
-        push, pull = self._dynamics[:2, pairs.env] if self.use_cells else self._dynamics[:2, None]
+        push, pull = self._rod_scales[:, pairs.env] if self.use_cells else self._rod_scales[:, None]
         limit = torch.where(pushing, C.DISK_PUSH_FORCE * push, C.MAGNET_MAX_FORCE * pull) * self.constants.dt * rod
         self._commanded = commanded
         bodies.radius = torch.cat((new_radius, bodies.radius[n:]))
