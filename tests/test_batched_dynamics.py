@@ -150,3 +150,8 @@ def test_each_episode_draws_again():
 def test_bad_dynamics_scale_is_one_error_naming_it(scale, message):
     with pytest.raises(ParameterError, match=message):
         make(dynamics_scale=scale)
+
+
+def test_pymunk_env_refuses_dynamics_scale_naming_the_batched_engine():
+    with pytest.raises(ParameterError, match="dynamics_scale: only the batched engine"):
+        gym.make("dpr/Gate-v2", robot_model="disk", dynamics_scale={"push_force": 2.0})

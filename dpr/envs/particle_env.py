@@ -142,7 +142,15 @@ class ParticleSwarmEnv(gym.Env):
         image_size: int = 96,
         render_size: int = 512,
         render_mode: str | None = None,
+        dynamics_scale: None = None,
     ):
+        if dynamics_scale is not None:  # named here so that a pymunk env refuses it in words, not with a TypeError
+            raise ParameterError(
+                "dynamics_scale",
+                "only the batched engine scales the disk model's constants (gymnasium.make_vec(..., "
+                "vectorization_mode='vector_entry_point', robot_model='disk'), or --engine batched); "
+                f"the pymunk env simulates the model's own, got {dynamics_scale!r}",
+            )
         check_int("n_robots", n_robots, 1, MAX_ROBOTS)
         _choice("robot_model", robot_model, ROBOT_MODELS)
         _choice("action_type", action_type, ACTION_TYPES)
