@@ -6,20 +6,27 @@
 # Needs the project importable (`make test` installs it, or pip install -e . with torch built for CUDA).
 #   tools/bench_gpu.sh [OUT_DIR]      # writes bench-*.json and a log per part there
 #   PYTHON=python3 PART_SECONDS=150 PYMUNK_PROCESSES=16 tools/bench_gpu.sh OUT_DIR
+#   PARTS="bench-batched bench-training" tools/bench_gpu.sh OUT_DIR   # only these parts: one short call each
 set -uo pipefail
 out="${1:-.}"
 python="${PYTHON:-python}"
 limit="${PART_SECONDS:-150}"
 processes="${PYMUNK_PROCESSES:-$(nproc)}"  # the pymunk side of the training loop gets the machine's cores
+all_parts="bench-batched bench-training bench-batched-large bench-batched-compiled"
+parts="${PARTS:-$all_parts}"
+for name in $parts; do
+    [[ " $all_parts " == *" $name "* ]] || { echo "PARTS: no part named '$name' (expected any of: $all_parts)" >&2; exit 2; }
+done
 mkdir -p "$out"
 "$python" -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 'no CUDA device: torch.cuda.is_available() is False')" || exit 1
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
 "$python" -c "import torch; print('torch', torch.__version__, torch.cuda.get_device_name())"
 nproc
 
-part() {  # part NAME SECONDS COMMAND...: run it under a limit, its output beside the others
+part() {  # part NAME SECONDS COMMAND...: run it under a limit, its output beside the others (if PARTS names it)
     local name="$1" seconds="$2"
     shift 2
+    [[ " $parts " == *" $name "* ]] || return 0
     echo "== $name (at most ${seconds} s)"
     local started=$SECONDS
     timeout -s INT -k 10 "$seconds" "$@" 2>"$out/$name.log"
