@@ -197,10 +197,21 @@ class ParticleSwarmEnv(gym.Env):
                 "robot_model='disk' is about 20x faster"
             )
 
+        self._build_spaces()
+        self.world: World | None = None
+        self.goal = GOAL.copy()
+
+        self.start = np.zeros(2)
+        self._tracker: MetricTracker | None = None
+        self._renderer = None
+        self._image_renderer = None
+
+    def _build_spaces(self) -> None:
+        """The action and observation spaces, and where the parts of the state vector start."""
         n = self.n_robots
-        if action_type == "multibinary":
+        if self.action_type == "multibinary":
             self.action_space = spaces.MultiBinary(n)
-        elif action_type == "discrete":
+        elif self.action_type == "discrete":
             self.action_space = spaces.Discrete(2**n)
         else:
             self.action_space = spaces.Box(0.0, 1.0, (n,), dtype=np.float32)
@@ -219,15 +230,7 @@ class ParticleSwarmEnv(gym.Env):
             "state": state_space,
             "pixels": pixel_space,
             "pixels_state": spaces.Dict({"pixels": pixel_space, "state": state_space}),
-        }[obs_type]
-
-        self.world: World | None = None
-        self.goal = GOAL.copy()
-
-        self.start = np.zeros(2)
-        self._tracker: MetricTracker | None = None
-        self._renderer = None
-        self._image_renderer = None
+        }[self.obs_type]
 
     # -- task hooks ---------------------------------------------------------------------------------------
     def _dead_robots(self) -> np.ndarray:
