@@ -12,8 +12,8 @@ out="${1:-.}"
 python="${PYTHON:-python}"
 limit="${PART_SECONDS:-150}"
 processes="${PYMUNK_PROCESSES:-$(nproc)}"  # the pymunk side of the training loop gets the machine's cores
-all_parts="bench-batched bench-training bench-batched-large bench-batched-compiled"
-parts="${PARTS:-$all_parts}"
+parts="${PARTS:-}"  # empty: every part
+all_parts="bench-batched bench-training bench-batched-large bench-batched-compiled"  # the part calls' names below
 for name in $parts; do
     [[ " $all_parts " == *" $name "* ]] || { echo "PARTS: no part named '$name' (expected any of: $all_parts)" >&2; exit 2; }
 done
@@ -26,7 +26,7 @@ nproc
 part() {  # part NAME SECONDS COMMAND...: run it under a limit, its output beside the others (if PARTS names it)
     local name="$1" seconds="$2"
     shift 2
-    [[ " $parts " == *" $name "* ]] || return 0
+    [[ -z "$parts" || " $parts " == *" $name "* ]] || return 0
     echo "== $name (at most ${seconds} s)"
     local started=$SECONDS
     timeout -s INT -k 10 "$seconds" "$@" 2>"$out/$name.log"
