@@ -64,6 +64,7 @@ METHODS = ["wave", "bc", "bc-ppo", "ppo"]
         ({"train_seeds": [0, 200], "validation_seeds": [200]}, r"train_seeds: \[200\] are validation seeds too"),
         ({"env_ids": {"gate": "dpr/Navigation-v0"}, "tasks": ["gate"]}, "env_ids: expected registered ids of"),
         ({"env_ids": {"gate": "dpr/Gate-v0"}}, r"env_ids: \['dpr/Gate-v0'\] belong to tasks this run does not run"),
+        ({"env_ids": {"navigation": {}}}, "env_ids: expected a mapping to strings"),  # not a TypeError
         ({"finetune_hyperparams": {"n_stepz": 8}}, "finetune_hyperparams: .*n_stepz"),
         ({"scratch_hyperparams": {"n_stepz": 8}}, "scratch_hyperparams: .*n_stepz"),
         ({"actor": "transformer"}, "actor: expected one of"),

@@ -390,6 +390,8 @@ def type_problem(name: str, value: Any) -> str | None:
     elif kind.startswith("dict["):
         if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
             return f"expected a mapping, got {value!r}"
+        if kind == "dict[str, str]" and not all(isinstance(v, str) for v in value.values()):  # env ids
+            return f"expected a mapping to strings, got {value!r}"
     else:
         test, what = _TYPES[kind]
         if not test(value):
