@@ -29,6 +29,7 @@ MAX_BUFFER_SIZE = 10**9  # a replay buffer's transitions (DQN); its memory is es
 MAX_LAYER_SIZE = 65_536  # units of one layer of a network
 MAX_LAYERS = 1_000  # layers of a network
 MAX_ROUNDS = 10_000  # DAgger rounds, benchmark repeats, and other repetitions of a whole job
+MAX_TEMPERATURE = 100.0  # a fine-tune's exploration temperature: at 100 a swarm actor's robots act almost at random
 MAX_RAY_WORKERS = 4_096  # stages at once on a Ray cluster: the cluster's own CPUs are not known before it is joined
 
 # -- files -------------------------------------------------------------------------------------------------------

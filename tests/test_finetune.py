@@ -32,6 +32,7 @@ from dpr.policies.sb3 import (
     loaded_architecture,
     make_vec_env,
     read_model_info,
+    soften_actions,
 )
 from dpr.policies.swarm_policy import SwarmActorCriticPolicy
 from dpr.rl.recipe import FINETUNE_AT_REPEAT, default_critic_warmup, finetune_defaults, physics_discount
@@ -427,6 +428,74 @@ def test_task_names_are_the_env_ids_keys():
 # -- the recipe: what `dpr finetune` takes from the model unless told ----------------------------------------------
 REPEAT = 10  # the clone below decides every 10 physics steps, as the pipeline's learners do
 AT_REPEAT = {**MEMORY, "action_repeat": REPEAT}
+
+
+def _probabilities(policy, observations) -> torch.Tensor:
+    with torch.no_grad():
+        return policy.get_distribution(observations).distribution.probs
+
+
+def _clone_observations(n: int = 32) -> torch.Tensor:
+    env = gym.make(ENV, max_episode_steps=STEPS, **ENV_KWARGS)
+    env.action_space.seed(0)
+    observations, (observation, _) = [], env.reset(seed=0)
+    for _ in range(n):
+        observations.append(observation)
+        observation = env.step(env.action_space.sample())[0]
+    return torch.as_tensor(np.array(observations), dtype=torch.float32)
+
+
+def test_soften_actions_widens_the_actions_and_keeps_the_likeliest(cloned):
+    model, _ = load_model(cloned.model_path)
+    observations = _clone_observations()
+    before = _probabilities(model.policy, observations)
+    soften_actions(model.policy, 1.0)
+    assert torch.equal(_probabilities(model.policy, observations), before)
+    soften_actions(model.policy, 3.0)
+    after = _probabilities(model.policy, observations)
+    logit = torch.logit(before, eps=1e-7)
+    torch.testing.assert_close(torch.logit(after, eps=1e-7), logit / 3.0, atol=1e-4, rtol=1e-4)
+    assert torch.equal(after > 0.5, before > 0.5)  # what a deterministic run of the model does
+    bernoulli_entropy = lambda p: -(p * p.log() + (1 - p) * (1 - p).log())  # noqa: E731
+    assert bernoulli_entropy(after).mean() > bernoulli_entropy(before).mean()
+
+
+def test_soften_actions_on_the_swarm_actor_and_a_gaussian_one(swarm_clone):
+    model, _ = load_model(swarm_clone)
+    unit = model.policy.action_net.unit  # the swarm actor's logits come from one unit shared by every robot
+    weight, bias = unit.weight.detach().clone(), unit.bias.detach().clone()
+    soften_actions(model.policy, 4.0)
+    torch.testing.assert_close(unit.weight, weight / 4.0)
+    torch.testing.assert_close(unit.bias, bias / 4.0)
+    from stable_baselines3 import PPO as SB3PPO
+
+    gaussian = SB3PPO("MlpPolicy", "Pendulum-v1", n_steps=16, batch_size=16, device="cpu")
+    log_std = gaussian.policy.log_std.detach().clone()
+    soften_actions(gaussian.policy, 2.0)
+    torch.testing.assert_close(gaussian.policy.log_std, log_std + np.log(2.0))
+
+
+def test_exploration_temperature_needs_init_from_and_a_bounded_number(cloned, tmp_path):
+    with pytest.raises(ValueError, match="^exploration_temperature: needs init_from"):
+        TrainConfig("ppo", ENV, exploration_temperature=2.0)
+    for bad in (0.0, -1.0, 101.0, float("nan"), "2", True):
+        with pytest.raises(ValueError, match="^exploration_temperature: "):
+            finetune_config(cloned.model_path, exploration_temperature=bad)
+    assert finetune_config(cloned.model_path, exploration_temperature=100.0).exploration_temperature == 100.0
+
+
+def test_cli_finetune_starts_from_the_softened_actor_and_records_it(swarm_clone, tmp_path, capsys, monkeypatch):
+    import dpr.rl.train as training
+
+    softened = []
+    monkeypatch.setattr(training, "soften_actions", lambda policy, t: softened.append(t) or soften_actions(policy, t))
+    out = tmp_path / "run"
+    assert run(_finetune_argv(swarm_clone, out, "--timesteps", "16", "--exploration-temperature", "3")) == 0
+    assert softened == [3.0]
+    assert yaml.safe_load((out / "config.yaml").read_text())["exploration_temperature"] == 3.0
+    assert run(_finetune_argv(swarm_clone, tmp_path / "bad", "--exploration-temperature", "0")) == 2
+    assert "--exploration-temperature: must be > 0.0, got 0.0" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
 
 
 @pytest.fixture(scope="module")

@@ -115,6 +115,7 @@ def run(task: str, seed: int, args) -> None:
         hyper = repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
             "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
+            "--exploration-temperature", str(args.finetune_temperature),
             *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
             *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
     evaluate(finetune / model_file(task, "finetune"), env_id, VALIDATION, folder / "finetuned_validation.json")
@@ -230,6 +231,12 @@ def main() -> int:
         default=[],
         metavar="NAME=VALUE",
         help="a fine-tuning hyperparameter over the recipe's (e.g. learning_rate=3e-4); repeatable",
+    )
+    parser.add_argument(
+        "--finetune-temperature",
+        type=float,
+        default=1.0,
+        help="the pretrained actor's logits divided by this for the fine-tune (dpr finetune --exploration-temperature)",
     )
     parser.add_argument(
         "--pretrained-in", type=Path, help="fine-tune the pretrained actors of this campaign folder (read only)"

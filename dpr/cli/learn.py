@@ -294,6 +294,15 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
         "log and config.yaml say how many",
     )
     _critic_warmup_argument(parser, "env steps that train only the value head first")
+    default_argument(
+        parser,
+        "--exploration-temperature",
+        config["exploration_temperature"],
+        "divide the model's action logits by this (a Gaussian's standard deviation: multiply) before the run, so "
+        "that a nearly deterministic actor explores again; its likeliest action, the one `dpr evaluate` takes, "
+        "stays the same",
+        type=float,
+    )
     parser.add_argument(
         "--anchor",
         nargs="+",
@@ -399,6 +408,7 @@ def cmd_finetune(args, parser) -> int:
             eval_episodes=args.eval_episodes,
             init_from=args.source,
             critic_warmup=args.critic_warmup or 0,
+            exploration_temperature=args.exploration_temperature,
             anchor_datasets=list(args.anchor or []),
             anchor_weight=args.anchor_weight,
             anchor_decay=args.anchor_decay,

@@ -28,10 +28,10 @@ import yaml
 
 from dpr import runs
 from dpr.bounded_io import load_yaml
-from dpr.checks import ParameterError, check_choice, check_int
+from dpr.checks import ParameterError, check_choice, check_int, check_number
 from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
-from dpr.limits import MAX_RECORD_BYTES
+from dpr.limits import MAX_RECORD_BYTES, MAX_TEMPERATURE
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     ALGOS,
@@ -48,6 +48,7 @@ from dpr.policies.sb3 import (
     make_vec_env,
     model_architecture,
     save_model,
+    soften_actions,
     write_model_info,
 )
 from dpr.rl import resume as resume_state
@@ -89,6 +90,9 @@ class TrainConfig:
     eval_episodes: int = 2  # per evaluation during training (best_model.zip); 0: none
     init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
     critic_warmup: int = 0  # with init_from: steps that train the value head only, before the actor moves
+    # with init_from: the initial actor's action distribution widened by this much, its likeliest action kept
+    # (dpr.policies.sb3.soften_actions): exploration for a nearly deterministic actor; 1.0: as it is
+    exploration_temperature: float = 1.0
     anchor_datasets: list[str] = field(default_factory=list)  # demonstrations the updates are anchored to
     anchor_weight: float = 1.0  # the anchor's loss scale at the first update ...
     anchor_decay: float = 0.99  # ... times this per update
@@ -109,6 +113,9 @@ class TrainConfig:
         self._check_counts()
         if self.critic_warmup and self.init_from is None:
             raise ValueError("critic_warmup needs init_from: a critic warm-up keeps a trained actor unchanged")
+        check_number("exploration_temperature", self.exploration_temperature, maximum=MAX_TEMPERATURE, above=0.0)
+        if self.exploration_temperature != 1.0 and self.init_from is None:
+            raise ParameterError("exploration_temperature", "needs init_from: it widens a trained actor's actions")
         if self.init_from is not None and self.algo not in FINETUNE_ALGOS:
             raise ValueError(f"algo {self.algo!r} cannot start from a cloned policy; choose one of {FINETUNE_ALGOS}")
         if self.anchor_datasets and self.algo not in FINETUNE_ALGOS:
@@ -454,6 +461,7 @@ def _run_record(config, hyper, env_kwargs, timesteps, budget, demonstrations, te
         "eval_episodes": config.eval_episodes,
         "init_from": None if config.init_from is None else str(Path(config.init_from).resolve()),
         "critic_warmup": config.critic_warmup,
+        "exploration_temperature": config.exploration_temperature,
         "anchor": None if demonstrations is None else demonstrations.record(config.anchor_weight, config.anchor_decay),
         "tensorboard_log": tensorboard_log,
         "versions": runs.package_versions(),
@@ -496,6 +504,7 @@ def _new_or_resumed_model(config: TrainConfig, hyper: Hyperparams, env, tensorbo
     model = build_model(hyper, env, config.seed, tensorboard_log)
     if config.init_from is not None:
         load_initial_policy(model, config.init_from)
+        soften_actions(model.policy, config.exploration_temperature)
     return model
 
 
