@@ -25,6 +25,7 @@ from dpr.cli.common import (
     swarm_arguments,
     workers_argument,
 )
+from dpr.limits import MAX_TEMPERATURE
 from dpr.sim.models import ROBOT_MODELS
 
 # --from names the model file a fine-tuning run starts from: TrainConfig.init_from, and the model file that
@@ -300,7 +301,7 @@ def finetune_arguments(parser: argparse.ArgumentParser) -> None:
         config["exploration_temperature"],
         "divide the model's action logits by this (a Gaussian's standard deviation: multiply) before the run, so "
         "that a nearly deterministic actor explores again; its likeliest action, the one `dpr evaluate` takes, "
-        "stays the same",
+        f"stays the same; above 0, at most {MAX_TEMPERATURE:g}",
         type=float,
     )
     parser.add_argument(
