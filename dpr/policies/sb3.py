@@ -552,32 +552,6 @@ def load_initial_policy(model, path: str | Path, parameter: str = INIT_PARAMETER
         ) from None
 
 
-def soften_actions(policy, temperature: float) -> None:
-    """Widen the action distribution of ``policy`` by ``temperature`` (> 1) while its most likely action stays the
-    same: logits (Bernoulli and categorical actions) are divided by it, a Gaussian's standard deviation multiplied.
-
-    An actor that PPO trained long is nearly deterministic (a swarm actor's Bernoulli entropy falls to a few
-    hundredths of a nat per robot), so a fine-tune from it samples almost only its own actions and has little to
-    learn from on new dynamics; softened, it explores again and acts, deterministically, as before."""
-    import torch
-    from stable_baselines3.common.distributions import DiagGaussianDistribution
-    from torch import nn
-
-    if temperature == 1.0:
-        return
-    with torch.no_grad():
-        if isinstance(policy.action_dist, DiagGaussianDistribution):
-            policy.log_std.add_(float(torch.log(torch.tensor(temperature))))
-            return
-        # the logits' last linear layer: SB3's action_net, or the swarm actor's shared per-robot unit
-        linear = [module for module in policy.action_net.modules() if isinstance(module, nn.Linear)]
-        if not linear:
-            raise ValueError(f"{type(policy).__name__}: no linear layer makes its action logits")
-        linear[-1].weight.div_(temperature)
-        if linear[-1].bias is not None:
-            linear[-1].bias.div_(temperature)
-
-
 def _load_weights(policy, weights: dict, with_critic: bool) -> None:
     """Load ``weights`` (a state dict) into ``policy``: all of them, or without the value head, which then keeps its
     own initialisation. A RuntimeError naming the weights that do not fit."""

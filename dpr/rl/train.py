@@ -1,5 +1,4 @@
-"""Train PPO, A2C or DQN on a particle-robot task: from scratch (``dpr train``), or starting from a
-behaviour-cloned policy (``dpr finetune``).
+"""Train PPO, A2C or DQN on a particle-robot task: from scratch (``dpr train``) or from a model (``dpr finetune``).
 
 Fine-tuning loads the cloned actor-critic's weights into a new model built with the ``finetune`` preset
 (small, clipped updates: see the yaml), then, for ``critic_warmup`` steps, trains only the value head on
@@ -32,6 +31,7 @@ from dpr.checks import ParameterError, check_choice, check_int, check_number
 from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
 from dpr.limits import MAX_RECORD_BYTES, MAX_TEMPERATURE
+from dpr.policies.exploration import soften_actions
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     ALGOS,
@@ -48,7 +48,6 @@ from dpr.policies.sb3 import (
     make_vec_env,
     model_architecture,
     save_model,
-    soften_actions,
     write_model_info,
 )
 from dpr.rl import resume as resume_state
@@ -90,9 +89,7 @@ class TrainConfig:
     eval_episodes: int = 2  # per evaluation during training (best_model.zip); 0: none
     init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
     critic_warmup: int = 0  # with init_from: steps that train the value head only, before the actor moves
-    # with init_from: the initial actor's action distribution widened by this much, its likeliest action kept
-    # (dpr.policies.sb3.soften_actions): exploration for a nearly deterministic actor; 1.0: as it is
-    exploration_temperature: float = 1.0
+    exploration_temperature: float = 1.0  # with init_from: its actions widened so (dpr.policies.exploration)
     anchor_datasets: list[str] = field(default_factory=list)  # demonstrations the updates are anchored to
     anchor_weight: float = 1.0  # the anchor's loss scale at the first update ...
     anchor_decay: float = 0.99  # ... times this per update
@@ -120,10 +117,8 @@ class TrainConfig:
             raise ValueError(f"algo {self.algo!r} cannot start from a cloned policy; choose one of {FINETUNE_ALGOS}")
         if self.anchor_datasets and self.algo not in FINETUNE_ALGOS:
             raise ValueError(f"algo {self.algo!r} cannot be anchored to demonstrations; choose one of {FINETUNE_ALGOS}")
-        if not _is_number(self.anchor_weight) or not self.anchor_weight > 0:
-            raise ValueError(f"anchor_weight must be a number > 0.0, got {self.anchor_weight!r}")
-        if not _is_number(self.anchor_decay) or not 0 < self.anchor_decay <= 1:
-            raise ValueError(f"anchor_decay must be a number in (0.0, 1.0], got {self.anchor_decay!r}")
+        check_number("anchor_weight", self.anchor_weight, above=0.0)
+        check_number("anchor_decay", self.anchor_decay, maximum=1.0, above=0.0)
         self._check_engine()
         for name in ("env_kwargs", "training_env_kwargs"):
             reserved = sorted(set(RESERVED_ENV_KWARGS) & set(getattr(self, name)))
@@ -186,10 +181,6 @@ class TrainResult:
     timesteps: int
     seconds: float
     interrupted: bool = False
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
