@@ -72,6 +72,7 @@ def run_args(**given) -> argparse.Namespace:
         compile=False,
         finetune_steps=10,
         finetune_hyperparam=[],
+        finetune_temperature=1.0,
         pretrain_env_kwarg=[],
         pretrain_hyperparam=[],
     )
@@ -108,7 +109,10 @@ def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another
     write_evaluation(source / "zero_shot_validation.json", 30.0)
     before = sorted(p.name for p in source.rglob("*"))
     args = run_args(
-        out=tmp_path / "variant", finetune_hyperparam=["learning_rate=3e-4"], pretrained_in=tmp_path / "disk-ppo"
+        out=tmp_path / "variant",
+        finetune_hyperparam=["learning_rate=3e-4"],
+        finetune_temperature=3.0,
+        pretrained_in=tmp_path / "disk-ppo",
     )
     tool.run("navigation", 1, args)
     finetune, _ = commands  # the fine-tune and its validation; the pretraining and zero-shot are the other campaign's
@@ -116,6 +120,7 @@ def test_another_fine_tuning_recipe_starts_from_the_pretrained_actors_of_another
     assert finetune[finetune.index("--from") + 1] == str(source / "pretrain" / "model.zip")
     hyper = [finetune[i + 1] for i, word in enumerate(finetune) if word == "--hyperparam"]
     assert hyper[-1] == "learning_rate=3e-4" and "gamma=0.941" in hyper  # given last: it wins over the recipe's
+    assert finetune[finetune.index("--exploration-temperature") + 1] == "3.0"
     assert finetune[finetune.index("--out") + 1] == str(tmp_path / "variant" / "navigation" / "seed-1" / "finetune")
     assert (tmp_path / "variant" / "navigation" / "seed-1" / "zero_shot_validation.json").is_file()
     assert sorted(p.name for p in source.rglob("*")) == before
