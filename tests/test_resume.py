@@ -172,6 +172,14 @@ def test_resume_refuses_other_settings_and_folders_without_a_snapshot(tmp_path):
     with pytest.raises(ParameterError, match=r"out.*other settings.*seed"):
         train(other, tmp_path / "run", show_progress=False, resume=True, log=lambda _: None)
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == before  # refused before touching anything
+    record_path = tmp_path / "run" / "config.yaml"
+    record = yaml.safe_load(record_path.read_text())
+    del record["config"]["exploration_temperature"]  # as a run recorded before the setting existed
+    record_path.write_text(yaml.safe_dump(record))
+    assert resumable(tmp_path / "run", config)  # it ran at the default, 1
+    record["config"]["exploration_temperature"] = 2.0
+    record_path.write_text(yaml.safe_dump(record))
+    assert not resumable(tmp_path / "run", config)
     (tmp_path / "empty").mkdir()
     with pytest.raises(ParameterError, match="no snapshot"):
         train(config, tmp_path / "empty", show_progress=False, resume=True, log=lambda _: None)

@@ -106,7 +106,7 @@ def has_snapshot(run_dir: str | Path) -> bool:
 
 
 # TrainConfig's settings that came after runs were recorded: a run recorded before one ran at its default
-SETTINGS_ADDED_LATER = ("engine", "device", "learner", "compile")
+SETTINGS_ADDED_LATER = ("engine", "device", "learner", "compile", "exploration_temperature")
 
 
 def added_later(config) -> dict[str, Any]:

@@ -89,7 +89,7 @@ class TrainConfig:
     eval_episodes: int = 2  # per evaluation during training (best_model.zip); 0: none
     init_from: str | None = None  # a model file whose policy weights the run starts from (dpr finetune)
     critic_warmup: int = 0  # with init_from: steps that train the value head only, before the actor moves
-    exploration_temperature: float = 1.0  # with init_from: its actions widened so (dpr.policies.exploration)
+    exploration_temperature: float = 1.0  # with init_from: its logits divided by this first (dpr.policies.exploration)
     anchor_datasets: list[str] = field(default_factory=list)  # demonstrations the updates are anchored to
     anchor_weight: float = 1.0  # the anchor's loss scale at the first update ...
     anchor_decay: float = 0.99  # ... times this per update
