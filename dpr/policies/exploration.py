@@ -5,6 +5,8 @@ torch and stable-baselines3 are imported inside the function, as in :mod:`dpr.po
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["soften_actions"]
 
 
@@ -23,7 +25,7 @@ def soften_actions(policy, temperature: float) -> None:
         return
     with torch.no_grad():
         if isinstance(policy.action_dist, DiagGaussianDistribution):
-            policy.log_std.add_(float(torch.log(torch.tensor(temperature))))
+            policy.log_std.add_(math.log(temperature))
             return
         # the logits' last linear layer: SB3's action_net, or the swarm actor's shared per-robot unit
         linear = [module for module in policy.action_net.modules() if isinstance(module, nn.Linear)]
