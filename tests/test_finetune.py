@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from helpers import QUIET, TINY_PPO
+from helpers import QUIET, TINY_PPO, visited_observations
 from helpers import run_cli as run
 
 from dpr.datasets.collect import CollectSpec, collect
@@ -435,19 +435,10 @@ def _probabilities(policy, observations) -> torch.Tensor:
         return policy.get_distribution(observations).distribution.probs
 
 
-def _clone_observations(n: int = 32) -> torch.Tensor:
-    env = gym.make(ENV, max_episode_steps=STEPS, **ENV_KWARGS)
-    env.action_space.seed(0)
-    observations, (observation, _) = [], env.reset(seed=0)
-    for _ in range(n):
-        observations.append(observation)
-        observation = env.step(env.action_space.sample())[0]
-    return torch.as_tensor(np.array(observations), dtype=torch.float32)
-
-
 def test_soften_actions_widens_the_actions_and_keeps_the_likeliest(cloned):
     model, _ = load_model(cloned.model_path)
-    observations = _clone_observations()
+    env = gym.make(ENV, max_episode_steps=STEPS, **ENV_KWARGS)
+    observations = torch.as_tensor(visited_observations(env, seeds=(0,), steps=31), dtype=torch.float32)
     before = _probabilities(model.policy, observations)
     soften_actions(model.policy, 1.0)
     assert torch.equal(_probabilities(model.policy, observations), before)
