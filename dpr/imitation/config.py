@@ -6,7 +6,6 @@ any dataset is read or anything is written."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,10 +26,6 @@ def check_env_id(env_id: str) -> None:
     """A ValueError unless ``env_id`` is a task's id (a current one, or an earlier one kept for its runs)."""
     if env_id not in TASKS:
         raise ValueError(f"env must be one of {tuple(TASKS)}, got {env_id!r}")
-
-
-def _is_number(value: Any) -> bool:
-    return not isinstance(value, bool) and isinstance(value, (int, float))
 
 
 @dataclass(frozen=True)
@@ -55,10 +50,8 @@ class FitConfig:
         check_int("batch_size", self.batch_size, 1)
         check_int("patience", self.patience, 1)
         check_int("seed", self.seed, 0)
-        if not _is_number(self.lr) or not self.lr > 0 or not math.isfinite(self.lr):
-            raise ValueError(f"lr must be a number > 0, got {self.lr!r}")
-        if not _is_number(self.val_fraction) or not 0 < self.val_fraction < 1:
-            raise ValueError(f"val_fraction must be a number in (0, 1), got {self.val_fraction!r}")
+        check_number("lr", self.lr, above=0)
+        check_number("val_fraction", self.val_fraction, above=0, below=1)
 
     def fit_record(self) -> dict[str, Any]:
         """The fit's settings as a run's config.yaml lists them under ``bc``."""
