@@ -77,8 +77,8 @@ class BatchedSwarmVectorEnv(VectorEnv):
     ## Arguments
     ``num_envs``, ``max_episode_steps``, ``device``, ``compile`` (``torch.compile`` each physics substep: seconds
     of compiling at the first step, then about 3 times faster on a CPU; :class:`dpr.sim.batched.SolverSettings`),
-    ``dynamics_scale`` (below) and the single env's kwargs (``robot_model`` must be ``"disk"``, ``obs_type``
-    ``"state"``).
+    ``dynamics_scale`` and ``wall_give`` (below) and the single env's kwargs (``robot_model`` must be ``"disk"``,
+    ``obs_type`` ``"state"``).
 
     ``dynamics_scale`` (default None: the model's constants) multiplies the disk model's constants per env, for
     training that must not lean on one set of them: a dict from any of ``push_force`` (the rods' push limit),
@@ -86,6 +86,10 @@ class BatchedSwarmVectorEnv(VectorEnv):
     ``[low, high]``, within 0.1 to 10. A range is drawn log-uniformly (so ``[0.5, 2]`` halves as often as it
     doubles) at every episode's start, after the start, from the env's generator: the same seed draws the same
     dynamics. Only the batched engine has it; the observation does not show it.
+
+    ``wall_give`` (Gate only; default 0, at most 13.75 units) lets the walls squeeze each robot's disk down to its
+    central body (:class:`dpr.sim.batched.BatchedDiskWorld`), as a paddle robot's paddles fold back against a wall.
+    Only the batched engine has it.
 
     ## Tensor interface
     :meth:`reset_tensors` and :meth:`step_tensors` return torch tensors on ``device`` and reset an ended env in the
@@ -124,6 +128,12 @@ class BatchedSwarmVectorEnv(VectorEnv):
             raise ParameterError("render_mode", "the batched engine does not render: use gymnasium.make to render")
         self.dynamics_scale = env_kwargs.pop("dynamics_scale", None)
         self._dynamics_ranges = _dynamics_ranges(self.dynamics_scale)
+        wall_give = env_kwargs.pop("wall_give", 0.0)
+        n_walls = 2 if issubclass(self.task_class, GateEnv) else 0
+        if wall_give != 0 and not n_walls:
+            raise ParameterError(
+                "wall_give", f"only Gate has walls to squeeze the robots, not {self.task_class.__name__}"
+            )
         self.template = self.task_class(**env_kwargs)  # the single env: its checks, spaces and start draws
         if self.template.has_object and self.template.object_type != "ball":
             raise ParameterError(
@@ -141,9 +151,10 @@ class BatchedSwarmVectorEnv(VectorEnv):
             self.num_envs,
             self.n_robots,
             device=device,
-            n_walls=2 if isinstance(self.template, GateEnv) else 0,
+            n_walls=n_walls,
             object_radius=self.template.object_size if self.template.has_object else None,
             object_mass=self.template.object_mass if self.template.has_object else 100.0,
+            wall_give=wall_give,
             solver=SolverSettings(compile=compile),
         )
         self.device = self.world.position.device

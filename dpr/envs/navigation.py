@@ -66,7 +66,8 @@ class NavigationEnv(ParticleSwarmEnv):
     radius follows the paddle robot's outline; 15-20x faster, and the wave moves it as it moves the paddle
     model: ``tools/model_agreement.py``).
     ``reward_threshold_d`` and both ends of ``start_radius`` must be finite, > 0 and <= 1e5.
-    ``dynamics_scale`` belongs to the batched engine (``dpr.envs.batched``); here it is refused with an error.
+    ``dynamics_scale`` and ``wall_give`` belong to the batched engine (``dpr.envs.batched``); here they are refused
+    with an error.
     ``render_mode="rgb_array"`` draws robots, paddles, magnets, walls, object and goal, headless.
     ``env.unwrapped.world.space`` is the pymunk Space.
 

@@ -143,14 +143,17 @@ class ParticleSwarmEnv(gym.Env):
         render_size: int = 512,
         render_mode: str | None = None,
         dynamics_scale: None = None,
+        wall_give: None = None,
     ):
-        if dynamics_scale is not None:  # named here so that a pymunk env refuses it in words, not with a TypeError
-            raise ParameterError(
-                "dynamics_scale",
-                "only the batched engine scales the disk model's constants (gymnasium.make_vec(..., "
-                "vectorization_mode='vector_entry_point', robot_model='disk'), or --engine batched); "
-                f"the pymunk env simulates the model's own, got {dynamics_scale!r}",
-            )
+        # named here so that a pymunk env refuses the batched engine's own kwargs in words, not with a TypeError
+        for name, value in (("dynamics_scale", dynamics_scale), ("wall_give", wall_give)):
+            if value is not None:
+                raise ParameterError(
+                    name,
+                    "only the batched engine takes it (gymnasium.make_vec(..., vectorization_mode="
+                    "'vector_entry_point', robot_model='disk'), or --engine batched); the pymunk env simulates "
+                    f"the model as it is, got {value!r}",
+                )
         check_int("n_robots", n_robots, 1, MAX_ROBOTS)
         _choice("robot_model", robot_model, ROBOT_MODELS)
         _choice("action_type", action_type, ACTION_TYPES)

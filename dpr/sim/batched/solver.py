@@ -80,6 +80,10 @@ class Walls:
     edge: torch.Tensor
     outward: torch.Tensor
     present: torch.Tensor
+    # Walls that squeeze robots (BatchedDiskWorld's wall_give): each body meets them at max(radius - give, core),
+    # [B, 1] each; None: at its radius.
+    give: torch.Tensor | None = None
+    core: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -165,7 +169,8 @@ def _measure_walls(rows: _Rows, bodies: Bodies, walls: Walls, k: StepConstants) 
     distance, out = disk_wall_distance(centre, walls.corners, walls.edge, walls.outward)  # [K, B, W], [.., 2]
     distance, out = distance.permute(2, 1, 0), out.permute(2, 1, 0, 3)
     rows.wall_nx, rows.wall_ny = -out[..., 0].contiguous(), -out[..., 1].contiguous()
-    depth = distance - bodies.radius
+    reach = bodies.radius if walls.give is None else torch.maximum(bodies.radius - walls.give, walls.core)
+    depth = distance - reach
     rows.wall_bias = -k.bias * (depth + COLLISION_SLOP).clamp(max=0.0) / k.dt
     return ((depth < 0) & walls.present.t()[:, None, :]).float()
 

@@ -63,6 +63,8 @@ DYNAMICS = ("push_force", "magnet_force", "ground_friction")
 # scales the effective masses): 10 rounds over-relaxed by 1.5 come as close to pymunk's wave displacement on the
 # four tasks as 20 by 1.3, in half the time (chosen on starts no agreement line reports; the research log's
 # batched-engine.md).
+# How far a robot's outline may yield to a wall (wall_give): a paddle robot's paddles fold back to its central disk.
+MAX_WALL_GIVE = C.DISK_EXPANDED_RADIUS - C.BODY_RADIUS
 ITERATIONS = 10
 RELAXATION = 1.5
 # chipmunk's (pymunk's) defaults, which the pymunk disk model keeps
@@ -137,6 +139,10 @@ class BatchedDiskWorld:
     [0, 1], ``target [K, N]``, ``moving [K, N]``, ``alive [K, N]``; with a ball, ``object_position [K, 2]`` and
     ``object_velocity [K, 2]``; ``walls [K, W, 4, 2]``; ``dynamics [K, 3]``, each swarm's multiples of the model's
     constants named in :data:`DYNAMICS` (1 unless :meth:`reset` sets them).
+
+    ``wall_give`` (default 0, at most :data:`MAX_WALL_GIVE`) lets walls squeeze the robots as they squeeze the
+    paddle robot, whose paddles fold back against a wall: walls meet each robot's disk at its radius less this,
+    never inside the central body (``BODY_RADIUS``). Robots and the ball still meet each other at full radius.
     """
 
     def __init__(
@@ -148,6 +154,7 @@ class BatchedDiskWorld:
         n_walls: int = 0,
         object_radius: float | None = None,
         object_mass: float = 100.0,
+        wall_give: float = 0.0,
         solver: SolverSettings = SolverSettings(),
     ):
         self.num_envs = k = check_int("num_envs", num_envs, minimum=1)
@@ -160,6 +167,7 @@ class BatchedDiskWorld:
             object_radius = check_number("object_radius", object_radius, above=0.0)
         self.object_radius = object_radius
         self.object_mass = check_number("object_mass", object_mass, above=0.0)
+        self.wall_give = check_number("wall_give", wall_give, 0.0, MAX_WALL_GIVE)
         needed, available = estimated_memory(k, n), _available_memory(self.device)
         if needed > available:
             raise ParameterError(
@@ -374,7 +382,16 @@ class BatchedDiskWorld:
 
     def _set_wall_geometry(self) -> None:
         edge, outward, present = wall_geometry(self.walls)
-        self._walls = Walls(self.walls, edge, outward, present) if self.n_walls else None
+        self._walls = Walls(self.walls, edge, outward, present, *self._wall_reach()) if self.n_walls else None
+
+    def _wall_reach(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """Walls' ``give`` and ``core`` ``[B, 1]``: robots yield ``wall_give`` down to the central body; a ball
+        does not yield."""
+        if self.wall_give == 0:
+            return None, None
+        robot = torch.arange(self.n_bodies, device=self.device)[:, None] < self.n_robots
+        zero = torch.zeros((), device=self.device)
+        return torch.where(robot, self.wall_give, zero), torch.where(robot, C.BODY_RADIUS, zero)
 
     def is_sane(self) -> torch.Tensor:
         """``[K]``: False where any body's state is non-finite or absurdly large (a physics blow-up)."""
