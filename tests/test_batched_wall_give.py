@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from helpers import run_cli
 
 import dpr  # noqa: F401
 from dpr.checks import ParameterError
@@ -94,3 +97,19 @@ def test_a_task_without_walls_refuses_a_give_naming_it():
 def test_pymunk_env_refuses_the_give_naming_the_batched_engine():
     with pytest.raises(ParameterError, match="wall_give: only the batched engine"):
         gym.make("dpr/Gate-v2", robot_model="disk", wall_give=7.0)
+
+
+@pytest.mark.parametrize("kwarg", ["wall_give=7", 'dynamics_scale={"push_force": 2.0}'])
+def test_evaluate_takes_the_batched_engines_own_kwargs(tmp_path, kwarg):
+    out = tmp_path / "gate.json"
+    argv = ["evaluate", "--engine", "batched", "--policy", "wave", "--env", "dpr/Gate-v2", "--seeds", "0-1"]
+    assert run_cli([*argv, "--steps", "12", "--env-kwarg", kwarg, "--json", str(out)]) == 0
+    assert len(json.loads(out.read_text())["episodes"]) == 2
+
+
+def test_evaluate_on_pymunk_refuses_the_give_before_writing(tmp_path, capsys):
+    out = tmp_path / "gate.json"
+    argv = ["evaluate", "--robot-model", "disk", "--policy", "wave", "--env", "dpr/Gate-v2", "--seeds", "0"]
+    assert run_cli([*argv, "--env-kwarg", "wall_give=7", "--json", str(out)]) == 2
+    assert "wall_give: only the batched engine" in capsys.readouterr().err
+    assert not out.exists()

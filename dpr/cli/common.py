@@ -394,13 +394,19 @@ def check_seed(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Non
         parser.error(f"--seed must be in [0, {MAX_MODEL_SEED}], got {args.seed}")
 
 
-def check_env_kwargs(env_ids: list[str], env_kwargs: dict, parser: argparse.ArgumentParser) -> None:
-    """Build each env once, so that a bad kwarg is reported before any episode runs."""
+def check_env_kwargs(
+    env_ids: list[str], env_kwargs: dict, parser: argparse.ArgumentParser, engine: str = "pymunk"
+) -> None:
+    """Build each env once on ``engine`` (a vector env of one for the batched engine, whose kwargs such as
+    ``wall_give`` a pymunk env refuses), so that a bad kwarg is reported before any episode runs."""
     import gymnasium as gym
 
     for env_id in env_ids:
         try:
-            gym.make(env_id, **env_kwargs).close()
+            if engine == "batched":
+                gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", **env_kwargs).close()
+            else:
+                gym.make(env_id, **env_kwargs).close()
         except (TypeError, ValueError) as error:
             parser.error(f"{env_id} with {env_kwargs}: {error}")
 
@@ -414,9 +420,10 @@ def policy_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser)
     given = {"n_robots": args.n_robots, "robot_model": args.robot_model}
     flags = {"n_robots": "--n-robots", "robot_model": "--robot-model"}
     explicit = {**{k: v for k, v in given.items() if v is not None}, **dict(args.env_kwarg or [])}
+    engine = getattr(args, "engine", "pymunk")
     if not is_model_path(args.policy):
         env_kwargs = {**SWARM_DEFAULTS, **explicit}
-        check_env_kwargs(env_ids, env_kwargs, parser)
+        check_env_kwargs(env_ids, env_kwargs, parser, engine)
         return env_kwargs
     resolved = {}
     transfer = getattr(args, "transfer", False)  # dpr evaluate's flag; dpr collect has none
@@ -429,7 +436,7 @@ def policy_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser)
                 if given[name] is not None:
                     message = message.replace(f"; {name}={given[name]!r}", f"; {flag} {given[name]}")
             parser.error(message)
-    check_env_kwargs(env_ids, resolved[env_ids[0]], parser)
+    check_env_kwargs(env_ids, resolved[env_ids[0]], parser, engine)
     return resolved[env_ids[0]]
 
 
