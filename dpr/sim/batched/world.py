@@ -63,10 +63,10 @@ DYNAMICS = ("push_force", "magnet_force", "ground_friction")
 # scales the effective masses): 10 rounds over-relaxed by 1.5 come as close to pymunk's wave displacement on the
 # four tasks as 20 by 1.3, in half the time (chosen on starts no agreement line reports; the research log's
 # batched-engine.md).
-# How far a robot's outline may yield to a wall (wall_give): a paddle robot's paddles fold back to its central disk.
-MAX_WALL_GIVE = C.DISK_EXPANDED_RADIUS - C.BODY_RADIUS
 ITERATIONS = 10
 RELAXATION = 1.5
+# How far a robot's outline may yield to a wall (wall_give): a paddle robot's paddles fold back to its central disk.
+MAX_WALL_GIVE = C.DISK_EXPANDED_RADIUS - C.BODY_RADIUS
 # chipmunk's (pymunk's) defaults, which the pymunk disk model keeps
 ERROR_BIAS = (1.0 - 0.1) ** 60  # both contacts' and joints' share of error left after one second
 SUBSTEPS = 2  # DiskSwarm.substeps
