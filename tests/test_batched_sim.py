@@ -10,7 +10,7 @@ import torch
 from dpr.checks import ParameterError
 from dpr.sim import constants as C
 from dpr.sim.batched import BatchedDiskWorld
-from dpr.sim.batched.neighbours import all_pairs, cell_list
+from dpr.sim.batched.neighbours import all_pairs, cell_pairs
 from dpr.sim.objects import gate_polygons
 from dpr.sim.swarm import REACHED_FRACTION
 from dpr.sim.world import World, grid_centres
@@ -131,18 +131,17 @@ def test_bad_input_names_the_argument(kwargs, parameter):
     assert error.value.parameter == parameter
 
 
-def test_cell_list_finds_the_all_pairs_neighbours():
+def test_cell_pairs_are_the_all_pairs_neighbours_each_once():
     generator = torch.Generator().manual_seed(0)
     position = torch.rand(3, 300, 2, generator=generator) * 1500 - 700  # dense and sparse corners
-    index, valid, overflow = cell_list(position, 100.0, cell_cap=16, max_neighbours=64)
-    assert not overflow
-    every_index, every_valid = all_pairs(position, 100.0)
-    found = torch.zeros(3, 300, 301, dtype=torch.bool)  # column 300 takes the empty slots
-    found.scatter_(2, torch.where(valid, index, 300), True)
-    assert torch.equal(found[..., :300], every_valid)
-    # too small caps are reported, not silently obeyed
-    assert cell_list(position, 100.0, cell_cap=1, max_neighbours=64)[2]
-    assert cell_list(position, 100.0, cell_cap=16, max_neighbours=1)[2]
+    position[1, :40] = torch.rand(40, 2, generator=generator) * 30  # 40 robots in one cell: no cap drops any
+    env, first, second = cell_pairs(position, 100.0)
+    assert bool((first < second).all())
+    found = torch.zeros(3, 300, 300, dtype=torch.bool)
+    found[env, first, second] = True
+    assert len(env) == int(found.sum())  # none twice
+    _, every_valid = all_pairs(position, 100.0)
+    assert torch.equal(found, every_valid & torch.ones(300, 300, dtype=torch.bool).triu(1))
 
 
 def test_cell_list_engine_matches_all_pairs_engine(monkeypatch):

@@ -38,7 +38,7 @@ import torch
 
 from dpr.checks import ParameterError, check_int, check_number
 from dpr.sim import constants as C
-from dpr.sim.batched.neighbours import cell_list
+from dpr.sim.batched.neighbours import cell_pairs
 from dpr.sim.batched.pairs import DensePairs, SparsePairs
 from dpr.sim.batched.solver import (
     BALL_ELASTICITY,
@@ -73,8 +73,6 @@ SUBSTEPS = 2  # DiskSwarm.substeps
 _SANE_LIMIT = 1e6  # World.is_sane's
 # Up to this many robots every pair is kept (a matrix product per read); above, a cell list finds the pairs.
 ALL_PAIRS_LIMIT = 32
-CELL_CAP = 8  # robots per cell of the magnet range's size: disks of radius >= 32.3 fit at most ~5
-MAX_NEIGHBOURS = 16  # robots within the magnet range of one robot: 4-6 in a grid, ~12 packed hard
 # Bytes of working memory per pair and per body (tensors alive in a step, float32), for the up-front estimate;
 # a cell-list swarm keeps about PAIRS_PER_ROBOT pairs per robot (within the magnet range, each once).
 _BYTES_PER_PAIR = 4 * 48
@@ -189,7 +187,6 @@ class BatchedDiskWorld:
             solver.substeps,
             torch.compile(substep, dynamic=False) if compiled else substep,
         )
-        self.cell_cap, self.max_neighbours = CELL_CAP, MAX_NEIGHBOURS
         self._allocate_state(k, n)
         self._pairs = None if self.use_cells else DensePairs(self.n_bodies, k, self.device, slices=compiled)
         self._impulses = self._no_impulses(0 if self.use_cells else self._pairs.size)
@@ -422,18 +419,9 @@ class BatchedDiskWorld:
 
     # -- neighbours ---------------------------------------------------------------------------------------
     def _search(self) -> SparsePairs:
-        """Every pair of robots closer than the magnet range (and every robot with the ball), from a cell list
-        searched again with larger caps until nothing overflows."""
+        """Every pair of robots closer than the magnet range (and every robot with the ball), from a cell list."""
         n, b, device = self.n_robots, self.n_bodies, self.device
-        while True:
-            index, valid, overflow = cell_list(self.position, C.DISK_MAGNET_RANGE, self.cell_cap, self.max_neighbours)
-            if not overflow:
-                break
-            self.cell_cap *= 2
-            self.max_neighbours *= 2
-        valid &= index > torch.arange(n, device=device)[None, :, None]  # each pair once, first < second
-        env, first, slot = valid.nonzero(as_tuple=True)
-        second = index[env, first, slot]
+        env, first, second = cell_pairs(self.position, C.DISK_MAGNET_RANGE)
         if b > n:  # every robot with the ball
             env_grid, robot_grid = torch.meshgrid(
                 torch.arange(self.num_envs, device=device), torch.arange(n, device=device), indexing="ij"
