@@ -1,4 +1,5 @@
-"""Walls that squeeze the robots on the batched engine: BatchedDiskWorld's and Gate's vector env's ``wall_give``."""
+"""Walls that squeeze the robots on the batched engine (BatchedDiskWorld's and Gate's vector env's
+``wall_give``), and the batched engine's own env kwargs on the command line."""
 
 from __future__ import annotations
 
