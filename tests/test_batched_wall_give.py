@@ -13,6 +13,7 @@ from helpers import run_cli
 
 import dpr  # noqa: F401
 from dpr.checks import ParameterError
+from dpr.policies.sb3 import read_model_info
 from dpr.sim import constants as C
 from dpr.sim.batched import BatchedDiskWorld
 from dpr.sim.batched.world import MAX_WALL_GIVE
@@ -114,3 +115,25 @@ def test_evaluate_on_pymunk_refuses_the_give_before_writing(tmp_path, capsys):
     assert run_cli([*argv, "--env-kwarg", "wall_give=7", "--json", str(out)]) == 2
     assert "wall_give: only the batched engine" in capsys.readouterr().err
     assert not out.exists()
+
+
+TINY_TRAIN = ["train", "--algo", "ppo", "--env", "dpr/Gate-v2", "--engine", "batched", "--robot-model", "disk"]
+
+
+@pytest.mark.parametrize("kwarg", ["wall_give=5", 'dynamics_scale={"push_force": 2.0}'])
+def test_train_refuses_the_batched_engines_own_kwargs_as_the_models_before_writing(tmp_path, capsys, kwarg):
+    out = tmp_path / "run"
+    argv = [*TINY_TRAIN, "--n-envs", "2", "--timesteps", "64", "--env-kwarg", kwarg, "--out", str(out)]
+    assert run_cli(argv) == 2
+    error = capsys.readouterr().err
+    assert "--env-kwarg" in error and "--training-env-kwarg" in error
+    assert not out.exists()
+
+
+def test_a_model_trained_with_the_give_runs_on_the_pymunk_engine(tmp_path):
+    out = tmp_path / "run"
+    argv = [*TINY_TRAIN, "--n-envs", "2", "--timesteps", "64", "--training-env-kwarg", "wall_give=5", "--out", str(out)]
+    assert run_cli(argv) == 0
+    assert "wall_give" not in read_model_info(out / "model.zip").env_kwargs
+    evaluate = ["evaluate", "--policy", str(out / "model.zip"), "--env", "dpr/Gate-v2", "--seeds", "0", "--steps", "12"]
+    assert run_cli(evaluate) == 0

@@ -35,6 +35,8 @@ from dpr.sim.batched import DYNAMICS, BatchedDiskWorld, SolverSettings
 ROBOT_MODEL = "disk"  # the only robot model the batched engine has
 METRICS = ("projected_displacement", "net_displacement", "total_distance")
 DYNAMICS_SCALE_BOUNDS = (0.1, 10.0)  # what dynamics_scale may multiply a constant by
+# The kwargs only the batched engine takes (the pymunk envs refuse them): physics to train in, never a model's own.
+BATCHED_ONLY_KWARGS = ("dynamics_scale", "wall_give")
 
 
 class BatchedSwarmVectorEnv(VectorEnv):
