@@ -137,3 +137,12 @@ def test_a_model_trained_with_the_give_runs_on_the_pymunk_engine(tmp_path):
     assert "wall_give" not in read_model_info(out / "model.zip").env_kwargs
     evaluate = ["evaluate", "--policy", str(out / "model.zip"), "--env", "dpr/Gate-v2", "--seeds", "0", "--steps", "12"]
     assert run_cli(evaluate) == 0
+
+
+@pytest.mark.parametrize("kwarg", ["wall_give=5", 'dynamics_scale={"push_force": 2.0}'])
+def test_collect_refuses_the_batched_engines_own_kwargs_before_writing(tmp_path, capsys, kwarg):
+    out = tmp_path / "demos"
+    argv = ["collect", "--engine", "batched", "--env", "dpr/Gate-v2", "--episodes", "1", "--steps", "12"]
+    assert run_cli([*argv, "--env-kwarg", kwarg, "--out", str(out)]) == 2
+    assert "a dataset records env kwargs" in capsys.readouterr().err
+    assert not out.exists()
