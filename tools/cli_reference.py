@@ -54,10 +54,13 @@ def bounds_section() -> list[str]:
     """The bounds every integer flag (and the same setting of a `dpr pipeline` config file) is checked against
     before a command starts (dpr.cli.common.FLAG_BOUNDS, dpr.limits)."""
     from dpr.cli.common import FLAG_BOUNDS
-    from dpr.limits import MAX_RAY_WORKERS, MAX_SETTINGS_BYTES, MiB
+    from dpr.limits import MAX_MODEL_SEED, MAX_RAY_WORKERS, MAX_SETTINGS_BYTES, MiB
 
+    # where a command narrows a flag's bound: --seed seeds a model or a run (numpy's global seed) but in dpr report
+    narrower = {"seed": f"0 to {MAX_MODEL_SEED:,} (`dpr report`: 0 to {FLAG_BOUNDS['seed'][1]:,})"}
     rows = [
-        f"| `--{dest.replace('_', '-')}` | {low:,} to {high:,} |" for dest, (low, high) in sorted(FLAG_BOUNDS.items())
+        f"| `--{dest.replace('_', '-')}` | {narrower.get(dest, f'{low:,} to {high:,}')} |"
+        for dest, (low, high) in sorted(FLAG_BOUNDS.items())
     ]
     prose = (
         "Every count a command or a `dpr pipeline` config file takes is checked before any work, and a value out of "
