@@ -38,7 +38,7 @@ from dpr.datasets.lerobot import DatasetError, LeRobotReader, LeRobotWriter
 from dpr.datasets.lerobot.format import INFO_PATH, load_info
 from dpr.datasets.timing import check_dataset_time, dataset_fps, time_info
 from dpr.envs import TASKS, episode_steps
-from dpr.envs.batched import BATCHED_ONLY_KWARGS
+from dpr.envs.batched import refuse_batched_only_kwargs
 from dpr.envs.particle_env import IMAGE_SIZE_RANGE
 from dpr.interrupts import sigint_deferred, wait_deferring_sigint
 from dpr.metrics import EpisodeMetrics
@@ -86,13 +86,9 @@ class CollectSpec:
         reserved = sorted(set(RESERVED_ENV_KWARGS) & set(self.env_kwargs))
         if reserved:
             raise ParameterError("env_kwargs", f"must not set {reserved}: they are CollectSpec fields")
-        for name in BATCHED_ONLY_KWARGS:  # a dataset's env kwargs make its env for every learner that reads it
-            if name in self.env_kwargs:
-                raise ParameterError(
-                    "env_kwargs",
-                    f"{name} is physics only the batched engine has, and a dataset records env kwargs that every "
-                    "engine and learner must make its env with",
-                )
+        refuse_batched_only_kwargs(
+            self.env_kwargs, "a dataset records env kwargs that every engine and learner must make its env with"
+        )
         if self.policy.endswith(".zip"):  # a model records on the env it was trained on, with the same kwargs
             from dpr.policies.sb3 import model_env_kwargs
 

@@ -39,6 +39,17 @@ DYNAMICS_SCALE_BOUNDS = (0.1, 10.0)  # what dynamics_scale may multiply a consta
 BATCHED_ONLY_KWARGS = ("dynamics_scale", "wall_give")
 
 
+def refuse_batched_only_kwargs(env_kwargs: dict[str, Any], because: str) -> None:
+    """A ParameterError about ``env_kwargs`` if it holds one of :data:`BATCHED_ONLY_KWARGS`: for env kwargs that are
+    recorded (a model's, a dataset's) and so must make an env on either engine; ``because`` says who records them
+    (``{name}`` in it: the kwarg)."""
+    for name in BATCHED_ONLY_KWARGS:
+        if name in env_kwargs:
+            raise ParameterError(
+                "env_kwargs", f"{name} is physics only the batched engine has, and {because.format(name=name)}"
+            )
+
+
 class BatchedSwarmVectorEnv(VectorEnv):
     """K envs of one particle-robot task on the batched disk engine (:class:`dpr.sim.batched.BatchedDiskWorld`).
 

@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from dpr import runs
 from dpr.checks import ParameterError
-from dpr.envs.batched import BATCHED_ONLY_KWARGS
+from dpr.envs.batched import refuse_batched_only_kwargs
 from dpr.policies.sb3 import ModelInfo, build_model, model_architecture, save_model
 from dpr.rl import resume as resume_state
 from dpr.rl.batched_ppo import build_learner, learn
@@ -53,18 +53,6 @@ def batched_resumable(out, config) -> bool:
     except (ParameterError, OSError, AttributeError):
         return False
     return True
-
-
-def _check_model_env_kwargs(env_kwargs: dict) -> None:
-    """A ParameterError about ``env_kwargs`` (what the model records, and every engine makes its env with) if it
-    holds a kwarg only the batched engine takes: the model could then run nowhere else."""
-    for name in BATCHED_ONLY_KWARGS:
-        if name in env_kwargs:
-            raise ParameterError(
-                "env_kwargs",
-                f"{name} is physics only the batched engine has, and a model is run and fine-tuned with its env "
-                f"kwargs on either engine: train in it as a training env kwarg (--training-env-kwarg {name}=...)",
-            )
 
 
 def _run_record(config, hyper, env_kwargs: dict, timesteps: int) -> dict:
@@ -112,7 +100,11 @@ def train_batched(
     of the batched engine (module docstring); a :class:`TrainResult`. ``snapshot_seconds``: between snapshots
     (default :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; 0: after every update)."""
     hyper, env_kwargs, timesteps = config.resolve()
-    _check_model_env_kwargs(env_kwargs)
+    refuse_batched_only_kwargs(  # the model records them: it could run nowhere else
+        env_kwargs,
+        "a model is run and fine-tuned with its env kwargs on either engine: train in it as a training env kwarg "
+        "(--training-env-kwarg {name}=...)",
+    )
     if resume:
         _check_resume(config, out)
     venv = gym.make_vec(
