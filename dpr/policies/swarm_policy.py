@@ -147,13 +147,17 @@ class SwarmExtractor(nn.Module):
     @staticmethod
     def _pooled(each: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
         """The mean and the max over the swarm of every robot's ``phi`` output, with the swarm's globals."""
-        return torch.cat([each.mean(1), each.max(1).values, swarm], 1)
+        return torch.cat([each.mean(1), each.amax(1), swarm], 1)
 
     def _actor(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
         each = self.policy_net["phi"](robots)
         pooled = self._pooled(each, swarm)
-        joint = torch.cat([each, pooled[:, None, :].expand(-1, self.layout.n_robots, -1)], 2)
-        return self.policy_net["rho"](joint).flatten(1)
+        # rho's first layer reads [each, pooled]; the pooled half is the same for every robot of a swarm, so it is
+        # multiplied once per swarm (N times fewer products, and no [B, N, 3h + G] copy), with the same weights.
+        first, rest = self.policy_net["rho"][0], self.policy_net["rho"][1:]
+        per_robot = nn.functional.linear(each, first.weight[:, : self.hidden])
+        per_swarm = nn.functional.linear(pooled, first.weight[:, self.hidden :], first.bias)
+        return rest(per_robot + per_swarm[:, None, :]).flatten(1)
 
     def _swarm_critic(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
         return self.value_net["rho"](self._pooled(self.value_net["phi"](robots), swarm))
