@@ -126,6 +126,25 @@ def test_the_actor_shares_one_network_across_robots_and_other_swarm_sizes_keep_i
     big_env.close()
 
 
+@pytest.mark.parametrize("env_id, kwargs", ENVS[:3] + ENVS[4:], ids=IDS[:3] + IDS[4:])
+def test_rho_reads_each_robot_beside_the_pooled_swarm_as_one_layer_on_their_concatenation(env_id, kwargs):
+    """The actor multiplies rho's pooled half once per swarm: it must be the layer on [each robot, pooled]."""
+    model, env = swarm_model(env_id, kwargs)
+    extractor = model.policy.mlp_extractor
+    observations = torch.as_tensor(visited_observations(env, steps=8), dtype=torch.float32)
+    robots, swarm = extractor.layout.split(observations)
+    each = extractor.policy_net["phi"](robots)
+    pooled = torch.cat([each.mean(1), each.max(1).values, swarm], 1)
+    joint = torch.cat([each, pooled[:, None, :].expand(-1, N, -1)], 2)
+    with torch.no_grad():
+        reference = extractor.policy_net["rho"](joint).flatten(1)
+        torch.testing.assert_close(extractor.forward_actor(observations), reference, rtol=0, atol=1e-5)
+        # the pooled half matters: zeroing its weights changes the actor
+        extractor.policy_net["rho"][0].weight[:, extractor.hidden :] = 0
+        assert not torch.allclose(extractor.forward_actor(observations), reference, atol=1e-3)
+    env.close()
+
+
 def test_the_layout_is_checked():
     assert POLICY_NAME == SWARM_POLICY  # the name its errors give is the name that builds it
     with pytest.raises(ValueError, match="SwarmPolicy: a state observation of 5 robots without an object has 30 or 36"):
