@@ -68,7 +68,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="dpr/Navigation-v0")
     parser.add_argument("--n-envs", type=int, default=2, help="pymunk: envs in subprocesses (default 2, the cores)")
-    parser.add_argument("--pymunk-timesteps", type=int, default=2048, help="pymunk: whole rollouts of n_steps x n_envs")
+    parser.add_argument(
+        "--pymunk-timesteps", type=int, default=8192, help="pymunk: whole rollouts of n_steps x n_envs (default 8192)"
+    )
     parser.add_argument("--num-envs", type=int, default=1024, help="batched: envs per call (default 1024)")
     parser.add_argument("--updates", type=int, default=3, help="batched: PPO updates per run (default 3)")
     parser.add_argument("--device", default="cpu")
