@@ -3,6 +3,7 @@ info conventions), a stopped run resumed to the model an uninterrupted run makes
 through the commands."""
 
 import json
+import warnings
 from pathlib import Path
 
 import gymnasium as gym
@@ -117,6 +118,15 @@ def test_a_stopped_batched_run_resumes_to_the_uninterrupted_runs_model(tmp_path,
     for name in names:
         assert_same_policy(tmp_path / "run" / "checkpoints" / name, tmp_path / "whole" / "checkpoints" / name)
     assert_same_policy(tmp_path / "whole" / "checkpoints" / names[-1], whole.model_path)
+
+
+def test_a_batched_run_makes_its_checkpoints_folder_without_sb3s_warning(tmp_path):
+    """SB3 warns 'Path ... does not exist' amid the progress bar when it makes a model's folder itself."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = train_batched(small_config(), tmp_path / "run", **QUIET)
+    assert len(list((tmp_path / "run" / "checkpoints").glob("model_*_steps.zip"))) == 4
+    assert result.model_path.is_file()
 
 
 def test_dpr_train_engine_batched_resume_needs_a_snapshot(tmp_path, capsys):

@@ -590,10 +590,11 @@ def save_slim_copy(source: str | Path, target: str | Path, average_with: Sequenc
 
 
 def save_model(model, path: str | Path, info: ModelInfo) -> Path:
-    """Save ``model`` to ``path`` (a ``.zip`` file, replaced if present) with ``info`` inside it."""
+    """Save ``model`` to ``path`` (a ``.zip`` file, replaced if present; its folder made) with ``info`` inside it."""
     path = Path(path)
     if path.suffix != MODEL_SUFFIX:
         raise ValueError(f"model path must end in {MODEL_SUFFIX}, got {path}")
+    path.parent.mkdir(parents=True, exist_ok=True)  # (SB3 would make it too, with a warning amid the progress bar)
     model.save(path)  # a fresh zip: any metadata of an older file at this path is gone with it
     write_model_info(path, info)
     return path
