@@ -129,6 +129,19 @@ def test_a_batched_run_makes_its_checkpoints_folder_without_sb3s_warning(tmp_pat
     assert result.model_path.is_file()
 
 
+@pytest.mark.parametrize("learner", ["torch", "sb3"])
+def test_a_batched_run_keeps_the_threads_torch_was_given(tmp_path, learner):
+    """The pymunk runs train on one thread beside one env process per core; the batched engine steps every swarm
+    in one call, so its runs keep the process's threads."""
+    given = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        train_batched(small_config(learner=learner), tmp_path / "run", **QUIET)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(given)
+
+
 def test_dpr_train_engine_batched_resume_needs_a_snapshot(tmp_path, capsys):
     argv = ["train", "--algo", "ppo", "--env", NAV, "--engine", "batched", "--robot-model", "disk", "--resume"]
     with pytest.raises(SystemExit):

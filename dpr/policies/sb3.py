@@ -163,8 +163,7 @@ def check_model_members(archive: zipfile.ZipFile, path: str | Path, parameter: s
 
 def read_model_info(path: str | Path, parameter: str = POLICY_PARAMETER) -> ModelInfo:
     """The :class:`ModelInfo` of the model file at ``path``; a :class:`ParameterError` about ``parameter`` (the
-    caller's parameter that named the file) when the file is missing, not a zip, or not a model written by
-    ``dpr train``."""
+    caller's parameter that named the file) when the file is missing, not a zip, or not a ``dpr train`` model."""
     path = Path(path)
     if not path.is_file():
         raise ParameterError(parameter, f"no model file at {path}")
@@ -392,8 +391,8 @@ def _sb3_load(path: Path, info: ModelInfo, parameter: str, **options):
 
 
 class ModelPolicy:
-    """A trained model as a ``policy(observation) -> action`` callable: deterministic actions, so
-    ``reset(seed)`` has nothing to reseed."""
+    """A trained model as a ``policy(observation) -> action`` callable: deterministic actions, so ``reset(seed)``
+    has nothing to reseed."""
 
     def __init__(self, model, info: ModelInfo, path: Path):
         self.model = model
@@ -472,11 +471,13 @@ def make_vec_env(
     return DummyVecEnv(fns)
 
 
-def build_model(hyper, env, seed: int, tensorboard_log: str | None):
+def build_model(hyper, env, seed: int, tensorboard_log: str | None, single_thread: bool = True):
     """The SB3 model that ``hyper`` (a :class:`dpr.policies.hyperparams.Hyperparams`) describes, on ``env`` (a
     VecEnv), seeded with ``seed``: what ``dpr train`` trains and what ``dpr bc`` clones into. Its initial weights
-    follow from the torch RNG state, ``hyper`` and ``seed`` alone."""
-    single_thread_torch()
+    follow from the torch RNG state, ``hyper`` and ``seed`` alone. It trains on one torch thread
+    (``single_thread``; the batched engine keeps its threads)."""
+    if single_thread:
+        single_thread_torch()
     kwargs = hyper.model_kwargs(n_robots=env.get_attr("n_robots")[0])
     policy = hyper.policy
     if policy == SWARM_POLICY:
@@ -573,8 +574,7 @@ def save_slim_copy(source: str | Path, target: str | Path, average_with: Sequenc
     """Copy the model file ``source`` to ``target`` without the optimizer's running moments, which nothing
     reads back (fine-tuning and evaluation load the weights only): a PPO file shrinks to about a third. With
     ``average_with`` (model files of the same network, e.g. the checkpoints of ``source``'s run), the copy's weights
-    are the mean of theirs and ``source``'s: weight averaging along a run. ``target`` appears only once it is
-    complete."""
+    are the mean of theirs and ``source``'s: weight averaging along a run. ``target`` appears once it is complete."""
     model, info = load_model(source)
     policy = model.policy
     if average_with:

@@ -111,7 +111,7 @@ def build_learner(hyper: Hyperparams, template_env, seed: int):
         raise ParameterError("algo", f"the batched engine trains {PPO} only, got {hyper.algo!r}")
     with warnings.catch_warnings():  # SB3 sizes its own buffer for one env; this loop has its own
         warnings.filterwarnings("ignore", message="You have specified a mini-batch size")
-        return build_model(hyper, DummyVecEnv([lambda: template_env]), seed, None)
+        return build_model(hyper, DummyVecEnv([lambda: template_env]), seed, None, single_thread=False)
 
 
 def collect_rollout(policy, env: TensorEnv, observation: torch.Tensor, settings: RolloutSettings, rollout: Rollout):

@@ -83,7 +83,7 @@ def _build(config, hyper, venv):
 
         adapter = BatchedSB3VecEnv(venv)
         adapter.seed(config.seed)
-        return build_model(hyper, adapter, config.seed, None)
+        return build_model(hyper, adapter, config.seed, None, single_thread=False)
     return build_learner(hyper, venv.unwrapped.template, config.seed)
 
 
