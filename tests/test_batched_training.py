@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+import yaml
 from helpers import assert_same_policy
 
 import dpr  # noqa: F401
@@ -138,6 +139,7 @@ def test_a_batched_run_keeps_the_threads_torch_was_given(tmp_path, learner):
     try:
         train_batched(small_config(learner=learner), tmp_path / "run", **QUIET)
         assert torch.get_num_threads() == 2
+        assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["torch_threads"] == 2
     finally:
         torch.set_num_threads(given)
 

@@ -45,7 +45,10 @@ def pymunk_rate(env_id: str, n_envs: int, timesteps: int) -> float:
     return result.timesteps / result.seconds
 
 
-def batched_rate(env_id: str, num_envs: int, device: str, updates: int, compile: bool = False) -> float:
+def batched_rate(
+    env_id: str, num_envs: int, device: str, updates: int, compile: bool = False, threads: int = 2
+) -> float:
+    torch.set_num_threads(threads)  # a pymunk run before it left one (its SB3 model trains beside env processes)
     config = TrainConfig(
         "ppo",
         env_id,
@@ -81,12 +84,12 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--json")
     args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
     if args.compile:  # compiled once here; the timed runs find the compiled code in inductor's cache
-        batched_rate(args.env, args.num_envs, args.device, 1, compile=True)
+        batched_rate(args.env, args.num_envs, args.device, 1, compile=True, threads=args.threads)
     pymunk = statistics.median(pymunk_rate(args.env, args.n_envs, args.pymunk_timesteps) for _ in range(args.repeats))
     batched = statistics.median(
-        batched_rate(args.env, args.num_envs, args.device, args.updates, args.compile) for _ in range(args.repeats)
+        batched_rate(args.env, args.num_envs, args.device, args.updates, args.compile, args.threads)
+        for _ in range(args.repeats)
     )
     print("| loop | env steps/s | ratio |\n|---|---:|---:|")
     print(f"| dpr train, pymunk disk, {args.n_envs} processes | {pymunk:,.0f} | 1.0 |")

@@ -60,6 +60,7 @@ def _run_record(config, hyper, env_kwargs: dict, timesteps: int) -> dict:
         "algo": config.algo,
         "engine": config.engine,
         "device": config.device,
+        "torch_threads": torch.get_num_threads(),  # the sums' order, so the run's last digits, may depend on it
         "learner": config.learner,
         "env_id": config.env_id,
         "env_kwargs": env_kwargs,
