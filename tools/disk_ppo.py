@@ -21,6 +21,9 @@ Pretraining on a variant of the task (the experience only; validation and test r
 
     python tools/disk_ppo.py --tasks gate --pretrain-env-kwarg gate_width=250 --out runs/disk-ppo-gate-w250
 
+The shipped runs pretrained on one torch thread: ``OMP_NUM_THREADS=1`` repeats their arithmetic; more threads run
+faster and sum in another order.
+
 Another fine-tuning recipe on the same pretrained actors (read from ``--pretrained-in``, never written):
 
     python tools/disk_ppo.py --tasks navigation --pretrained-in runs/disk-ppo --out runs/disk-ppo-lr3e-4 \
