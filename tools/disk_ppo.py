@@ -21,8 +21,8 @@ Pretraining on a variant of the task (the experience only; validation and test r
 
     python tools/disk_ppo.py --tasks gate --pretrain-env-kwarg gate_width=250 --out runs/disk-ppo-gate-w250
 
-The shipped runs pretrained on one torch thread: ``OMP_NUM_THREADS=1`` repeats their arithmetic; more threads run
-faster and sum in another order.
+The shipped runs pretrained on one torch thread (``OMP_NUM_THREADS=1``); more threads run faster and sum in another
+order, so a run differs from theirs in the last digits at first and, over a run, in more.
 
 Another fine-tuning recipe on the same pretrained actors (read from ``--pretrained-in``, never written):
 
