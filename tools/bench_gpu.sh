@@ -36,7 +36,7 @@ part() {  # part NAME SECONDS COMMAND...: run it under a limit, its output besid
 part bench-batched "$limit" "$python" -m dpr.cli bench --engine batched --device cuda \
     --ks 1 64 1024 4096 16384 65536 --batched-sizes 100 1000 10000 --json "$out/bench-batched.json"
 part bench-training "$limit" "$python" tools/bench_training.py --device cuda --num-envs 4096 --updates 3 \
-    --n-envs "$processes" --repeats 1 --json "$out/bench-training.json"
+    --n-envs "$processes" --threads "$processes" --repeats 1 --json "$out/bench-training.json"
 # the --batched-sizes rows with 100 times the robots per call: a GPU is not full at 10,000
 part bench-batched-large "$limit" "$python" -m dpr.cli bench --engine batched --device cuda --ks 4096 \
     --batched-sizes 100 1000 10000 --batched-robots 1000000 --json "$out/bench-batched-large.json"
