@@ -154,10 +154,12 @@ class SwarmExtractor(nn.Module):
         pooled = self._pooled(each, swarm)
         # rho's first layer reads [each, pooled]; the pooled half is the same for every robot of a swarm, so it is
         # multiplied once per swarm (N times fewer products, and no [B, N, 3h + G] copy), with the same weights.
-        first, rest = self.policy_net["rho"][0], self.policy_net["rho"][1:]
+        first, *rest = self.policy_net["rho"]  # (slicing the Sequential would build a new module every call)
         per_robot = nn.functional.linear(each, first.weight[:, : self.hidden])
-        per_swarm = nn.functional.linear(pooled, first.weight[:, self.hidden :], first.bias)
-        return rest(per_robot + per_swarm[:, None, :]).flatten(1)
+        latent = per_robot + nn.functional.linear(pooled, first.weight[:, self.hidden :], first.bias)[:, None, :]
+        for layer in rest:
+            latent = layer(latent)
+        return latent.flatten(1)
 
     def _swarm_critic(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
         return self.value_net["rho"](self._pooled(self.value_net["phi"](robots), swarm))
