@@ -130,6 +130,57 @@ def test_a_batched_run_makes_its_checkpoints_folder_without_sb3s_warning(tmp_pat
     assert result.model_path.is_file()
 
 
+def test_fused_adam_steps_as_adam_does_and_gives_the_setting_back():
+    """The tensor PPO's updates step Adam with torch's fused kernel; the model's files keep its own setting."""
+    torch.manual_seed(0)
+    plain = [torch.nn.Parameter(torch.randn(8, 8)), torch.nn.Parameter(torch.randn(8))]
+    fused = [torch.nn.Parameter(weight.detach().clone()) for weight in plain]
+    reference, optimizer = torch.optim.Adam(plain, lr=1e-2), torch.optim.Adam(fused, lr=1e-2)
+    for _ in range(5):
+        for mine, theirs in zip(fused, plain):
+            theirs.grad = torch.randn_like(theirs)
+            mine.grad = theirs.grad.clone()
+        reference.step()
+        with batched_ppo.fused_adam(optimizer):
+            assert optimizer.param_groups[0]["fused"] is True
+            optimizer.step()
+        assert optimizer.param_groups[0]["fused"] is None
+    for mine, theirs in zip(fused, plain):
+        torch.testing.assert_close(mine, theirs, rtol=0, atol=1e-6)
+
+
+def test_the_compiled_loss_is_the_eager_loss():
+    """``dpr train --engine batched --compile`` compiles the mini-batch loss: the same loss, parts and gradients."""
+    env = make_vec(num_envs=16).unwrapped
+    hyper, _, _ = small_config().resolve()
+    model = batched_ppo.build_learner(hyper, env.template, 0)
+    settings = batched_ppo.RolloutSettings.of(model)
+    generator = torch.Generator().manual_seed(0)
+    observations = env.reset_tensors(0)
+    batch = (
+        observations,
+        torch.randint(0, 2, (16, 4), generator=generator).float(),
+        -torch.rand(16, generator=generator) * 3,
+        torch.randn(16, generator=generator),
+        torch.randn(16, generator=generator),
+        *model.policy.observation_parts(observations),  # as the loop gives them to the swarm policy
+    )
+
+    def loss_and_gradients(loss_of):
+        model.policy.optimizer.zero_grad()
+        loss, parts = loss_of(model.policy, batch, settings, 0.2)
+        loss.backward()
+        return loss.detach(), parts, [weight.grad.clone() for weight in model.policy.parameters()]
+
+    eager = loss_and_gradients(batched_ppo.minibatch_loss)
+    compiled = loss_and_gradients(torch.compile(batched_ppo.minibatch_loss))
+    torch.testing.assert_close(compiled[0], eager[0])
+    for name, value in eager[1].items():
+        torch.testing.assert_close(compiled[1][name].detach(), value, msg=name)
+    for mine, theirs in zip(compiled[2], eager[2]):
+        torch.testing.assert_close(mine, theirs, rtol=1e-4, atol=1e-6)
+
+
 @pytest.mark.parametrize("learner", ["torch", "sb3"])
 def test_a_batched_run_keeps_the_threads_torch_was_given(tmp_path, learner):
     """The pymunk runs train on one thread beside one env process per core; the batched engine steps every swarm

@@ -145,6 +145,32 @@ def test_rho_reads_each_robot_beside_the_pooled_swarm_as_one_layer_on_their_conc
     env.close()
 
 
+@pytest.mark.parametrize("critic", CRITICS)
+def test_actions_evaluated_on_observation_parts_split_before_are_sb3s_evaluation(critic):
+    """The batched PPO splits its rollout's observations once and evaluates every epoch's mini-batches on the parts:
+    the same values, log-probabilities and entropies as SB3's evaluate_actions on the observations."""
+    env_id, kwargs = ENVS[4]
+    env = gym.make(env_id, n_robots=N, robot_model="disk", **kwargs)
+    overrides = {**SWARM, "policy_kwargs": {**SWARM["policy_kwargs"], "critic": critic}}
+    model = build_model(load_hyperparams("ppo", env_id, overrides=overrides), DummyVecEnv([lambda: env]), 0, None)
+    trained_a_little(model)
+    policy = model.policy
+    observations = torch.as_tensor(visited_observations(env, steps=8), dtype=torch.float32)
+    actions = torch.randint(0, 2, (len(observations), N), generator=torch.Generator().manual_seed(0)).float()
+    with torch.no_grad():
+        parts = policy.observation_parts(observations)
+        assert parts[0].shape == (len(observations), N, 7)
+        for given, sb3 in zip(
+            policy.evaluate_actions(observations, actions, parts=parts), policy.evaluate_actions(observations, actions)
+        ):
+            torch.testing.assert_close(given, sb3, rtol=0, atol=1e-6)
+        # the parts are what is evaluated: other parts, other log-probabilities
+        moved = (parts[0] + 1.0, parts[1])
+        changed = policy.evaluate_actions(observations, actions, parts=moved)[1]
+        assert not torch.allclose(changed, policy.evaluate_actions(observations, actions)[1], atol=1e-3)
+    env.close()
+
+
 def test_the_layout_is_checked():
     assert POLICY_NAME == SWARM_POLICY  # the name its errors give is the name that builds it
     with pytest.raises(ValueError, match="SwarmPolicy: a state observation of 5 robots without an object has 30 or 36"):

@@ -149,7 +149,8 @@ class SwarmExtractor(nn.Module):
         """The mean and the max over the swarm of every robot's ``phi`` output, with the swarm's globals."""
         return torch.cat([each.mean(1), each.amax(1), swarm], 1)
 
-    def _actor(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
+    def forward_actor_parts(self, robots: torch.Tensor, swarm: torch.Tensor) -> torch.Tensor:
+        """The actor's latent from the split observation (:meth:`SwarmLayout.split`)."""
         each = self.policy_net["phi"](robots)
         pooled = self._pooled(each, swarm)
         # rho's first layer reads [each, pooled]; the pooled half is the same for every robot of a swarm, so it is
@@ -165,18 +166,19 @@ class SwarmExtractor(nn.Module):
         return self.value_net["rho"](self._pooled(self.value_net["phi"](robots), swarm))
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        return self._actor(*self.layout.split(features))
+        return self.forward_actor_parts(*self.layout.split(features))
 
-    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+    def forward_critic(self, features: torch.Tensor, parts: tuple[torch.Tensor, torch.Tensor] | None = None):
+        """The critic's latent; ``parts``: ``self.layout.split(features)`` where it is already computed."""
         if self.critic != "swarm":
             return self.value_net(features)
-        return self._swarm_critic(*self.layout.split(features))
+        return self._swarm_critic(*(parts if parts is not None else self.layout.split(features)))
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         if self.critic != "swarm":
             return self.forward_actor(features), self.value_net(features)
         parts = self.layout.split(features)  # once for both
-        return self._actor(*parts), self._swarm_critic(*parts)
+        return self.forward_actor_parts(*parts), self._swarm_critic(*parts)
 
 
 class RobotLogits(nn.Module):
@@ -219,6 +221,23 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
         self.robot_net = list(robot_net or [64, 64])
         self.critic = critic
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+
+    def observation_parts(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The robots' features and the swarm's globals of a batch of observations (:meth:`SwarmLayout.split`),
+        which :meth:`evaluate_actions` takes ready: a learner that evaluates the same observations every epoch
+        splits them once."""
+        features = self.extract_features(obs)
+        return self.layout.split(features if self.share_features_extractor else features[0])
+
+    def evaluate_actions(self, obs: torch.Tensor, actions: torch.Tensor, parts=None):
+        """SB3's, with ``parts`` (:meth:`observation_parts` of ``obs``) where they are already computed."""
+        if parts is None:
+            return super().evaluate_actions(obs, actions)
+        features = self.extract_features(obs)
+        latent_pi = self.mlp_extractor.forward_actor_parts(*parts)
+        latent_vf = self.mlp_extractor.forward_critic(features if self.share_features_extractor else features[1], parts)
+        distribution = self._get_action_dist_from_latent(latent_pi)
+        return self.value_net(latent_vf), distribution.log_prob(actions), distribution.entropy()
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()

@@ -173,7 +173,8 @@ def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[lis
             kept["at"] = time.monotonic()
 
     try:
-        return learn(model, env, timesteps, config.seed, progress=bar, start=start, on_update=on_update), False
+        trained = learn(model, env, timesteps, config.seed, bar, start, on_update, compile=config.compile)
+        return trained, False
     except KeyboardInterrupt:
         return list(kept["history"]), True
 
