@@ -183,7 +183,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
         f"batched, else {config['preset']})",
     )
     engine_arguments(parser)
-    compile_argument(parser)
+    compile_argument(parser, learner=True)
     parser.add_argument(
         "--learner",
         choices=LEARNERS,
