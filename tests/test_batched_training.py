@@ -2,6 +2,7 @@
 info conventions), a stopped run resumed to the model an uninterrupted run makes, and models moving between engines
 through the commands."""
 
+import dataclasses
 import json
 import warnings
 from pathlib import Path
@@ -168,19 +169,32 @@ def test_the_compiled_loss_is_the_eager_loss():
 
     def loss_and_gradients(loss_of):
         model.policy.optimizer.zero_grad()
-        loss, parts = loss_of(model.policy, batch, settings, 0.2)
+        loss, terms = loss_of(model.policy, batch, settings, torch.tensor(0.2))
         loss.backward()
-        return loss.detach(), parts, [weight.grad.clone() for weight in model.policy.parameters()]
+        return loss.detach(), terms, [weight.grad.clone() for weight in model.policy.parameters()]
 
     eager = loss_and_gradients(batched_ppo.minibatch_loss)
     # dynamo's graph and AOTAutograd's backward, as the loop compiles them; inductor's kernels (a C++ build of tens of
     # seconds on a bare machine) stand in for eager ones
-    compiled = loss_and_gradients(torch.compile(batched_ppo.minibatch_loss, backend="aot_eager"))
+    loss_of = torch.compile(batched_ppo.minibatch_loss, backend="aot_eager")
+    compiled = loss_and_gradients(loss_of)
     torch.testing.assert_close(compiled[0], eager[0])
     for name, value in eager[1].items():
         torch.testing.assert_close(compiled[1][name].detach(), value, msg=name)
     for mine, theirs in zip(compiled[2], eager[2]):
         torch.testing.assert_close(mine, theirs, rtol=1e-4, atol=1e-6)
+    # the updates give the clip range as a tensor: a schedule's next value runs the same compiled graph
+    rollout = batched_ppo.Rollout.empty(2, 16, observations.shape[1], 4, "cpu")
+    rollout.observations[:] = observations
+    rollout.advantages, rollout.returns = (
+        torch.randn(2, 16, generator=generator),
+        torch.randn(2, 16, generator=generator),
+    )
+    one_epoch = dataclasses.replace(settings, n_epochs=1)
+    batched_ppo.update(model, rollout, one_epoch, 0.2, loss_of)
+    graphs = torch._dynamo.utils.counters["stats"]["unique_graphs"]
+    batched_ppo.update(model, rollout, one_epoch, 0.1, loss_of)
+    assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == graphs
 
 
 @pytest.mark.parametrize("learner", ["torch", "sb3"])

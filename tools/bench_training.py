@@ -5,8 +5,8 @@ Both train the swarm actor (SwarmPolicy) on the same task and env kwargs (the la
 6 physics steps), each with what `dpr train` takes by default: the pymunk run in SB3's loop with the env id's entry
 of ppo.yml (10 epochs of 64-step mini-batches) and `--n-envs` processes, the batched run in dpr.rl.batched_ppo's loop
 with the `batched` preset (10 epochs of 512) on `--num-envs` envs of the batched engine. Each rate counts the steps
-of the whole run, rollouts and updates together (model building and saving excluded), over the median of
-`--repeats` runs.
+of the whole run, rollouts and updates together (model building and saving excluded). The two sides run in turn,
+`--repeats` pairs, and the ratio is the median of the pairs' ratios.
 
     python tools/bench_training.py [--env dpr/Navigation-v0] [--num-envs 1024] [--device cpu] [--compile]
                                    [--threads 2] [--json out.json]
@@ -86,17 +86,21 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.compile:  # compiled once here; the timed runs find the compiled code in inductor's cache
         batched_rate(args.env, args.num_envs, args.device, 1, compile=True, threads=args.threads)
-    pymunk = statistics.median(pymunk_rate(args.env, args.n_envs, args.pymunk_timesteps) for _ in range(args.repeats))
-    batched = statistics.median(
-        batched_rate(args.env, args.num_envs, args.device, args.updates, args.compile, args.threads)
-        for _ in range(args.repeats)
-    )
-    print("| loop | env steps/s | ratio |\n|---|---:|---:|")
-    print(f"| dpr train, pymunk disk, {args.n_envs} processes | {pymunk:,.0f} | 1.0 |")
+    pymunks, batcheds = [], []
+    for _ in range(args.repeats):  # in pairs, so that the machine's drift between runs falls on both sides
+        pymunks.append(pymunk_rate(args.env, args.n_envs, args.pymunk_timesteps))
+        batcheds.append(batched_rate(args.env, args.num_envs, args.device, args.updates, args.compile, args.threads))
+    ratios = [batched / pymunk for pymunk, batched in zip(pymunks, batcheds)]
+    pymunk, batched, ratio = (statistics.median(values) for values in (pymunks, batcheds, ratios))
+    print("| loop | env steps/s (median) | each run | ratio |\n|---|---:|---|---:|")
+    each = lambda rates: ", ".join(f"{rate:,.0f}" for rate in rates)  # noqa: E731
+    print(f"| dpr train, pymunk disk, {args.n_envs} processes | {pymunk:,.0f} | {each(pymunks)} | 1.0 |")
     label = f"dpr train --engine batched, {args.num_envs} envs, {args.device}{', compiled' if args.compile else ''}"
-    print(f"| {label} | {batched:,.0f} | {batched / pymunk:.1f} |")
+    runs = ", ".join(f"{value:.1f}x" for value in ratios)
+    print(f"| {label} | {batched:,.0f} | {each(batcheds)} | {ratio:.1f} (median of {runs}) |")
     if args.json:
-        Path(args.json).write_text(json.dumps({"pymunk": pymunk, "batched": batched, "args": vars(args)}, indent=2))
+        record = {"pymunk": pymunk, "batched": batched, "ratio": ratio, "ratios": ratios, "args": vars(args)}
+        Path(args.json).write_text(json.dumps(record, indent=2))
     return 0
 
 

@@ -152,10 +152,11 @@ def estimate_advantages(policy, rollout: Rollout, last_observation: torch.Tensor
     rollout.returns = advantages + rollout.values
 
 
-def minibatch_loss(policy, batch: tuple[torch.Tensor, ...], settings: RolloutSettings, clip_range: float):
+def minibatch_loss(policy, batch: tuple[torch.Tensor, ...], settings: RolloutSettings, clip_range: torch.Tensor):
     """PPO's clipped objective (SB3's losses) on one mini-batch ``(observations, actions, old log-probabilities,
-    advantages, returns, *parts)``: the loss to minimise, and its parts as tensors. ``parts``, where the policy has
-    them, are its ``observation_parts`` of the observations."""
+    advantages, returns, *parts)``: the loss to minimise, and its terms as tensors. ``parts``, where the policy has
+    them, are its ``observation_parts`` of the observations; ``clip_range`` is a tensor, so that a schedule's new
+    value does not make ``torch.compile`` compile again."""
     observations, actions, old_log_probs, advantages, returns, *parts = batch
     if parts:
         values, log_probs, entropy = policy.evaluate_actions(observations, actions, parts=tuple(parts))
@@ -170,14 +171,14 @@ def minibatch_loss(policy, batch: tuple[torch.Tensor, ...], settings: RolloutSet
     entropy_loss = -entropy.mean() if entropy is not None else log_probs.mean()
     loss = policy_loss + settings.ent_coef * entropy_loss + settings.vf_coef * value_loss
     with torch.no_grad():
-        parts = {
+        terms = {
             "policy_loss": policy_loss,
             "value_loss": value_loss,
             "entropy": -entropy_loss,
             "approx_kl": ((ratio - 1) - log_ratio).mean(),
             "clip_fraction": ((ratio - 1).abs() > clip_range).float().mean(),
         }
-    return loss, parts
+    return loss, terms
 
 
 def update(model, rollout: Rollout, settings: RolloutSettings, clip_range: float, loss_of=minibatch_loss):
@@ -191,20 +192,21 @@ def update(model, rollout: Rollout, settings: RolloutSettings, clip_range: float
         with torch.no_grad():
             data += policy.observation_parts(data[0])
     stats = dict.fromkeys(("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction"), 0.0)
+    clip = torch.tensor(clip_range, dtype=torch.float32, device=data[0].device)
     batches = 0
     with fused_adam(policy.optimizer):
         for _ in range(settings.n_epochs):
             for index in torch.randperm(data[0].shape[0], device=data[0].device).split(settings.batch_size):
-                loss, parts = loss_of(policy, tuple(part[index] for part in data), settings, clip_range)
-                parts = {name: float(value.detach()) for name, value in parts.items()}
-                if settings.target_kl is not None and parts["approx_kl"] > 1.5 * settings.target_kl:
+                loss, terms = loss_of(policy, tuple(part[index] for part in data), settings, clip)
+                terms = {name: float(value.detach()) for name, value in terms.items()}
+                if settings.target_kl is not None and terms["approx_kl"] > 1.5 * settings.target_kl:
                     return _means(stats, batches)  # SB3's early stop: the policy moved far enough this update
                 policy.optimizer.zero_grad()
                 loss.backward()
                 nn.utils.clip_grad_norm_(policy.parameters(), settings.max_grad_norm)
                 policy.optimizer.step()
                 batches += 1
-                for name, value in parts.items():
+                for name, value in terms.items():
                     stats[name] += value
     return _means(stats, batches)
 
