@@ -123,9 +123,10 @@ def train_batched(
     record = yaml.safe_load(config_path.read_text()) if resume else _run_record(config, hyper, env_kwargs, timesteps)
     config_path.write_text(yaml.safe_dump(record, sort_keys=False))
     again = " (resumed)" if resume else ""
+    compiled = ", compiled: the first steps compile for seconds, minutes on a bare machine" if config.compile else ""
     log(
         f"dpr train: {config.algo} on the batched engine ({config.device}, {config.n_envs} envs, {config.learner} "
-        f"learner), {config.env_id} {env_kwargs}{again}"
+        f"learner{compiled}), {config.env_id} {env_kwargs}{again}"
     )
     info = ModelInfo(
         config.algo, config.env_id, env_kwargs, config.steps_per_episode, architecture=model_architecture(hyper)
