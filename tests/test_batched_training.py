@@ -231,6 +231,17 @@ def test_dpr_train_learner_sb3_trains_any_algorithm_on_the_batched_engine(tmp_pa
         small_config(engine="pymunk", learner="sb3")
 
 
+def test_dpr_train_engine_batched_takes_the_disk_model_unless_told_otherwise(tmp_path, capsys):
+    argv = ["train", "--algo", "ppo", "--env", NAV, "--engine", "batched", "--n-robots", "4", "--n-envs", "4"]
+    hyper = ["--hyperparam", "n_steps=8", "--hyperparam", "batch_size=32"]
+    assert main([*argv, *hyper, "--timesteps", "32", "--out", str(tmp_path / "run")]) == 0
+    assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["env_kwargs"]["robot_model"] == "disk"
+    with pytest.raises(SystemExit):
+        main([*argv, "--robot-model", "paddle", "--out", str(tmp_path / "paddle")])
+    assert "the batched engine has the disk model only: 'paddle'" in capsys.readouterr().err
+    assert not (tmp_path / "paddle").exists()
+
+
 def test_models_move_between_engines_through_the_commands(tmp_path):
     out = tmp_path / "batched"
     argv = ["train", "--algo", "ppo", "--env", NAV, "--engine", "batched", "--robot-model", "disk", "--n-envs", "4"]

@@ -266,12 +266,18 @@ def default_argument(
     parser.add_argument(flag, type=type, default=default, help=f"{what} (default {shown(default)})", **kwargs)
 
 
-def swarm_arguments(parser: argparse.ArgumentParser, config: Mapping[str, Any] | None = None) -> None:
+def swarm_arguments(
+    parser: argparse.ArgumentParser, config: Mapping[str, Any] | None = None, engine_default: bool = False
+) -> None:
     """--n-robots and --robot-model, defaulting to ``config``'s (the defaults of the library call they go to).
-    Without ``config`` they default to None: a saved model's own values apply, else the env's."""
+    Without ``config`` they default to None: a saved model's own values apply, else the env's. ``engine_default``:
+    --robot-model defaults to None, for the command to choose by its --engine (disk for the batched one)."""
     given = config or {}
     shown_defaults = config or SWARM_DEFAULTS
     or_model = "" if config else ", or a model's"
+    if engine_default:
+        given = {**given, "robot_model": None}
+        or_model += "; disk with --engine batched"
     parser.add_argument(
         "--n-robots",
         type=positive_int,

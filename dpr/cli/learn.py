@@ -161,7 +161,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     config = defaults(TrainConfig)
     parser.add_argument("--algo", required=True, choices=ALGOS, help="DQN uses Discrete(2^N) actions")
     parser.add_argument("--env", required=True, help=f"env id: {ENV_ID_LIST}")
-    swarm_arguments(parser, config)
+    swarm_arguments(parser, config, engine_default=True)
     parser.add_argument(
         "--timesteps",
         type=positive_int,
@@ -214,12 +214,14 @@ def _check_resume(args, parser) -> None:
 
 
 def resolve_engine_defaults(args) -> None:
-    """--preset and --n-envs where not given: TrainConfig's on the pymunk engine, the batched entry (for the tensor
-    PPO) and :data:`BATCHED_ENVS` envs on the batched one."""
+    """--robot-model, --preset and --n-envs where not given: TrainConfig's on the pymunk engine; the disk model, the
+    batched entry (for the tensor PPO) and :data:`BATCHED_ENVS` envs on the batched one."""
     from dpr.policies.hyperparams import BATCHED_PRESET
     from dpr.rl.train import TrainConfig
 
     batched = args.engine == "batched"
+    if args.robot_model is None:
+        args.robot_model = "disk" if batched else defaults(TrainConfig)["robot_model"]
     if args.preset is None:  # (the batched entry is the tensor PPO's: SB3's learner takes the env id's)
         tensor_ppo = batched and args.learner == defaults(TrainConfig)["learner"]
         args.preset = BATCHED_PRESET if tensor_ppo else defaults(TrainConfig)["preset"]
