@@ -150,6 +150,29 @@ def test_fused_adam_steps_as_adam_does_and_gives_the_setting_back():
         torch.testing.assert_close(mine, theirs, rtol=0, atol=1e-6)
 
 
+def test_a_learner_moves_with_its_optimisers_state():
+    """A resumed run's Adam moments go to the run's device with the weights (Adam refuses them on another device),
+    and come back to the CPU with them."""
+    env = make_vec(num_envs=4).unwrapped
+    hyper, _, _ = small_config().resolve()
+    policy = batched_ppo.build_learner(hyper, env.template, 0).policy
+    for weight in policy.parameters():
+        weight.grad = torch.ones_like(weight)
+    policy.optimizer.step()
+    moments = lambda: [  # noqa: E731
+        value for state in policy.optimizer.state.values() for key, value in state.items() if key != "step"
+    ]
+    before = [moment.clone() for moment in moments()]
+    # what a move to CUDA does to each parameter (new storage under the same Parameter), made here with a dtype: a
+    # CPU-only machine has no second device
+    batched_ppo.move_learner(policy, torch.float64)
+    assert {moment.dtype for moment in moments()} == {torch.float64}
+    assert all(weight.dtype == torch.float64 for weight in policy.parameters())
+    batched_ppo.move_learner(policy, torch.float32)
+    for moment, value in zip(moments(), before, strict=True):
+        assert moment.dtype == torch.float32
+        torch.testing.assert_close(moment, value, rtol=0, atol=0)
+
 def test_the_compiled_loss_is_the_eager_loss():
     """``dpr train --engine batched --compile`` compiles the mini-batch loss: the same loss, parts and gradients."""
     env = make_vec(num_envs=16).unwrapped

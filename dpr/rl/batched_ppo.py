@@ -233,9 +233,9 @@ def _means(stats: dict[str, float], batches: int) -> dict[str, float]:
 
 
 def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start=None, on_update=None, compile=False):
-    """Train ``model`` (an SB3 PPO model; its policy moves to ``env.device`` for the run and back to the CPU) for at
-    least ``timesteps`` env steps of all envs together, in whole rollouts of ``n_steps`` x ``num_envs``; the
-    statistics of each update. ``model.num_timesteps`` counts the steps made. ``compile``: ``torch.compile`` the
+    """Train ``model`` (an SB3 PPO model; its policy and optimiser move to ``env.device`` for the run and back to the
+    CPU) for at least ``timesteps`` env steps of all envs together, in whole rollouts of ``n_steps`` x ``num_envs``;
+    the statistics of each update. ``model.num_timesteps`` counts the steps made. ``compile``: ``torch.compile`` the
     mini-batch loss, forward and backward (seconds of compiling at the first update).
 
     ``start`` (a :class:`dpr.rl.batched_resume.LoopState`) goes on from a stopped run's updates, observation and
@@ -245,7 +245,7 @@ def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start
 
     check_int("timesteps", timesteps, 1)
     settings = RolloutSettings.of(model)
-    policy = model.policy.to(env.device)
+    policy = move_learner(model.policy, env.device)
     policy.set_training_mode(True)
     per_update = settings.n_steps * env.num_envs
     updates = -(-timesteps // per_update)
@@ -272,5 +272,15 @@ def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start
             if on_update is not None:
                 on_update(LoopState(number + 1, observation, history))
     finally:  # (a Ctrl-C too: the model is saved as it is)
-        policy.to("cpu")
+        move_learner(policy, "cpu")
     return history
+
+
+def move_learner(policy, device):
+    """``policy`` and its optimiser's state (Adam's moments of a resumed run) on ``device`` (or whatever else
+    ``Module.to`` takes, a dtype): ``Module.to`` moves the parameters only, and Adam then refuses moments on another
+    device. Reloading the optimiser's own state lets torch put each value beside its parameter, its step counter
+    where Adam keeps it."""
+    policy.to(device)
+    policy.optimizer.load_state_dict(policy.optimizer.state_dict())
+    return policy
