@@ -173,6 +173,7 @@ def test_a_learner_moves_with_its_optimisers_state():
         assert moment.dtype == torch.float32
         torch.testing.assert_close(moment, value, rtol=0, atol=0)
 
+
 def test_the_compiled_loss_is_the_eager_loss():
     """``dpr train --engine batched --compile`` compiles the mini-batch loss: the same loss, parts and gradients."""
     env = make_vec(num_envs=16).unwrapped
