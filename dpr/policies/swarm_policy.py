@@ -168,7 +168,9 @@ class SwarmExtractor(nn.Module):
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         return self.forward_actor_parts(*self.layout.split(features))
 
-    def forward_critic(self, features: torch.Tensor, parts: tuple[torch.Tensor, torch.Tensor] | None = None):
+    def forward_critic(
+        self, features: torch.Tensor, parts: tuple[torch.Tensor, torch.Tensor] | None = None
+    ) -> torch.Tensor:
         """The critic's latent; ``parts``: ``self.layout.split(features)`` where it is already computed."""
         if self.critic != "swarm":
             return self.value_net(features)
