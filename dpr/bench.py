@@ -149,7 +149,7 @@ def bench_batched(
     """Env steps per second of ``num_envs`` Navigation envs of N robots on the batched engine
     (``step_tensors``: physics, observation, reward, same-step resets), random actions drawn on the device, timed
     for at least ``seconds`` after one warm-up step (with ``compile``, after the compiling); and the peak memory of the
-    device (CUDA), or of the process."""
+    device while this row ran (CUDA), or of the process so far."""
     import resource
 
     import torch
@@ -163,6 +163,8 @@ def bench_batched(
         device=device,
         compile=compile,
     ).unwrapped
+    if envs.device.type == "cuda":  # this row's peak, not an earlier row's
+        torch.cuda.reset_peak_memory_stats(envs.device)
     envs.reset_tensors(seed)
     generator = torch.Generator(device=envs.device).manual_seed(seed)
     shape = (num_envs, n_robots)

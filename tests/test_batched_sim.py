@@ -131,6 +131,15 @@ def test_bad_input_names_the_argument(kwargs, parameter):
     assert error.value.parameter == parameter
 
 
+def test_a_cuda_device_this_machine_lacks_is_refused_by_name(monkeypatch):
+    """'cuda:3' on a machine of one GPU: a ParameterError naming --device, before torch's bare assertion."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    with pytest.raises(ParameterError, match=r"sees 1 CUDA device\(s\): cuda:0 to cuda:0") as error:
+        BatchedDiskWorld(num_envs=1, n_robots=9, device="cuda:3")
+    assert error.value.parameter == "device"
+
+
 def test_cell_pairs_are_the_all_pairs_neighbours_each_once():
     generator = torch.Generator().manual_seed(0)
     position = torch.rand(3, 300, 2, generator=generator) * 1500 - 700  # dense and sparse corners

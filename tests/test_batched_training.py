@@ -174,6 +174,43 @@ def test_a_learner_moves_with_its_optimisers_state():
         torch.testing.assert_close(moment, value, rtol=0, atol=0)
 
 
+def test_an_update_reports_its_mini_batches_mean_terms_and_stops_past_the_kl_target():
+    """The statistics of an update are the means of its mini-batches' terms; with ``target_kl``, the update stops
+    at the first mini-batch whose KL passes 1.5 times it (SB3's rule) and reports the ones before."""
+    env = make_vec(num_envs=16).unwrapped
+    hyper, _, _ = small_config().resolve()
+    observations = env.reset_tensors(0)
+    generator = torch.Generator().manual_seed(0)
+    advantages, returns = torch.randn(2, 16, generator=generator), torch.randn(2, 16, generator=generator)
+    seen = []
+
+    def recording(policy, batch, settings, clip_range):
+        loss, terms = batched_ppo.minibatch_loss(policy, batch, settings, clip_range)
+        seen.append({name: float(value.detach()) for name, value in terms.items()})
+        return loss, terms
+
+    def update(target_kl):
+        model = batched_ppo.build_learner(hyper, env.template, 0)
+        with torch.no_grad():
+            actions, values, log_probs = model.policy(observations)
+        rollout = batched_ppo.Rollout.empty(2, 16, observations.shape[1], 4, "cpu")
+        rollout.observations[:], rollout.actions[:], rollout.log_probs[:] = observations, actions.float(), log_probs
+        rollout.values[:], rollout.advantages, rollout.returns = values.flatten(), advantages, returns
+        settings = dataclasses.replace(
+            batched_ppo.RolloutSettings.of(model), n_epochs=2, batch_size=8, target_kl=target_kl
+        )
+        seen.clear()
+        return batched_ppo.update(model, rollout, settings, 0.2, recording)
+
+    stats = update(target_kl=None)
+    assert len(seen) == 8  # 32 samples in mini-batches of 8, twice
+    for name in batched_ppo.TERMS:
+        assert stats[name] == pytest.approx(sum(terms[name] for terms in seen) / len(seen), rel=1e-6, abs=1e-9)
+    stats = update(target_kl=1e-9)  # the first mini-batch is the rollout's own policy (KL 0), the second is not
+    assert len(seen) == 2
+    assert stats == pytest.approx(seen[0], rel=1e-6, abs=1e-9)
+
+
 def test_the_compiled_loss_is_the_eager_loss():
     """``dpr train --engine batched --compile`` compiles the mini-batch loss: the same loss, parts and gradients."""
     env = make_vec(num_envs=16).unwrapped

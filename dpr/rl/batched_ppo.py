@@ -31,6 +31,9 @@ from dpr.checks import ParameterError, check_int
 from dpr.policies.hyperparams import Hyperparams
 from dpr.policies.sb3 import PPO, build_model
 
+# what each update reports, the means of minibatch_loss's terms over its mini-batches
+TERMS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
+
 
 class TensorEnv(Protocol):
     """What the loop needs of a batched env: tensors in, tensors out, on ``device``."""
@@ -191,24 +194,24 @@ def update(model, rollout: Rollout, settings: RolloutSettings, clip_range: float
     if hasattr(policy, "observation_parts"):  # the swarm policy's split of its observations: once, not every epoch
         with torch.no_grad():
             data += policy.observation_parts(data[0])
-    stats = dict.fromkeys(("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction"), 0.0)
-    clip = torch.tensor(clip_range, dtype=torch.float32, device=data[0].device)
-    batches = 0
+    device = data[0].device
+    clip = torch.tensor(clip_range, dtype=torch.float32, device=device)
+    # the terms add up on the device, so that a GPU is not waited for at every mini-batch (only for the KL, where a
+    # target_kl may stop the update)
+    totals, batches = torch.zeros(len(TERMS), dtype=torch.float64, device=device), 0
     with fused_adam(policy.optimizer):
         for _ in range(settings.n_epochs):
-            for index in torch.randperm(data[0].shape[0], device=data[0].device).split(settings.batch_size):
+            for index in torch.randperm(data[0].shape[0], device=device).split(settings.batch_size):
                 loss, terms = loss_of(policy, tuple(part[index] for part in data), settings, clip)
-                terms = {name: float(value.detach()) for name, value in terms.items()}
-                if settings.target_kl is not None and terms["approx_kl"] > 1.5 * settings.target_kl:
-                    return _means(stats, batches)  # SB3's early stop: the policy moved far enough this update
+                if settings.target_kl is not None and float(terms["approx_kl"]) > 1.5 * settings.target_kl:
+                    return _means(totals, batches)  # SB3's early stop: the policy moved far enough this update
                 policy.optimizer.zero_grad()
                 loss.backward()
                 nn.utils.clip_grad_norm_(policy.parameters(), settings.max_grad_norm)
                 policy.optimizer.step()
                 batches += 1
-                for name, value in terms.items():
-                    stats[name] += value
-    return _means(stats, batches)
+                totals += torch.stack([terms[name].detach() for name in TERMS]).double()
+    return _means(totals, batches)
 
 
 @contextmanager
@@ -228,8 +231,8 @@ def fused_adam(optimizer):
             group["fused"] = setting
 
 
-def _means(stats: dict[str, float], batches: int) -> dict[str, float]:
-    return {name: total / max(batches, 1) for name, total in stats.items()}
+def _means(totals: torch.Tensor, batches: int) -> dict[str, float]:
+    return dict(zip(TERMS, (totals / max(batches, 1)).tolist()))
 
 
 def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start=None, on_update=None, compile=False):

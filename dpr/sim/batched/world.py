@@ -93,6 +93,11 @@ def _checked_device(device) -> torch.device:
         raise ParameterError("device", f"not a torch device: {device!r} ({error})") from None
     if checked.type == "cuda" and not torch.cuda.is_available():
         raise ParameterError("device", f"{device!r} asked for, but torch sees no CUDA device on this machine")
+    if checked.type == "cuda" and checked.index is not None and checked.index >= torch.cuda.device_count():
+        count = torch.cuda.device_count()
+        raise ParameterError(
+            "device", f"{device!r} asked for, but torch sees {count} CUDA device(s): cuda:0 to cuda:{count - 1}"
+        )
     return checked
 
 
