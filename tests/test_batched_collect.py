@@ -8,6 +8,7 @@ import pytest
 import torch
 from helpers import QUIET, run_cli
 
+import dpr.datasets.collect as collect_module
 from dpr.datasets import features as F
 from dpr.datasets.collect import CollectSpec, RolloutWorkers, collect
 from dpr.datasets.lerobot import DatasetError, LeRobotReader
@@ -97,6 +98,23 @@ def test_a_pymunk_dataset_is_not_resumed_on_the_batched_engine(tmp_path):
     collect(tmp_path / "data", spec(engine="pymunk"), 1)
     with pytest.raises(DatasetError):
         collect(tmp_path / "data", spec(), 2)
+
+
+def test_a_dataset_recorded_on_a_gpu_says_so_and_replays_only_there(tmp_path, monkeypatch):
+    """Float sums on a GPU differ from the CPU's in their last bits: a batched dataset records a device other than the
+    CPU, is not resumed on another, and `dpr replay` refuses it by name where torch has no such device."""
+    collect(tmp_path / "cpu", spec(steps=5), 1, seed=SEEDS[0])
+    assert "device" not in LeRobotReader(tmp_path / "cpu").info["dpr"]  # as datasets recorded before devices were
+    recorded = collect_module._info_extra
+    monkeypatch.setattr(collect_module, "_info_extra", lambda spec, device="cpu": recorded(spec, "cuda:1"))
+    collect(tmp_path / "gpu", spec(steps=5), 1, seed=SEEDS[0])  # (stepped on the CPU, recorded as a GPU's)
+    assert LeRobotReader(tmp_path / "gpu").info["dpr"]["device"] == "cuda"
+    monkeypatch.setattr(collect_module, "_info_extra", recorded)
+    with pytest.raises(DatasetError, match="device"):  # the CPU's episodes are not added to a GPU's dataset
+        collect(tmp_path / "gpu", spec(steps=5), 2, seed=SEEDS[0])
+    if not torch.cuda.is_available():
+        with pytest.raises(DatasetError, match=r"gpu: recorded on the batched engine on 'cuda'"):
+            replay_dataset(tmp_path / "gpu")
 
 
 def test_the_paddle_model_pixels_and_ray_are_refused_before_anything_is_written(tmp_path):

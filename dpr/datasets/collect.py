@@ -373,7 +373,7 @@ def collect(
     root = Path(root)
     seeds = range(seed, seed + episodes)
     features, task = _probe(spec, workers.device)
-    info_extra = _info_extra(spec)
+    info_extra = _info_extra(spec, workers.device)
     if (root / INFO_PATH).is_file():  # a dataset of the wrong fps is named, not resumed with the right one
         info = load_info(root)
         check_dataset_time(root, info)
@@ -439,14 +439,18 @@ def _probe(spec: CollectSpec, device: str = "cpu") -> tuple[dict, str]:
         probe.close()
 
 
-def _info_extra(spec: CollectSpec) -> dict:
+def _info_extra(spec: CollectSpec, device: str = "cpu") -> dict:
     """What info.json records of the spec, and what must match to resume: the env, its kwargs, the policy, and
-    whether episodes carry MCAP logs."""
+    whether episodes carry MCAP logs; for the batched engine off the CPU, the kind of device (``dpr replay`` re-runs
+    the episodes there: float sums on a GPU differ from the CPU's in their last bits)."""
     recorded = {F.ENV_ID: spec.env_id, F.POLICY: spec.policy, F.ENV_KWARGS: spec.make_kwargs(), "mcap": spec.mcap}
     if spec.label_policy is not None:  # (absent otherwise, so datasets recorded before it still resume)
         recorded[F.LABEL_POLICY] = spec.label_policy
     if spec.engine != ENGINES[0]:  # (likewise: a pymunk dataset and a batched one never resume each other)
         recorded["engine"] = spec.engine
+    device_type = str(device).split(":")[0]
+    if spec.engine == BATCHED and device_type != "cpu":  # (absent on the CPU, as before devices were recorded)
+        recorded["device"] = device_type
     revision = swarm_class(spec.robot_model).revision
     if revision > 1:  # a dataset of earlier physics is not resumed with these (first revisions record none)
         recorded[F.ROBOT_MODEL_REVISION] = revision

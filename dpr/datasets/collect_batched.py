@@ -252,16 +252,18 @@ def _log_mcap_step(env, i: int, episode: _Episode, step: _Step) -> None:
 
 
 # -- replay --------------------------------------------------------------------------------------------------------
-def replay_batched(env_id: str, kwargs: dict, seed: int, actions: np.ndarray) -> dict[str, list]:
-    """An episode recorded on the batched engine, re-run there (one env) from ``seed`` with its recorded
-    ``actions``: per frame the observation, reward, done and success flags and environment state, for
-    :func:`dpr.datasets.replay.replay_episode` to compare. It stops where the episode ends (or its physics blows
-    up)."""
+def replay_batched(env_id: str, kwargs: dict, seed: int, actions: np.ndarray, device: str = "cpu") -> dict[str, list]:
+    """An episode recorded on the batched engine, re-run there (one env, on the kind of ``device`` that recorded it)
+    from ``seed`` with its recorded ``actions``: per frame the observation, reward, done and success flags and
+    environment state, for :func:`dpr.datasets.replay.replay_episode` to compare. It stops where the episode ends (or
+    its physics blows up)."""
     import dpr  # noqa: F401  (registers the ids)
 
     kwargs = dict(kwargs)
     steps = kwargs.pop("max_episode_steps", len(actions))
-    venv = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", max_episode_steps=steps, **kwargs)
+    venv = gym.make_vec(
+        env_id, num_envs=1, vectorization_mode="vector_entry_point", max_episode_steps=steps, device=device, **kwargs
+    )
     env = venv.unwrapped
     replayed: dict[str, list] = {key: [] for key in (F.OBSERVATION, F.REWARD, F.DONE, F.SUCCESS, F.ENVIRONMENT_STATE)}
     try:

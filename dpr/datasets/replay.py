@@ -61,9 +61,17 @@ def replay_episode(reader: LeRobotReader, index: int) -> ReplayCheck:
     frames = len(recorded[F.ACTION])
     recorded_by = reader.info.get("dpr")
     if isinstance(recorded_by, dict) and recorded_by.get("engine") == "batched":  # replayed on the engine it ran on
+        import torch
+
         from dpr.datasets.collect_batched import replay_batched
 
-        replayed = replay_batched(meta[F.ENV_ID], kwargs, int(meta[F.SEED]), recorded[F.ACTION])
+        device = recorded_by.get("device", "cpu")
+        if device != "cpu" and not (device == "cuda" and torch.cuda.is_available()):
+            raise DatasetError(
+                f"{reader.root}: recorded on the batched engine on {device!r}, where alone it replays to the bit; "
+                f"torch sees no {device!r} device on this machine"
+            )
+        replayed = replay_batched(meta[F.ENV_ID], kwargs, int(meta[F.SEED]), recorded[F.ACTION], device)
         if F.ENVIRONMENT_STATE not in compared:
             del replayed[F.ENVIRONMENT_STATE]
     else:
