@@ -161,10 +161,11 @@ class _Step:
 def _start(env, episodes: list[_Episode], spec, mcap_paths) -> None:
     """Each env's reset: the agent's start, and its MCAP log's scene and reset state."""
     agent = env.agent_position().cpu().numpy().astype(float)
+    swarms = _Swarms.of(env) if mcap_paths is not None and any(path is not None for path in mcap_paths) else None
     for i, episode in enumerate(episodes):
         episode.trajectory.append(agent[i])
         if mcap_paths is not None and mcap_paths[i] is not None:
-            episode.writer = _start_mcap_log(env, i, mcap_paths[i], episode.seed, spec)
+            episode.writer = _start_mcap_log(env, i, mcap_paths[i], episode.seed, spec, swarms)
 
 
 def _note_step(env, episodes: list[_Episode], running: np.ndarray, step: _Step) -> np.ndarray:
@@ -173,6 +174,8 @@ def _note_step(env, episodes: list[_Episode], running: np.ndarray, step: _Step) 
     info = step.info
     blown = info.get(f"_{PHYSICS_ERROR}", np.zeros(len(episodes), dtype=bool))
     agent = info["agent_position"].astype(float)
+    logging = any(episodes[i].writer is not None for i in np.flatnonzero(running))
+    swarms = _Swarms.of(env) if logging else None  # one copy of the world a step, not one per env and field
     for i in np.flatnonzero(running):
         episode = episodes[i]
         if blown[i]:
@@ -186,12 +189,12 @@ def _note_step(env, episodes: list[_Episode], running: np.ndarray, step: _Step) 
         episode.successes.append(bool(info["is_success"][i]))
         episode.trajectory.append(agent[i])
         if episode.writer is not None:
-            _log_mcap_step(env, i, episode, step)
+            _log_mcap_step(env, i, episode, step, swarms)
     return running & ~step.done & ~blown
 
 
 # -- MCAP ----------------------------------------------------------------------------------------------------------
-def _start_mcap_log(env, i: int, path: Path, seed: int, spec):
+def _start_mcap_log(env, i: int, path: Path, seed: int, spec, swarms: _Swarms):
     """An MCAP writer for env ``i``'s episode, its scene and reset state logged (as
     :func:`dpr.datasets.collect._start_mcap_log` logs a single env's)."""
     from dpr.datasets.mcap import McapEpisodeWriter
@@ -214,32 +217,58 @@ def _start_mcap_log(env, i: int, path: Path, seed: int, spec):
         object_size=env.template.object_size if env.template.has_object else None,
         robot_radii=(C.DISK_CONTRACTED_RADIUS, C.DISK_EXPANDED_RADIUS),
     )
-    writer.write_step(0, _swarm_state(env, i))
+    writer.write_step(0, swarms.state(i))
     return writer
 
 
-def _swarm_state(env, i: int):
-    """Env ``i``'s swarm as an MCAP step logs it (angles 0: the batched engine does not track them)."""
-    from dpr.datasets.mcap import SwarmState
+@dataclass
+class _Swarms:
+    """The world's state on the CPU in float64, ``[K, ...]``, copied once a step (from a GPU, one copy per field
+    rather than one per env and field), for each env's MCAP step."""
 
-    world = env.world
-    position = world.position[i].double().cpu().numpy()
-    has_object = env.template.has_object
-    object_position = world.object_position[i].double().cpu().numpy() if has_object else None
-    return SwarmState(
-        positions=position,
-        angles=np.zeros(env.n_robots),
-        velocities=world.velocity[i].double().cpu().numpy(),
-        angular_velocities=world.angular_velocity[i].double().cpu().numpy(),
-        expansions=world.expansion[i].double().cpu().numpy(),
-        alive=world.alive[i].cpu().numpy(),
-        object_pose=np.array([*object_position, 0.0]) if has_object else None,
-        object_velocity=world.object_velocity[i].double().cpu().numpy() if has_object else None,
-        centre_of_mass=position.mean(axis=0),
-    )
+    n_robots: int
+    position: np.ndarray
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+    expansion: np.ndarray
+    alive: np.ndarray
+    object_position: np.ndarray | None
+    object_velocity: np.ndarray | None
+
+    @classmethod
+    def of(cls, env) -> _Swarms:
+        world, has_object = env.world, env.template.has_object
+        host = lambda tensor: tensor.double().cpu().numpy()  # noqa: E731
+        return cls(
+            env.n_robots,
+            host(world.position),
+            host(world.velocity),
+            host(world.angular_velocity),
+            host(world.expansion),
+            world.alive.cpu().numpy(),
+            host(world.object_position) if has_object else None,
+            host(world.object_velocity) if has_object else None,
+        )
+
+    def state(self, i: int):
+        """Env ``i``'s swarm as an MCAP step logs it (angles 0: the batched engine does not track them)."""
+        from dpr.datasets.mcap import SwarmState
+
+        position, has_object = self.position[i], self.object_position is not None
+        return SwarmState(
+            positions=position,
+            angles=np.zeros(self.n_robots),
+            velocities=self.velocity[i],
+            angular_velocities=self.angular_velocity[i],
+            expansions=self.expansion[i],
+            alive=self.alive[i],
+            object_pose=np.array([*self.object_position[i], 0.0]) if has_object else None,
+            object_velocity=self.object_velocity[i] if has_object else None,
+            centre_of_mass=position.mean(axis=0),
+        )
 
 
-def _log_mcap_step(env, i: int, episode: _Episode, step: _Step) -> None:
+def _log_mcap_step(env, i: int, episode: _Episode, step: _Step, swarms: _Swarms) -> None:
     from dpr.datasets.mcap import StepOutcome
 
     action = step.taken[i]
@@ -248,7 +277,7 @@ def _log_mcap_step(env, i: int, episode: _Episode, step: _Step) -> None:
     metrics = {key: step.info[key][i] for key in ("projected_displacement", "net_displacement", "total_distance")}
     metrics["is_success"] = bool(step.info["is_success"][i])
     outcome = StepOutcome(action, float(step.reward[i]), bool(step.terminated[i]), bool(step.truncated[i]), metrics)
-    episode.writer.write_step(len(episode.actions), _swarm_state(env, i), outcome)
+    episode.writer.write_step(len(episode.actions), swarms.state(i), outcome)
 
 
 # -- replay --------------------------------------------------------------------------------------------------------
