@@ -51,6 +51,7 @@ from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs import MAX_EPISODE_STEPS
 from dpr.imitation.config import CloneConfig, check_env_id
 from dpr.imitation.loss import batch_stats, check_features
+from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.hyperparams import Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
     DQN,
@@ -106,6 +107,7 @@ class EarlyStoppedFit:
     seconds: float
 
 
+@unchecked_distributions()
 def fit_with_early_stopping(
     policy, first_row: dict[str, Any], run_epoch: Callable[[int], dict[str, Any]], epochs: int, patience: int, bar
 ) -> EarlyStoppedFit:

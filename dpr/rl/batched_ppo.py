@@ -18,6 +18,7 @@ ends its episode and hands back the observation it ended on, so that a time-limi
 
 from __future__ import annotations
 
+import math
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ import torch
 from torch import nn
 
 from dpr.checks import ParameterError, check_int
+from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.hyperparams import Hyperparams
 from dpr.policies.sb3 import PPO, build_model
 
@@ -235,6 +237,7 @@ def _means(totals: torch.Tensor, batches: int) -> dict[str, float]:
     return dict(zip(TERMS, (totals / max(batches, 1)).tolist()))
 
 
+@unchecked_distributions()
 def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start=None, on_update=None, compile=False):
     """Train ``model`` (an SB3 PPO model; its policy and optimiser move to ``env.device`` for the run and back to the
     CPU) for at least ``timesteps`` env steps of all envs together, in whole rollouts of ``n_steps`` x ``num_envs``;
@@ -268,6 +271,8 @@ def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start
             observation = collect_rollout(policy, env, observation, settings, rollout)
             estimate_advantages(policy, rollout, observation, settings)
             stats = update(model, rollout, settings, model.clip_range(remaining), loss_of)
+            if not all(math.isfinite(value) for value in stats.values()):  # (torch's distributions no longer check)
+                raise FloatingPointError(f"PPO's update {number + 1} gave terms that are not numbers: {stats}")
             history.append({"steps": (number + 1) * per_update, "mean_reward": float(rollout.rewards.mean()), **stats})
             model.num_timesteps = (number + 1) * per_update
             if progress is not None:

@@ -28,6 +28,7 @@ from tqdm import tqdm
 from dpr import runs
 from dpr.checks import ParameterError
 from dpr.envs.batched import refuse_batched_only_kwargs
+from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.sb3 import ModelInfo, build_model, model_architecture, save_model
 from dpr.rl import resume as resume_state
 from dpr.rl.batched_ppo import build_learner, learn
@@ -148,6 +149,7 @@ def train_batched(
     return TrainResult(run_dir, model_path, config_path, None, timesteps, seconds, interrupted)
 
 
+@unchecked_distributions()
 def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[list, bool]:
     """Run the learner; its statistics, and whether Ctrl-C stopped it. ``saving``: (run folder, whether to resume
     from its snapshot, seconds between snapshots, the ModelInfo its checkpoints carry). Either learner writes

@@ -49,6 +49,7 @@ from dpr.checks import ParameterError, check_choice, check_int
 from dpr.envs import TASKS
 from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.limits import MAX_RECORD_BYTES
+from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.hyperparams import FINETUNE_PRESET, Hyperparams, load_hyperparams
 from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env
 from dpr.policies.sb3 import (
@@ -519,7 +520,8 @@ def finetune_per_robot(
             if snapshot is not None:
                 snapshot.restore_callbacks(callbacks)
                 snapshot.restore_random_states()
-            model.learn(total_timesteps=total, callback=callbacks, reset_num_timesteps=reset)
+            with unchecked_distributions():
+                model.learn(total_timesteps=total, callback=callbacks, reset_num_timesteps=reset)
             interrupted = False
         except KeyboardInterrupt:  # Ctrl-C: keep what was learned so far
             interrupted = True

@@ -31,6 +31,7 @@ from dpr.checks import ParameterError, check_choice, check_int, check_number
 from dpr.envs import TASKS, episode_steps
 from dpr.interrupts import raise_if_interrupted
 from dpr.limits import MAX_RECORD_BYTES, MAX_TEMPERATURE
+from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.exploration import soften_actions
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
 from dpr.policies.sb3 import (
@@ -193,8 +194,7 @@ def prepare_run_dir(out: str | Path | None, config: TrainConfig) -> Path:
 
 
 def check_resumable(out: str | Path | None, config: TrainConfig) -> None:
-    """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume
-    from."""
+    """A :class:`ParameterError` about ``out`` unless it is a stopped run of ``config`` with a snapshot to resume."""
     resume_state.check_resumable(out, asdict(config), resume_state.added_later(config))
 
 
@@ -393,9 +393,9 @@ def _demonstrations(config: TrainConfig, env: gym.Env, env_kwargs: dict[str, Any
     )
 
 
+@unchecked_distributions()
 def warm_up_critic(model, steps: int, show_progress: bool, unit: StepUnit = SB3_STEPS) -> None:
-    """``steps`` steps (counted in ``unit``) of ``model.learn`` with every actor parameter frozen: only the value
-    head moves."""
+    """``steps`` steps (counted in ``unit``) of ``model.learn``, every actor parameter frozen: the value head learns."""
     actor = actor_parameters(model.policy)
     for parameter in actor:
         parameter.requires_grad_(False)
@@ -562,7 +562,7 @@ def train(
             callbacks.callbacks.append(
                 demonstration_anchor(demonstrations, config.anchor_weight, config.anchor_decay, config.seed)
             )
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), unchecked_distributions():
             # EvalCallback warns when the eval env is a DummyVecEnv and training runs in a SubprocVecEnv: harmless
             # (both are Monitor-wrapped), and one env does not need a process of its own.
             warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
