@@ -3,6 +3,8 @@ agreement with the pymunk disk model on a short wave."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -129,6 +131,13 @@ def test_bad_input_names_the_argument(kwargs, parameter):
     with pytest.raises(ParameterError) as error:
         BatchedDiskWorld(**kwargs)
     assert error.value.parameter == parameter
+
+
+def test_a_world_builds_where_the_platform_does_not_say_its_memory(monkeypatch):
+    """Windows has no os.sysconf: the memory check then assumes plenty (dpr.limits.physical_memory), as the pymunk
+    envs' does, rather than stopping on an AttributeError."""
+    monkeypatch.delattr(os, "sysconf")
+    assert BatchedDiskWorld(num_envs=2, n_robots=9).position.shape == (2, 9, 2)
 
 
 def test_a_cuda_device_this_machine_lacks_is_refused_by_name(monkeypatch):

@@ -31,12 +31,12 @@ it, a cell list finds the pairs within the magnet range each control step.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import torch
 
 from dpr.checks import ParameterError, check_int, check_number
+from dpr.limits import physical_memory
 from dpr.sim import constants as C
 from dpr.sim.batched.neighbours import cell_pairs
 from dpr.sim.batched.pairs import DensePairs, SparsePairs
@@ -104,7 +104,7 @@ def _checked_device(device) -> torch.device:
 def _available_memory(device: torch.device) -> int:
     if device.type == "cuda":
         return torch.cuda.get_device_properties(device).total_memory
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    return physical_memory()
 
 
 def estimated_memory(num_envs: int, n_robots: int) -> int:
