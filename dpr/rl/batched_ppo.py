@@ -272,7 +272,10 @@ def learn(model, env: TensorEnv, timesteps: int, seed: int, progress=None, start
             estimate_advantages(policy, rollout, observation, settings)
             stats = update(model, rollout, settings, model.clip_range(remaining), loss_of)
             if not all(math.isfinite(value) for value in stats.values()):  # (torch's distributions no longer check)
-                raise FloatingPointError(f"PPO's update {number + 1} gave terms that are not numbers: {stats}")
+                raise FloatingPointError(
+                    f"PPO's update {number + 1} gave terms that are not numbers: {stats}; look for rewards or "
+                    "observations that are not numbers, or lower the learning rate"
+                )
             history.append({"steps": (number + 1) * per_update, "mean_reward": float(rollout.rewards.mean()), **stats})
             model.num_timesteps = (number + 1) * per_update
             if progress is not None:
