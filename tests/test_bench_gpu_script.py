@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -45,7 +46,11 @@ def test_every_part_runs_by_default(tmp_path):
     python, calls = recording_python(tmp_path)
     result = run_script(tmp_path / "out", python)
     assert result.returncode == 0, result.stderr
-    assert sum("bench" in line for line in calls.read_text().splitlines()) == 4
+    commands = calls.read_text().splitlines()
+    assert sum("bench" in line for line in commands) == 4
+    assert [line for line in commands if "profile_batched.py" in line] == [
+        f"tools/profile_batched.py --device cuda --compile --out {tmp_path / 'out' / 'profile-batched'}"
+    ]
 
 
 def test_unknown_part_is_refused_before_any_work(tmp_path):
@@ -61,3 +66,20 @@ def test_a_machine_without_cuda_is_refused_before_any_part(tmp_path):
     assert result.returncode == 1
     assert "no CUDA device" in result.stderr
     assert not list((tmp_path / "out").iterdir())
+
+
+def test_the_profile_tool_writes_its_tables_and_summary_on_the_cpu(tmp_path):
+    """tools/profile_batched.py at a tiny size: what the profile-batched part brings back from a GPU (here without
+    the device's columns), and a folder that exists is refused before any work."""
+    tool = SCRIPT.parent / "profile_batched.py"
+    out = tmp_path / "profile"
+    tiny = ["--num-envs", "4", "--ppo-envs", "4", "--steps", "1", "--n-robots", "4", "--n-steps", "2", "--rows", "5"]
+    tiny += ["--out", str(out)]
+    result = subprocess.run([sys.executable, str(tool), *tiny], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((out / "profile.json").read_text())
+    assert summary["env_step"]["wall_seconds"] > 0 and summary["ppo_round"]["samples"] == 4 * 2
+    assert summary["env_step"]["kernel_launches"] == 0 and summary["ppo_round"]["device_busy_share"] is None
+    assert "aten::" in (out / "env_step.txt").read_text() and "aten::" in (out / "ppo_round.txt").read_text()
+    again = subprocess.run([sys.executable, str(tool), *tiny], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2 and f"--out: {out} exists" in again.stderr

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The batched engine's figures on a CUDA machine, in about ten minutes: env steps/s from K=1 to 65,536 at N=9 and at
 # N = 100 to 10,000 (beside the pymunk disk env on the CPU), the same with a GPU's worth of robots per call, N=9
-# compiled, then the whole PPO loop against `dpr train` on pymunk. Each part has a time limit and the next one runs
-# whatever became of it, so a short lease still brings back what finished.
+# compiled, then the whole PPO loop against `dpr train` on pymunk, and a profile of where an env step and a PPO round
+# spend their time. Each part has a time limit and the next one runs whatever became of it, so a short lease still
+# brings back what finished.
 # Needs the project importable (`make test` installs it, or pip install -e . with torch built for CUDA).
 #   tools/bench_gpu.sh [OUT_DIR]      # writes bench-*.json and a log per part there
 #   PYTHON=python3 PART_SECONDS=150 PYMUNK_PROCESSES=16 tools/bench_gpu.sh OUT_DIR
@@ -13,7 +14,7 @@ python="${PYTHON:-python}"
 limit="${PART_SECONDS:-150}"
 processes="${PYMUNK_PROCESSES:-$(nproc)}"  # the pymunk side of the training loop gets the machine's cores
 parts="${PARTS:-}"  # empty: every part
-all_parts="bench-batched bench-training bench-batched-large bench-batched-compiled"  # the part calls' names below
+all_parts="bench-batched bench-training bench-batched-large bench-batched-compiled profile-batched"  # the part calls' names below
 for name in $parts; do
     [[ " $all_parts " == *" $name "* ]] || { echo "PARTS: no part named '$name' (expected any of: $all_parts)" >&2; exit 2; }
 done
@@ -43,3 +44,5 @@ part bench-batched-large "$limit" "$python" -m dpr.cli bench --engine batched --
 # N=9 with each physics substep compiled (Triton kernels on the GPU)
 part bench-batched-compiled "$limit" "$python" -m dpr.cli bench --engine batched --device cuda --compile \
     --ks 1024 4096 16384 65536 --batched-sizes --json "$out/bench-batched-compiled.json"
+# where a compiled env step (K=4,096) and a PPO round (1,024 envs) spend their time: kernels, launches, host waits
+part profile-batched "$limit" "$python" tools/profile_batched.py --device cuda --compile --out "$out/profile-batched"
