@@ -41,10 +41,7 @@ class HostReads(TorchFunctionMode):
 
 
 def _learner(num_envs: int, action_repeat: int):
-    config = TrainConfig(
-        "ppo", "dpr/Navigation-v0", n_robots=4, robot_model="disk", n_envs=num_envs, preset="batched",
-        engine="batched",
-    )  # fmt: skip
+    config = TrainConfig("ppo", "dpr/Navigation-v0", n_robots=4, robot_model="disk", preset="batched", engine="batched")
     hyper, env_kwargs, _ = config.resolve()
     env_kwargs = {**env_kwargs, "action_repeat": action_repeat}
     venv = gym.make_vec(

@@ -1,8 +1,8 @@
 """torch.distributions' argument checks, off while a learner runs.
 
 Every action distribution torch builds checks its parameters (and every ``log_prob`` its sample) against their
-constraints, and each check reads a flag back from the tensors: a host synchronisation on a GPU and, in SB3's small
-mini-batches, a tenth of an update on a CPU. The learners run inside :func:`unchecked_distributions`; an action
+constraints, and each check reads a flag back from the tensors: a host synchronisation on a GPU, and a few percent of
+a batched PPO update on a CPU. The learners run inside :func:`unchecked_distributions`; an action
 sampled from bad parameters still fails in torch's sampler (``bernoulli`` and ``multinomial`` refuse probabilities
 that are not numbers in [0, 1]), and a loss gone bad shows in the next rollout's sampling.
 
