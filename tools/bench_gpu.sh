@@ -45,4 +45,5 @@ part bench-batched-large "$limit" "$python" -m dpr.cli bench --engine batched --
 part bench-batched-compiled "$limit" "$python" -m dpr.cli bench --engine batched --device cuda --compile \
     --ks 1024 4096 16384 65536 --batched-sizes --json "$out/bench-batched-compiled.json"
 # where a compiled env step (K=4,096) and a PPO round (1,024 envs) spend their time: kernels, launches, host waits
-part profile-batched "$limit" "$python" tools/profile_batched.py --device cuda --compile --out "$out/profile-batched"
+# (twice the limit: it compiles the physics for two sizes and the loss before it profiles)
+part profile-batched "$((limit * 2))" "$python" tools/profile_batched.py --device cuda --compile --out "$out/profile-batched"
