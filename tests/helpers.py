@@ -291,3 +291,22 @@ def change_a_reward(path: Path) -> None:
     rewards[3] = -4.3e24
     index = table.column_names.index("next.reward")
     pq.write_table(table.set_column(index, "next.reward", pa.array(rewards, table.schema.field(index).type)), path)
+
+
+def small_batched_config(**overrides):
+    """A `dpr train --engine batched` run of seconds: 4 updates of 8 steps x 4 envs of 4 disk robots, Navigation."""
+    from dpr.rl.train import TrainConfig
+
+    settings = dict(
+        algo="ppo",
+        env_id="dpr/Navigation-v0",
+        n_robots=4,
+        robot_model="disk",
+        n_envs=4,
+        timesteps=4 * 8 * 4,  # 4 updates of n_steps 8 x 4 envs
+        preset="batched",
+        engine="batched",
+        steps_per_episode=12,
+        hyperparams={"n_steps": 8, "batch_size": 16, "n_epochs": 2},
+    )
+    return TrainConfig(**{**settings, **overrides})

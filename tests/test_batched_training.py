@@ -13,6 +13,7 @@ import pytest
 import torch
 import yaml
 from helpers import assert_same_policy
+from helpers import small_batched_config as small_config
 
 import dpr  # noqa: F401
 import dpr.rl.batched_ppo as batched_ppo
@@ -22,7 +23,6 @@ from dpr.policies.sb3 import load_model
 from dpr.rl.batched_resume import snapshot_file
 from dpr.rl.batched_train import train_batched
 from dpr.rl.sb3_batched import BatchedSB3VecEnv
-from dpr.rl.train import TrainConfig
 
 REPO = Path(__file__).resolve().parents[1]
 NAV = "dpr/Navigation-v0"
@@ -72,22 +72,6 @@ def test_sb3_ppo_learns_through_the_adapter():
     model.learn(total_timesteps=384)
     assert model.num_timesteps == 384 and len(model.ep_info_buffer) > 0
     assert any(not torch.equal(a, b) for a, b in zip(before, model.policy.parameters()))
-
-
-def small_config(**overrides) -> TrainConfig:
-    settings = dict(
-        algo="ppo",
-        env_id=NAV,
-        n_robots=4,
-        robot_model="disk",
-        n_envs=4,
-        timesteps=4 * 8 * 4,  # 4 updates of n_steps 8 x 4 envs
-        preset="batched",
-        engine="batched",
-        steps_per_episode=12,
-        hyperparams={"n_steps": 8, "batch_size": 16, "n_epochs": 2},
-    )
-    return TrainConfig(**{**settings, **overrides})
 
 
 def test_a_stopped_batched_run_resumes_to_the_uninterrupted_runs_model(tmp_path, monkeypatch):

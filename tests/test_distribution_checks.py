@@ -7,6 +7,7 @@ import gymnasium as gym
 import pytest
 import stable_baselines3
 import torch
+from helpers import QUIET, small_batched_config
 from torch.distributions import Bernoulli, Distribution
 
 import dpr  # noqa: F401
@@ -16,7 +17,6 @@ from dpr.policies.distributions import unchecked_distributions
 from dpr.rl.batched_train import train_batched
 from dpr.rl.train import TrainConfig, train
 
-QUIET = {"show_progress": False, "log": lambda line: None}
 NAN_LOGITS = torch.tensor([math.nan])
 
 
@@ -82,7 +82,7 @@ def test_batched_training_runs_without_the_checks(tmp_path, monkeypatch, learner
         seen = _recording(monkeypatch, batched_ppo, "update")
     else:
         seen = _recording(monkeypatch, stable_baselines3.PPO, "train")
-    train_batched(_batched_config(learner=learner), tmp_path / "run", **QUIET)
+    train_batched(small_batched_config(learner=learner), tmp_path / "run", **QUIET)
     assert seen and not any(seen)
     assert Distribution._validate_args
 
@@ -105,7 +105,7 @@ def test_behaviour_cloning_fits_without_the_checks():
 def test_the_batched_ppo_stops_on_an_update_that_is_not_a_number():
     """Without the checks, a policy gone bad would train on: an env's rewards that are not numbers make an update's
     losses none either, and the loop says so after that update."""
-    config = _batched_config()
+    config = small_batched_config()
     hyper, env_kwargs, _ = config.resolve()
     venv = gym.make_vec(
         config.env_id,
@@ -126,19 +126,3 @@ def test_the_batched_ppo_stops_on_an_update_that_is_not_a_number():
     with pytest.raises(FloatingPointError, match="update 1 gave terms that are not numbers"):
         batched_ppo.learn(model, env, 64, seed=0)
     assert next(model.policy.parameters()).device.type == "cpu"
-
-
-def _batched_config(**overrides) -> TrainConfig:
-    settings = dict(
-        algo="ppo",
-        env_id="dpr/Navigation-v0",
-        n_robots=4,
-        robot_model="disk",
-        n_envs=4,
-        timesteps=64,
-        preset="batched",
-        engine="batched",
-        steps_per_episode=12,
-        hyperparams={"n_steps": 8, "batch_size": 16, "n_epochs": 1},
-    )
-    return TrainConfig(**{**settings, **overrides})

@@ -149,7 +149,6 @@ def train_batched(
     return TrainResult(run_dir, model_path, config_path, None, timesteps, seconds, interrupted)
 
 
-@unchecked_distributions()
 def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[list, bool]:
     """Run the learner; its statistics, and whether Ctrl-C stopped it. ``saving``: (run folder, whether to resume
     from its snapshot, seconds between snapshots, the ModelInfo its checkpoints carry). Either learner writes
@@ -159,7 +158,8 @@ def _learn(config, model, venv, timesteps: int, bar, saving: tuple) -> tuple[lis
     checkpoint = _checkpointer(model, run_dir, info, timesteps)
     if config.learner == SB3_LEARNER:
         try:
-            model.learn(total_timesteps=timesteps, callback=_sb3_progress(bar, checkpoint))
+            with unchecked_distributions():  # (the tensor loop, learn(), turns them off itself)
+                model.learn(total_timesteps=timesteps, callback=_sb3_progress(bar, checkpoint))
         except KeyboardInterrupt:
             return [], True
         return [], False
