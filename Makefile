@@ -21,8 +21,10 @@ $(STAMP): pyproject.toml constraints.txt
 run: $(STAMP)
 	$(BIN)/dpr pipeline --out runs/pipeline --shipped models/card.yaml
 
+# The tests spread over the machine's cores (pytest-xdist), at most four processes: on 2 cores about half the time.
+PYTEST_WORKERS ?= -n auto --maxprocesses 4
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q $(PYTEST_WORKERS)
 
 # Style kept by machines: lint and import order, formatting, and the layering contract (pyproject.toml).
 lint: $(STAMP)
@@ -31,7 +33,7 @@ lint: $(STAMP)
 	$(BIN)/lint-imports
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -m slow $(PYTEST_WORKERS)
 
 bench: $(STAMP)
 	$(BIN)/python tools/bench_env.py
