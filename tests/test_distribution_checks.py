@@ -3,7 +3,6 @@ after, and the batched PPO stops on an update whose terms are not numbers."""
 
 import math
 
-import gymnasium as gym
 import pytest
 import stable_baselines3
 import torch
@@ -14,7 +13,7 @@ import dpr  # noqa: F401
 import dpr.rl.batched_ppo as batched_ppo
 from dpr.imitation.bc import fit_with_early_stopping
 from dpr.policies.distributions import unchecked_distributions
-from dpr.rl.batched_train import train_batched
+from dpr.rl.batched_train import build_batched_run, train_batched
 from dpr.rl.train import TrainConfig, train
 
 NAN_LOGITS = torch.tensor([math.nan])
@@ -105,15 +104,7 @@ def test_behaviour_cloning_fits_without_the_checks():
 def test_the_batched_ppo_stops_on_an_update_that_is_not_a_number():
     """Without the checks, a policy gone bad would train on: an env's rewards that are not numbers make an update's
     losses none either, and the loop says so after that update."""
-    config = small_batched_config()
-    hyper, env_kwargs, _ = config.resolve()
-    venv = gym.make_vec(
-        config.env_id,
-        num_envs=config.n_envs,
-        vectorization_mode="vector_entry_point",
-        max_episode_steps=config.steps_per_episode,
-        **config.training_kwargs(env_kwargs),
-    )
+    venv, model, *_ = build_batched_run(small_batched_config())
     env = venv.unwrapped
     step = env.step_tensors
 
@@ -122,7 +113,6 @@ def test_the_batched_ppo_stops_on_an_update_that_is_not_a_number():
         return (observation, torch.full_like(reward, math.nan), *rest)
 
     env.step_tensors = poisoned
-    model = batched_ppo.build_learner(hyper, env.template, 0)
     with pytest.raises(FloatingPointError, match="update 1 gave terms that are not numbers"):
         batched_ppo.learn(model, env, 64, seed=0)
     assert next(model.policy.parameters()).device.type == "cpu"

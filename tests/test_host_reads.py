@@ -5,13 +5,13 @@ values to Python)."""
 import dataclasses
 from collections import Counter
 
-import gymnasium as gym
 import torch
 from torch.overrides import TorchFunctionMode
 
 import dpr  # noqa: F401
 import dpr.rl.batched_ppo as batched_ppo
 from dpr.policies.distributions import unchecked_distributions
+from dpr.rl.batched_train import build_batched_run
 from dpr.rl.train import TrainConfig
 
 READS = {
@@ -41,13 +41,18 @@ class HostReads(TorchFunctionMode):
 
 
 def _learner(num_envs: int, action_repeat: int):
-    config = TrainConfig("ppo", "dpr/Navigation-v0", n_robots=4, robot_model="disk", preset="batched", engine="batched")
-    hyper, env_kwargs, _ = config.resolve()
-    env_kwargs = {**env_kwargs, "action_repeat": action_repeat}
-    venv = gym.make_vec(
-        config.env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", max_episode_steps=50, **env_kwargs
+    config = TrainConfig(
+        "ppo",
+        "dpr/Navigation-v0",
+        n_robots=4,
+        robot_model="disk",
+        n_envs=num_envs,
+        preset="batched",
+        engine="batched",
+        steps_per_episode=50,
+        training_env_kwargs={"action_repeat": action_repeat},
     )
-    model = batched_ppo.build_learner(hyper, venv.unwrapped.template, 0)
+    venv, model, *_ = build_batched_run(config)
     settings = dataclasses.replace(batched_ppo.RolloutSettings.of(model), n_steps=4, n_epochs=2, batch_size=8)
     return venv.unwrapped, model, settings
 

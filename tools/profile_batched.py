@@ -18,12 +18,12 @@ import json
 import time
 from pathlib import Path
 
-import gymnasium as gym
 import torch
 from torch.profiler import ProfilerActivity, profile
 
 import dpr  # noqa: F401
 from dpr.rl import batched_ppo
+from dpr.rl.batched_train import build_batched_run
 from dpr.rl.train import TrainConfig
 
 LAUNCHES = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunchKernelEx")
@@ -39,15 +39,15 @@ def _learner(env_id: str, num_envs: int, n_robots: int, device: str, compile: bo
         env_id,
         n_robots=n_robots,
         robot_model="disk",
+        n_envs=num_envs,
         preset="batched",
         engine="batched",
+        device=device,
+        compile=compile,
         hyperparams=hyperparams,
     )
-    hyper, env_kwargs, _ = config.resolve()
-    venv = gym.make_vec(
-        env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", device=device, compile=compile, **env_kwargs
-    )
-    return venv.unwrapped, batched_ppo.build_learner(hyper, venv.unwrapped.template, 0)
+    run = build_batched_run(config)
+    return run.venv.unwrapped, run.model
 
 
 def _profiled(work, device: str, repeats: int) -> tuple[profile, float]:

@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
+from typing import NamedTuple
 
 import gymnasium as gym
 import torch
@@ -76,17 +77,47 @@ def _run_record(config, hyper, env_kwargs: dict, timesteps: int) -> dict:
     }
 
 
-def _build(config, hyper, venv):
-    """The run's model, seeded as every run of ``config`` seeds it: the tensor PPO's learner, or SB3's model on the
-    adapter."""
+class BatchedRun(NamedTuple):
+    """What :func:`build_batched_run` makes: the batched engine's vector env, the seeded model, and the run's
+    hyperparameters, env kwargs (:meth:`TrainConfig.resolve`) and step budget."""
+
+    venv: gym.vector.VectorEnv
+    model: object  # a dpr.rl.batched_ppo learner, or an SB3 model on the VecEnv adapter (learner="sb3")
+    hyper: object
+    env_kwargs: dict
+    timesteps: int
+
+
+def build_batched_run(config) -> BatchedRun:
+    """The env and the model that ``dpr train --engine batched`` trains for ``config``: ``config.n_envs`` envs of the
+    batched engine on ``config.device`` with its training kwargs, and the model seeded as every run of ``config``
+    seeds it (the tensor PPO's learner, or SB3's model on the adapter). Bad kwargs, a device without CUDA or a swarm
+    too large for memory fail here, before anything is written."""
+    hyper, env_kwargs, timesteps = config.resolve()
+    refuse_batched_only_kwargs(  # the model records them: it could run nowhere else
+        env_kwargs,
+        "a model is run and fine-tuned with its env kwargs on either engine: train in it as a training env kwarg "
+        "(--training-env-kwarg {name}=...)",
+    )
+    venv = gym.make_vec(
+        config.env_id,
+        num_envs=config.n_envs,
+        vectorization_mode="vector_entry_point",
+        max_episode_steps=config.steps_per_episode,
+        device=config.device,
+        compile=config.compile,
+        **config.training_kwargs(env_kwargs),
+    )
     torch.manual_seed(config.seed)
     if config.learner == SB3_LEARNER:
         from dpr.rl.sb3_batched import BatchedSB3VecEnv
 
         adapter = BatchedSB3VecEnv(venv)
         adapter.seed(config.seed)
-        return build_model(hyper, adapter, config.seed, None, single_thread=False)
-    return build_learner(hyper, venv.unwrapped.template, config.seed)
+        model = build_model(hyper, adapter, config.seed, None, single_thread=False)
+    else:
+        model = build_learner(hyper, venv.unwrapped.template, config.seed)
+    return BatchedRun(venv, model, hyper, env_kwargs, timesteps)
 
 
 def train_batched(
@@ -101,24 +132,9 @@ def train_batched(
     """Train ``config`` (a :class:`dpr.rl.train.TrainConfig` with ``engine="batched"``) on ``config.n_envs`` envs
     of the batched engine (module docstring); a :class:`TrainResult`. ``snapshot_seconds``: between snapshots
     (default :data:`dpr.rl.resume.SNAPSHOT_SECONDS`; 0: after every update)."""
-    hyper, env_kwargs, timesteps = config.resolve()
-    refuse_batched_only_kwargs(  # the model records them: it could run nowhere else
-        env_kwargs,
-        "a model is run and fine-tuned with its env kwargs on either engine: train in it as a training env kwarg "
-        "(--training-env-kwarg {name}=...)",
-    )
     if resume:
         _check_resume(config, out)
-    venv = gym.make_vec(
-        config.env_id,
-        num_envs=config.n_envs,
-        vectorization_mode="vector_entry_point",
-        max_episode_steps=config.steps_per_episode,
-        device=config.device,
-        compile=config.compile,
-        **config.training_kwargs(env_kwargs),
-    )  # bad kwargs, a device without CUDA or a swarm too large for memory fail here, before the run folder exists
-    model = _build(config, hyper, venv)
+    venv, model, hyper, env_kwargs, timesteps = build_batched_run(config)  # refusals here leave nothing behind
     run_dir = Path(out) if resume else prepare_run_dir(out, config)
     config_path = run_dir / "config.yaml"
     record = yaml.safe_load(config_path.read_text()) if resume else _run_record(config, hyper, env_kwargs, timesteps)
