@@ -4,6 +4,7 @@ through the commands."""
 
 import dataclasses
 import json
+import math
 import warnings
 from pathlib import Path
 
@@ -193,6 +194,20 @@ def test_an_update_reports_its_mini_batches_mean_terms_and_stops_past_the_kl_tar
     stats = update(target_kl=1e-9)  # the first mini-batch is the rollout's own policy (KL 0), the second is not
     assert len(seen) == 2
     assert stats == pytest.approx(seen[0], rel=1e-6, abs=1e-9)
+
+
+def test_the_loop_compiles_its_loss_with_a_tanh_within_rounding_of_torchs(monkeypatch):
+    """``compile=True`` compiles the loss with LOSS_COMPILE_OPTIONS, where inductor's CPU code computes tanh from exp
+    (several times faster than its own tanh): within 2e-7 of torch's, its ends, its smallest values and NaN too."""
+    x = torch.cat([torch.linspace(-20, 20, 4001), torch.tensor([1e-30, -1e-7, 1e-3, math.inf, -math.inf, math.nan])])
+    compiled = torch.compile(lambda values: torch.tanh(values), options=batched_ppo.LOSS_COMPILE_OPTIONS)
+    torch.testing.assert_close(compiled(x), torch.tanh(x), rtol=0, atol=2e-7, equal_nan=True)
+    asked = []
+    monkeypatch.setattr(batched_ppo.torch, "compile", lambda function, **options: asked.append(options) or function)
+    env = make_vec(num_envs=4).unwrapped
+    model = batched_ppo.build_learner(small_config().resolve()[0], env.template, 0)
+    batched_ppo.learn(model, env, 32, seed=0, compile=True)
+    assert asked == [{"options": batched_ppo.LOSS_COMPILE_OPTIONS}]
 
 
 def test_the_compiled_loss_is_the_eager_loss():
