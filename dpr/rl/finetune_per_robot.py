@@ -10,7 +10,7 @@ Swarms of several sizes step side by side: every rollout holds all of them. Each
 
 Budgets are counted in **swarm steps**, summed over the training swarms (one step of a 9-robot swarm is one step,
 not nine): with ``n_robots=(9, 25)``, 10,000 steps are 5,000 steps of each swarm. SB3's own ``num_timesteps``
-counts robot steps; :class:`~dpr.rl.train.StepUnit` converts. The yaml's ``n_steps`` (rollout length) counts the
+counts robot steps; :class:`~dpr.rl.progress.StepUnit` converts. The yaml's ``n_steps`` (rollout length) counts the
 steps of each swarm, and a rollout holds ``n_steps x sum(n_robots)`` robot transitions.
 
 As ``dpr finetune`` does, the run starts from the model's weights in a new model with the ``finetune`` preset of
@@ -62,17 +62,9 @@ from dpr.policies.sb3 import (
     save_model,
 )
 from dpr.rl import resume as resume_state
+from dpr.rl.progress import StepUnit, progress_bar, tensorboard_available
 from dpr.rl.recipe import default_critic_warmup
-from dpr.rl.train import (
-    EVAL_SEED_OFFSET,
-    EVALUATIONS,
-    StepUnit,
-    TrainResult,
-    checkpoint_spacing,
-    progress_bar,
-    tensorboard_available,
-    warm_up_critic,
-)
+from dpr.rl.train import EVAL_SEED_OFFSET, EVALUATIONS, TrainResult, checkpoint_spacing, warm_up_critic
 
 __all__ = ["PerRobotFinetuneConfig", "PerRobotFinetuneResult", "finetune_per_robot", "validate_per_robot_model"]
 
