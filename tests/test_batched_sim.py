@@ -179,28 +179,31 @@ def test_cell_list_engine_matches_all_pairs_engine(monkeypatch):
     assert torch.allclose(a.max_overlap(), b.max_overlap(), atol=1e-3)
 
 
-def test_slices_read_and_sum_pairs_as_the_matrix_products_do():
-    """A GPU's compiled substeps read and sum pairs through slices (DensePairs(slices=True)), the rest through matrix
-    products: the same values, the body sums in the same order."""
+@pytest.mark.parametrize("mode", ["gather", "slices"])
+def test_every_pair_mode_reads_and_sums_pairs_as_the_matrix_products_do(mode):
+    """Compiled substeps read pairs by index (CPU) or read and sum them through slices (GPU), eager ones through
+    matrix products: the same values, the body sums in the same order."""
     from dpr.sim.batched.pairs import DensePairs
 
     generator = torch.Generator().manual_seed(0)
     bodies = [torch.randn(6, 4, generator=generator) for _ in range(2)]
     on_pairs = [torch.randn(15, 4, generator=generator) for _ in range(2)]
-    matrix, slices = DensePairs(6, 4, torch.device("cpu")), DensePairs(6, 4, torch.device("cpu"), slices=True)
+    matrix, other = DensePairs(6, 4, torch.device("cpu")), DensePairs(6, 4, torch.device("cpu"), mode)
     for method, values in (
         ("difference", bodies),
         ("total", bodies),
         ("scatter", on_pairs),
         ("scatter_total", on_pairs),
     ):
-        for mine, theirs in zip(getattr(slices, method)(*values), getattr(matrix, method)(*values)):
+        for mine, theirs in zip(getattr(other, method)(*values), getattr(matrix, method)(*values)):
             torch.testing.assert_close(mine, theirs, rtol=0, atol=1e-6, msg=method)
+    with pytest.raises(ValueError, match="mode"):
+        DensePairs(6, 4, torch.device("cpu"), "sparse")
 
 
 def test_compiled_substeps_follow_the_eager_ones():
-    """SolverSettings(compile=True) fuses each substep (on a CPU, pairs read through the same matrix products): the
-    same trajectory."""
+    """SolverSettings(compile=True) fuses each substep (on a CPU, pairs read by index and summed through the same
+    matrix products): the same trajectory."""
     from dpr.sim.batched import SolverSettings
 
     few = {"iterations": 2, "substeps": 1}  # a small graph: compiled in seconds, the same code as the default rounds

@@ -5,9 +5,9 @@ one contiguous, vectorised pass). Each pair ``(i, j)`` is kept once, ``i < j``; 
 the second end's minus the first's (:meth:`difference`) or their sum (:meth:`total`), and an impulse on a pair acts
 on ``j`` and, opposite, on ``i`` (:meth:`scatter`).
 
-* :class:`DensePairs`: every pair of the B bodies, the same in every swarm (pair tensors ``[P, K]``). Reading
-  ends and summing back are matrix products with the fixed incidence matrix: no gathers, no scatters, the same
-  order of sums on every device.
+* :class:`DensePairs`: every pair of the B bodies, the same in every swarm (pair tensors ``[P, K]``). Summing back
+  is a matrix product with the fixed incidence matrix (no scatters, the same order of sums on every device), and so
+  is reading the ends, or (``mode``) rows picked by index, or slices for both, whichever a compiler makes fastest.
 * :class:`SparsePairs`: a list of pairs found by the neighbour search, flat over all swarms (pair tensors
   ``[E]``), for large swarms where all pairs would cost N squared; reads are index gathers and sums are
   ``index_add``.
@@ -19,12 +19,20 @@ import math
 
 import torch
 
+PAIR_MODES = ("matrix", "gather", "slices")
+
 
 class DensePairs:
     """All ``P = B (B - 1) / 2`` pairs of ``n_bodies`` bodies, ordered by the gap between their indices."""
 
-    def __init__(self, n_bodies: int, num_envs: int, device: torch.device, slices: bool = False):
-        self.slices = slices
+    def __init__(self, n_bodies: int, num_envs: int, device: torch.device, mode: str = "matrix"):
+        """``mode``: ``"matrix"`` reads ends and sums back through products with the incidence matrix; ``"gather"``
+        reads ends as rows picked by index (loads a compiler fuses into what uses them) and sums back through the
+        products; ``"slices"`` does both through slices of the body tensors. The same values, sums in the same order."""
+        if mode not in PAIR_MODES:
+            raise ValueError(f"mode: one of {PAIR_MODES}, got {mode!r}")
+        self.mode = mode
+        self.slices = mode == "slices"
         first, second = torch.triu_indices(n_bodies, n_bodies, 1, device=device)
         order = torch.argsort((second - first) * n_bodies + first)  # by gap, then first: a stable layout
         self.first, self.second = first[order], second[order]
@@ -65,12 +73,16 @@ class DensePairs:
         """Each body tensor ``[B, K]`` at every pair's second end minus its first: ``[P, K]`` each."""
         if self.slices:
             return self._shifted(channels, -1.0)
+        if self.mode == "gather":
+            return tuple(x[self.second] - x[self.first] for x in channels)
         return self._apply(self._incidence_t, channels)
 
     def total(self, *channels: torch.Tensor) -> tuple:
         """Each body tensor's sum over every pair's two ends."""
         if self.slices:
             return self._shifted(channels, 1.0)
+        if self.mode == "gather":
+            return tuple(x[self.second] + x[self.first] for x in channels)
         return self._apply(self._ends_t, channels)
 
     def scatter(self, *impulses: torch.Tensor) -> tuple:
