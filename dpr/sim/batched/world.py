@@ -182,8 +182,8 @@ class BatchedDiskWorld:
         self.use_cells = n > ALL_PAIRS_LIMIT
         compiled = solver.compile and not self.use_cells
         # Eager, pairs are read and summed through matrix products. Compiled on a CPU, their ends are read as rows
-        # picked by index, loads that inductor fuses into what uses them, and summed through the products: 2-2.5
-        # times faster a substep than slices, and compiled in a fifth of the time (the same sums, in the same order).
+        # picked by index, loads that inductor fuses into what uses them, and summed through the products: about
+        # twice as fast a substep as slices, compiled in a fifth of the time (the same sums, in the same order).
         # Compiled on a GPU, slices fuse into a few kernels where each product is a launch.
         pair_mode = "matrix" if not compiled else "gather" if self.device.type == "cpu" else "slices"
         dt = C.CONTROL_PERIOD / solver.substeps
