@@ -32,7 +32,6 @@ class DensePairs:
         if mode not in PAIR_MODES:
             raise ValueError(f"mode: one of {PAIR_MODES}, got {mode!r}")
         self.mode = mode
-        self.slices = mode == "slices"
         first, second = torch.triu_indices(n_bodies, n_bodies, 1, device=device)
         order = torch.argsort((second - first) * n_bodies + first)  # by gap, then first: a stable layout
         self.first, self.second = first[order], second[order]
@@ -71,7 +70,7 @@ class DensePairs:
 
     def difference(self, *channels: torch.Tensor) -> tuple:
         """Each body tensor ``[B, K]`` at every pair's second end minus its first: ``[P, K]`` each."""
-        if self.slices:
+        if self.mode == "slices":
             return self._shifted(channels, -1.0)
         if self.mode == "gather":
             return tuple(x[self.second] - x[self.first] for x in channels)
@@ -79,7 +78,7 @@ class DensePairs:
 
     def total(self, *channels: torch.Tensor) -> tuple:
         """Each body tensor's sum over every pair's two ends."""
-        if self.slices:
+        if self.mode == "slices":
             return self._shifted(channels, 1.0)
         if self.mode == "gather":
             return tuple(x[self.second] + x[self.first] for x in channels)
@@ -87,13 +86,13 @@ class DensePairs:
 
     def scatter(self, *impulses: torch.Tensor) -> tuple:
         """Each pair tensor (what acts on the second end; the first gets the opposite) summed onto the bodies."""
-        if self.slices:
+        if self.mode == "slices":
             return self._onto_bodies(impulses, -1.0)
         return self._apply(self._incidence, impulses)
 
     def scatter_total(self, *values: torch.Tensor) -> tuple:
         """Each pair tensor summed onto both of its ends (counts, torques that turn both ends alike)."""
-        if self.slices:
+        if self.mode == "slices":
             return self._onto_bodies(values, 1.0)
         return self._apply(self._ends, values)
 
