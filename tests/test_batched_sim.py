@@ -62,6 +62,26 @@ def test_masked_reset_touches_only_masked_swarms():
         assert torch.equal(world.radius[swarm], before[1][swarm])
 
 
+def test_state_stays_laid_out_body_major_through_resets_and_steps():
+    # The inputs come swarm-major ([K, ...]); a transposed view kept as state would be read across its rows in
+    # every substep.
+    world = BatchedDiskWorld(4, 5, n_walls=2, object_radius=30.0)
+    centres = torch.tensor(np.stack([grid_centres(5, (0.0, 300.0 * i)) for i in range(4)]))
+    world.reset(
+        torch.ones(4, dtype=torch.bool),
+        centres,
+        torch.zeros(4, 5, dtype=torch.bool),
+        object_position=torch.zeros(4, 2),
+        dynamics=torch.ones(4, 3),
+    )
+    for _ in range(2):
+        world.step(torch.ones(4, 5))
+    state = world.state_dict()
+    assert state and all(value.is_contiguous() for value in state.values()), [
+        name for name, value in state.items() if not value.is_contiguous()
+    ]
+
+
 def test_command_rule_keeps_a_moving_robot_on_its_target():
     """Swarm.command: a robot accepts a new target only once it has reached its previous one."""
     world = _world(k=1, n=1)

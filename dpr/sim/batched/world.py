@@ -101,6 +101,12 @@ def _checked_device(device) -> torch.device:
     return checked
 
 
+def _body_major(swarm_major: torch.Tensor) -> torch.Tensor:
+    """``[K, X]`` as ``[X, K]``, laid out row by row: a transposed view would hand its layout on through every
+    operation that reads it, and the state would be read across its rows, a stride apart, in every substep."""
+    return swarm_major.t().contiguous()
+
+
 def _available_memory(device: torch.device) -> int:
     if device.type == "cuda":
         return torch.cuda.get_device_properties(device).total_memory
@@ -301,7 +307,7 @@ class BatchedDiskWorld:
         centres = self._checked("centres", centres, (k, n, 2), torch.float32)
         dead = self._checked("dead", dead, (k, n), torch.bool)
         bodies = self.bodies
-        px, py = centres[..., 0].t(), centres[..., 1].t()
+        px, py = _body_major(centres[..., 0]), _body_major(centres[..., 1])
         if self.object_radius is not None and object_position is not None:
             ball = self._checked("object_position", object_position, (k, 2), torch.float32)
             px, py = torch.cat((px, ball[None, :, 0])), torch.cat((py, ball[None, :, 1]))
@@ -315,7 +321,7 @@ class BatchedDiskWorld:
         self._expansion = torch.where(mask, 0.0, self._expansion)
         self._target = torch.where(mask, 0.0, self._target)
         self._moving = self._moving & ~mask
-        self._alive = torch.where(mask, ~dead.t(), self._alive)
+        self._alive = torch.where(mask, ~_body_major(dead), self._alive)
         self._clear_impulses(mask)
         if walls is not None:
             walls = self._checked("walls", walls, (k, self.n_walls, 4, 2), torch.float32)
@@ -325,8 +331,8 @@ class BatchedDiskWorld:
             dynamics = self._checked("dynamics", dynamics, (k, len(DYNAMICS)), torch.float32)
             if not bool((dynamics[mask] > 0).all()):
                 raise ParameterError("dynamics", f"expected multiples > 0 of {', '.join(DYNAMICS)}")
-            self._rod_scales = torch.where(mask, dynamics[:, :2].t(), self._rod_scales)
-            self.bodies.friction_scale = torch.where(mask, dynamics[:, 2:].t(), self.bodies.friction_scale)
+            self._rod_scales = torch.where(mask, _body_major(dynamics[:, :2]), self._rod_scales)
+            self.bodies.friction_scale = torch.where(mask, _body_major(dynamics[:, 2:]), self.bodies.friction_scale)
 
     # -- snapshots ----------------------------------------------------------------------------------------
     _STATE = ("_commanded", "_expansion", "_target", "_moving", "_alive", "walls", "_rod_scales")
@@ -456,7 +462,7 @@ class BatchedDiskWorld:
     # -- control ------------------------------------------------------------------------------------------
     def step(self, targets: torch.Tensor) -> None:
         """One control step (0.1 s) of every swarm with expansion ``targets [K, N]`` in [0, 1]."""
-        targets = self._checked("targets", targets, (self.num_envs, self.n_robots), torch.float32).t()
+        targets = _body_major(self._checked("targets", targets, (self.num_envs, self.n_robots), torch.float32))
         # the command rule (Swarm.command): a robot moving toward its target keeps it until within reach
         busy = self._moving & ((self._target - self._expansion).abs() >= REACHED_FRACTION)
         accept = self._alive & ~busy  # dead robots never accept: their target stays 0 (contracted)
