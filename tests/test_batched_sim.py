@@ -223,7 +223,7 @@ def test_every_pair_mode_reads_and_sums_pairs_as_the_matrix_products_do(mode):
 
 def test_compiled_substeps_follow_the_eager_ones():
     """SolverSettings(compile=True) fuses each substep (on a CPU, pairs read by index and summed through the same
-    matrix products): the same trajectory."""
+    matrix products) and the command rule with the growth: the same trajectory."""
     from dpr.sim.batched import SolverSettings
 
     few = {"iterations": 2, "substeps": 1}  # a small graph: compiled in seconds, the same code as the default rounds

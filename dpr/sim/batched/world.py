@@ -124,8 +124,9 @@ def estimated_memory(num_envs: int, n_robots: int) -> int:
 class SolverSettings:
     """How a :class:`BatchedDiskWorld` solves its impulses: ``iterations`` rounds per substep, ``substeps`` per
     control step, each round's updates over-relaxed by ``relaxation``, and whether ``torch.compile`` fuses each
-    substep into a few loops (swarms of up to ``ALL_PAIRS_LIMIT`` robots; the first step of each shape then
-    takes seconds to compile, every later one runs about 3 times faster on a CPU)."""
+    substep, and the command rule with the growth, into a few loops (swarms of up to ``ALL_PAIRS_LIMIT`` robots;
+    the first step of each shape then takes seconds to compile, every later one runs about 3 times faster on a
+    CPU)."""
 
     iterations: int = ITERATIONS
     substeps: int = SUBSTEPS
@@ -201,6 +202,9 @@ class BatchedDiskWorld:
             solver.substeps,
             torch.compile(substep, dynamic=False) if compiled else substep,
         )
+        # Compiled, the command rule and the growth are one graph too (a few loops where eager runs some forty ops).
+        before_physics = BatchedDiskWorld._command_and_grow
+        self._before_physics = torch.compile(before_physics, dynamic=False) if compiled else before_physics
         self._allocate_state(k, n)
         self._pairs = None if self.use_cells else DensePairs(self.n_bodies, k, self.device, pair_mode)
         self._impulses = self._no_impulses(0 if self.use_cells else self._pairs.size)
@@ -463,6 +467,11 @@ class BatchedDiskWorld:
     def step(self, targets: torch.Tensor) -> None:
         """One control step (0.1 s) of every swarm with expansion ``targets [K, N]`` in [0, 1]."""
         targets = _body_major(self._checked("targets", targets, (self.num_envs, self.n_robots), torch.float32))
+        rods = self._before_physics(self, targets)
+        physics(self.bodies, self._pairs, self._elasticity, rods, self._walls, self._impulses, self.constants)
+
+    def _command_and_grow(self, targets: torch.Tensor) -> Rods:
+        """The command rule, this step's pairs (large swarms) and the growth, for ``targets [N, K]``: the rods."""
         # the command rule (Swarm.command): a robot moving toward its target keeps it until within reach
         busy = self._moving & ((self._target - self._expansion).abs() >= REACHED_FRACTION)
         accept = self._alive & ~busy  # dead robots never accept: their target stays 0 (contracted)
@@ -471,8 +480,7 @@ class BatchedDiskWorld:
         radius_target = C.DISK_CONTRACTED_RADIUS + self._target * (C.DISK_EXPANDED_RADIUS - C.DISK_CONTRACTED_RADIUS)
         if self.use_cells:
             self._update_pairs()
-        rods = self._grow(radius_target)
-        physics(self.bodies, self._pairs, self._elasticity, rods, self._walls, self._impulses, self.constants)
+        return self._grow(radius_target)
 
     def _grow(self, radius_target: torch.Tensor) -> Rods:
         """DiskSwarm.before_physics: move the commanded radii, grow the disks into the room their neighbours
