@@ -89,6 +89,28 @@ def test_manipulations_approach_shaping_adds_the_swarms_approach_to_the_ball():
     assert approached > 0.1  # the shaping was exercised, not a zero added to a zero
 
 
+def test_a_compiled_env_follows_the_eager_one(monkeypatch):
+    """``compile=True`` compiles the world's steps and the env's work around them (observation, rewards, trackers,
+    the sanity check): the same observations and rewards as eager, to the compiled physics' rounding."""
+    import dpr.envs.batched
+    from dpr.sim.batched import SolverSettings
+
+    few = lambda compile: SolverSettings(iterations=2, substeps=1, compile=compile)  # noqa: E731 (compiles in seconds)
+    monkeypatch.setattr(dpr.envs.batched, "SolverSettings", few)
+    actions = torch.as_tensor(np.random.default_rng(2).integers(0, 2, size=(12, 3, 4)))
+    runs = []
+    for compile in (False, True):
+        venv = make("dpr/Manipulation-v0", n_robots=4, action_repeat=2, approach_reward=1.0, compile=compile)
+        venv = venv.unwrapped
+        assert venv.world.compiled is compile
+        venv.reset_tensors(seed=6)
+        steps = [venv.step_tensors(action)[:2] for action in actions]
+        runs.append([torch.stack(values) for values in zip(*steps)] + [venv.total_distance])
+    for eager, compiled in zip(*runs):
+        torch.testing.assert_close(compiled, eager, atol=1e-3, rtol=1e-4)
+    assert runs[0][2].min() > 0  # the swarms moved: the trackers were exercised
+
+
 def test_the_paddle_model_is_refused_by_name():
     with pytest.raises(ParameterError, match="robot_model.*paddle"):
         make(robot_model="paddle")

@@ -30,7 +30,7 @@ from dpr.envs.particle_env import (
 )
 from dpr.envs.unresponsive import UnresponsiveEnv
 from dpr.metrics import SUCCESS_RADIUS
-from dpr.sim.batched import DYNAMICS, BatchedDiskWorld, SolverSettings
+from dpr.sim.batched import DYNAMICS, BatchedDiskWorld, SolverSettings, compiled_if
 
 ROBOT_MODEL = "disk"  # the only robot model the batched engine has
 METRICS = ("projected_displacement", "net_displacement", "total_distance")
@@ -171,6 +171,10 @@ class BatchedSwarmVectorEnv(VectorEnv):
             solver=SolverSettings(compile=compile),
         )
         self.device = self.world.position.device
+        # With a compiled world the env's own work around each physics step is compiled too: eager, its few dozen
+        # small ops would cost more than the world's command rule and growth
+        self._observe = compiled_if(type(self)._observation, self.world.compiled)
+        self._track = compiled_if(type(self)._physics_step_reward, self.world.compiled)
         self._allocate()
         self._generators = [seeding.np_random()[0] for _ in range(self.num_envs)]
         self._autoreset = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
@@ -276,6 +280,9 @@ class BatchedSwarmVectorEnv(VectorEnv):
 
     def observation(self) -> torch.Tensor:
         """The single env's state observation of every env, [K, D] float32."""
+        return self._observe(self)
+
+    def _observation(self) -> torch.Tensor:
         world, k = self.world, self.num_envs
         robots = torch.cat(
             (
@@ -346,7 +353,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
             blown |= live & ~self.world.is_sane()
             live &= ~blown
             self.physics_steps += live.long()
-            reward += torch.where(live, self._physics_step_reward(live), 0.0)
+            reward += torch.where(live, self._track(self, live), 0.0)
             if isinstance(self.template, GateEnv):
                 touching = self.world.robots_touch_walls() & (self.contact_step < 0) & live
                 self.contact_step = torch.where(touching, self.physics_steps, self.contact_step)

@@ -107,6 +107,16 @@ def _body_major(swarm_major: torch.Tensor) -> torch.Tensor:
     return swarm_major.t().contiguous()
 
 
+def compiled_if(function, compile: bool):
+    """``function``, through ``torch.compile`` (static shapes) when ``compile``."""
+    return torch.compile(function, dynamic=False) if compile else function
+
+
+def _sane(*state: torch.Tensor) -> torch.Tensor:
+    # NaN compares False: one comparison catches NaN, infinities and runaway values
+    return (torch.stack(state).abs() < _SANE_LIMIT).flatten(0, 1).all(dim=0)
+
+
 def _available_memory(device: torch.device) -> int:
     if device.type == "cuda":
         return torch.cuda.get_device_properties(device).total_memory
@@ -153,6 +163,8 @@ class BatchedDiskWorld:
     ``wall_give`` (default 0, at most :data:`MAX_WALL_GIVE`) lets walls squeeze the robots as they squeeze the
     paddle robot, whose paddles fold back against a wall: walls meet each robot's disk at its radius less this,
     never inside the central body (``BODY_RADIUS``). Robots and the ball still meet each other at full radius.
+
+    ``compiled`` says whether this world's steps run through ``torch.compile`` (``solver.compile``, all pairs).
     """
 
     def __init__(
@@ -187,7 +199,7 @@ class BatchedDiskWorld:
             )
         self.n_bodies = n + (object_radius is not None)
         self.use_cells = n > ALL_PAIRS_LIMIT
-        compiled = solver.compile and not self.use_cells
+        self.compiled = compiled = solver.compile and not self.use_cells
         # Eager, pairs are read and summed through matrix products. Compiled on a CPU, their ends are read as rows
         # picked by index, loads that inductor fuses into what uses them, and summed through the products: about
         # twice as fast a substep as slices, compiled in a fifth of the time (the same sums, in the same order).
@@ -200,11 +212,11 @@ class BatchedDiskWorld:
             solver.relaxation,
             solver.iterations,
             solver.substeps,
-            torch.compile(substep, dynamic=False) if compiled else substep,
+            compiled_if(substep, compiled),
         )
         # Compiled, the command rule and the growth are one graph too (a few loops where eager runs some forty ops).
-        before_physics = BatchedDiskWorld._command_and_grow
-        self._before_physics = torch.compile(before_physics, dynamic=False) if compiled else before_physics
+        self._before_physics = compiled_if(BatchedDiskWorld._command_and_grow, compiled)
+        self._sane = compiled_if(_sane, compiled)
         self._allocate_state(k, n)
         self._pairs = None if self.use_cells else DensePairs(self.n_bodies, k, self.device, pair_mode)
         self._impulses = self._no_impulses(0 if self.use_cells else self._pairs.size)
@@ -411,9 +423,7 @@ class BatchedDiskWorld:
     def is_sane(self) -> torch.Tensor:
         """``[K]``: False where any body's state is non-finite or absurdly large (a physics blow-up)."""
         b = self.bodies
-        state = torch.stack((b.px, b.py, b.vx, b.vy, b.spin))
-        # NaN compares False: one comparison catches NaN, infinities and runaway values
-        return (state.abs() < _SANE_LIMIT).flatten(0, 1).all(dim=0)
+        return self._sane(b.px, b.py, b.vx, b.vy, b.spin)
 
     def max_overlap(self) -> torch.Tensor:
         """``[K]``: the deepest overlap between two robots' disks now (0 if none touch)."""
