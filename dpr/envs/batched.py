@@ -172,7 +172,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
         )
         self.device = self.world.position.device
         # With a compiled world the env's own work around each physics step is compiled too: eager, its few dozen
-        # small ops would cost more than the world's command rule and growth
+        # small ops cost about a tenth of a step at thousands of envs
         self._observe = compiled_if(type(self)._observation, self.world.compiled)
         self._track = compiled_if(type(self)._physics_step_reward, self.world.compiled)
         self._allocate()
