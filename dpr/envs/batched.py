@@ -88,8 +88,9 @@ class BatchedSwarmVectorEnv(VectorEnv):
     ``gate_contact_step``, Manipulation ``object_position``.
 
     ## Arguments
-    ``num_envs``, ``max_episode_steps``, ``device``, ``compile`` (``torch.compile`` each physics substep: seconds
-    of compiling at the first step, then about 3 times faster on a CPU; :class:`dpr.sim.batched.SolverSettings`),
+    ``num_envs``, ``max_episode_steps``, ``device``, ``compile`` (``torch.compile`` each physics substep, the command
+    rule and growth, the observation and the rewards: seconds of compiling at the first step, then about 3 times
+    faster on a CPU; :class:`dpr.sim.batched.SolverSettings`),
     ``dynamics_scale`` and ``wall_give`` (below) and the single env's kwargs (``robot_model`` must be ``"disk"``,
     ``obs_type`` ``"state"``).
 
