@@ -157,9 +157,10 @@ def assert_per_robot_model_acts_and_trains(model_path, n_robots: int) -> None:
     """A per-robot model file acts for every robot of a PettingZoo swarm of ``n_robots`` built from its own spec,
     and loads there as an SB3 model ready for PPO, one env per robot."""
     from dpr.envs.parallel import AgentsAsVecEnv, parallel_env
+    from dpr.policies.model_file import read_model_info
     from dpr.policies.per_robot_model import RobotModelPolicy
     from dpr.policies.per_robot_spec import RobotModelSpec
-    from dpr.policies.sb3 import load_model, read_model_info
+    from dpr.policies.sb3 import load_model
 
     spec = RobotModelSpec.from_info(read_model_info(model_path), model_path)
     env = parallel_env("navigation", n_robots=n_robots, **spec.parallel_env_kwargs())

@@ -316,7 +316,8 @@ def test_a_corrupt_model_file_is_one_clear_error(tmp_path):
 
     from dpr.evaluation.scoring import evaluate
     from dpr.policies.hyperparams import load_hyperparams
-    from dpr.policies.sb3 import ModelInfo, build_model, save_model
+    from dpr.policies.model_file import ModelInfo
+    from dpr.policies.sb3 import build_model, save_model
 
     kwargs = {"n_robots": 4, "robot_model": "disk"}
     env = gym.make("dpr/Navigation-v0", **kwargs)

@@ -12,7 +12,7 @@ from dpr.cli import main
 from dpr.datasets.lerobot import LeRobotReader
 from dpr.pipeline.campaign import task_stages
 from dpr.pipeline.config import PipelineConfig, preset_config
-from dpr.policies.sb3 import read_model_info
+from dpr.policies.model_file import read_model_info
 
 TINY = ["--preset", "tiny", "--tasks", "navigation", "--train-seeds", "0"]
 

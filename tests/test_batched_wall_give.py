@@ -13,7 +13,7 @@ from helpers import run_cli
 
 import dpr  # noqa: F401
 from dpr.checks import ParameterError
-from dpr.policies.sb3 import read_model_info
+from dpr.policies.model_file import read_model_info
 from dpr.sim import constants as C
 from dpr.sim.batched import BatchedDiskWorld
 from dpr.sim.batched.world import MAX_WALL_GIVE

@@ -18,7 +18,8 @@ from dpr.evaluation.scoring import evaluate
 from dpr.imitation import CloneConfig, behaviour_clone
 from dpr.imitation.bc import measure
 from dpr.imitation.loss import check_features
-from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
+from dpr.policies.model_file import METADATA_MEMBER, read_model_info
+from dpr.policies.sb3 import load_model
 from dpr.policies.swarm_policy import SwarmActorCriticPolicy
 
 ENV = "dpr/Navigation-v0"

@@ -24,8 +24,9 @@ from dpr.imitation.bc import measure
 from dpr.imitation.dagger import dagger
 from dpr.policies.features import SwarmFeatures
 from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.model_file import ModelInfo, write_model_info
 from dpr.policies.registry import make_policy
-from dpr.policies.sb3 import ModelInfo, build_model, load_model, load_model_policy, make_vec_env, write_model_info
+from dpr.policies.sb3 import build_model, load_model, load_model_policy, make_vec_env
 from dpr.policies.wave import MarkovWavePolicy, WavePolicy
 
 ENV = "dpr/Navigation-v0"

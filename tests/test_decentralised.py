@@ -370,7 +370,8 @@ def test_decentralised_sweep_tool_runs_a_centralised_swarm_model_at_any_size(swe
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from dpr.policies.hyperparams import load_hyperparams
-    from dpr.policies.sb3 import ModelInfo, build_model, save_model
+    from dpr.policies.model_file import ModelInfo
+    from dpr.policies.sb3 import build_model, save_model
 
     canonical = Path(__file__).resolve().parents[1] / "models" / "navigation-bc-ppo.zip"
     rows_file = tmp_path / "rows.json"

@@ -21,18 +21,15 @@ from dpr.evaluation.scoring import evaluate
 from dpr.imitation import CloneConfig, behaviour_clone
 from dpr.policies.exploration import soften_actions
 from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.model_file import METADATA_MEMBER, SWARM_POLICY, ModelInfo, read_model_info
 from dpr.policies.registry import make_policy
 from dpr.policies.sb3 import (
-    METADATA_MEMBER,
-    SWARM_POLICY,
-    ModelInfo,
     actor_parameters,
     build_model,
     load_initial_policy,
     load_model,
     loaded_architecture,
     make_vec_env,
-    read_model_info,
 )
 from dpr.policies.swarm_policy import SwarmActorCriticPolicy
 from dpr.rl.recipe import FINETUNE_AT_REPEAT, default_critic_warmup, finetune_defaults, physics_discount

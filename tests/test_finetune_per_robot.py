@@ -20,16 +20,9 @@ from dpr.imitation import PerRobotCloneConfig
 from dpr.imitation.per_robot import behaviour_clone_per_robot
 from dpr.policies.decentralised import PerRobotPolicyAdapter
 from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.model_file import ModelInfo, model_env_kwargs, read_model_info
 from dpr.policies.registry import make_policy
-from dpr.policies.sb3 import (
-    ModelInfo,
-    actor_parameters,
-    build_model,
-    load_model,
-    make_vec_env,
-    model_env_kwargs,
-    read_model_info,
-)
+from dpr.policies.sb3 import actor_parameters, build_model, load_model, make_vec_env
 from dpr.policies.sb3 import save_model as save_sb3_model
 from dpr.rl.finetune_per_robot import PerRobotFinetuneConfig, finetune_per_robot
 from dpr.rl.train import EVAL_SEED_OFFSET

@@ -19,10 +19,11 @@ from dpr.envs.parallel import AgentsAsVecEnv
 from dpr.imitation import CloneConfig, PerRobotCloneConfig, behaviour_clone
 from dpr.imitation.per_robot import behaviour_clone_per_robot, relabel_dataset, robot_actions
 from dpr.policies.decentralised import DecentralisedWavePolicy, PerRobotPolicyAdapter
+from dpr.policies.model_file import METADATA_MEMBER, read_model_info
 from dpr.policies.per_robot_model import RobotModelPolicy
 from dpr.policies.per_robot_spec import RobotModelSpec
 from dpr.policies.registry import make_policy
-from dpr.policies.sb3 import METADATA_MEMBER, load_model, read_model_info
+from dpr.policies.sb3 import load_model
 from dpr.rollout import roll_out
 
 ENV = "dpr/Navigation-v0"

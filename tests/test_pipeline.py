@@ -16,7 +16,8 @@ from dpr.envs import ENV_IDS
 from dpr.pipeline.campaign import run_pipeline, task_stages
 from dpr.pipeline.config import PipelineConfig, learner_env_kwargs
 from dpr.pipeline.stages import Backend
-from dpr.policies.sb3 import load_model, read_model_info
+from dpr.policies.model_file import read_model_info
+from dpr.policies.sb3 import load_model
 
 METHODS = ["wave", "bc", "bc-ppo", "ppo"]
 

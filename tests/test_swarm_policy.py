@@ -15,19 +15,16 @@ from dpr.datasets.lerobot import LeRobotReader
 from dpr.envs.particle_env import ROBOT_FEATURES
 from dpr.imitation import CloneConfig, behaviour_clone
 from dpr.policies.hyperparams import SWARM_CRITICS, load_hyperparams
+from dpr.policies.model_file import ModelInfo, has_swarm_actor, model_env_kwargs
 from dpr.policies.sb3 import (
-    SWARM_POLICY,
     VALUE_HEAD_PREFIXES,
-    ModelInfo,
     build_model,
-    has_swarm_actor,
     load_initial_policy,
     load_model,
     load_model_policy,
-    model_env_kwargs,
     save_model,
 )
-from dpr.policies.swarm_policy import CRITICS, POLICY_NAME, RobotLogits, SwarmActorCriticPolicy
+from dpr.policies.swarm_policy import CRITICS, RobotLogits, SwarmActorCriticPolicy
 from dpr.rl.train import TrainConfig, train
 
 N = 5
@@ -172,7 +169,6 @@ def test_actions_evaluated_on_observation_parts_split_before_are_sb3s_evaluation
 
 
 def test_the_layout_is_checked():
-    assert POLICY_NAME == SWARM_POLICY  # the name its errors give is the name that builds it
     with pytest.raises(ValueError, match="SwarmPolicy: a state observation of 5 robots without an object has 30 or 36"):
         SwarmActorCriticPolicy(
             gym.spaces.Box(-np.inf, np.inf, (31,), dtype=np.float32), gym.spaces.MultiBinary(5), lambda _: 1e-3

@@ -12,8 +12,9 @@ from helpers import run_cli as run
 
 from dpr.evaluation.scoring import evaluate, run_episode
 from dpr.policies.hyperparams import load_hyperparams
+from dpr.policies.model_file import METADATA_MEMBER, read_model_info
 from dpr.policies.registry import check_policy_name, make_policy
-from dpr.policies.sb3 import METADATA_MEMBER, load_model, load_model_policy, read_model_info
+from dpr.policies.sb3 import load_model, load_model_policy
 from dpr.rl.train import TrainConfig, train
 
 ENV = "dpr/Navigation-v0"

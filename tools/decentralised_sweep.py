@@ -54,9 +54,9 @@ def model_file_robot_models(path: str, env_id: str) -> tuple[str, ...]:
     """The robot models the model file at ``path`` runs on here: a per-robot model on the one it was trained on, a
     centralised ``SwarmPolicy`` model on both (checked against ``env_id`` now, so that a task of other spaces is
     refused before any episode). A ValueError naming the file for anything else."""
+    from dpr.policies.model_file import has_swarm_actor, model_env_kwargs, read_model_info
     from dpr.policies.per_robot_spec import RobotModelSpec
     from dpr.policies.registry import make_policy
-    from dpr.policies.sb3 import has_swarm_actor, model_env_kwargs, read_model_info
 
     info = read_model_info(path, "--policies")
     if info.per_robot is not None:
@@ -80,8 +80,8 @@ def run_episode(
 ) -> dict:
     """One episode: its projected displacement and the wall time of its steps (env + policy)."""
     import dpr  # noqa: F401  (registers the ids in worker processes)
+    from dpr.policies.model_file import model_env_kwargs, read_model_info
     from dpr.policies.registry import make_policy
-    from dpr.policies.sb3 import model_env_kwargs, read_model_info
 
     kwargs = {"n_robots": n_robots, "robot_model": robot_model}
     if policy not in (CENTRALISED, DECENTRALISED) and read_model_info(policy).per_robot is None:

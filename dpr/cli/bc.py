@@ -60,7 +60,7 @@ def dataset_arguments(parser: argparse.ArgumentParser, datasets: str, env: str, 
 
 def hyperparam_argument(parser: argparse.ArgumentParser) -> None:
     from dpr.cli.learn import hyperparam
-    from dpr.policies.sb3 import SWARM_POLICY
+    from dpr.policies.model_file import SWARM_POLICY
 
     parser.add_argument(
         "--hyperparam",
@@ -117,11 +117,12 @@ def bc_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def bc_hyperparams(algo: str, given: dict) -> dict:
-    """The hyperparameter overrides of a `dpr bc` run: the --hyperparam values ``given``, over the default actor of
-    an actor-critic, :data:`dpr.policies.sb3.SWARM_POLICY` (what cloning into PPO or A2C takes, MultiBinary actions
-    from the state observation, is what it acts on); DQN keeps the yaml's policy. The library's behaviour_clone
-    keeps the yaml's too: the pipeline names its actor itself."""
-    from dpr.policies.sb3 import FINETUNE_ALGOS, SWARM_POLICY
+    """The hyperparameter overrides of a `dpr bc` run: the --hyperparam values ``given``, over the default actor of an
+    actor-critic, :data:`dpr.policies.model_file.SWARM_POLICY` (what cloning into PPO or A2C takes, MultiBinary
+    actions from the state observation, is what it acts on); DQN keeps the yaml's policy. The library's
+    behaviour_clone keeps the yaml's too: the pipeline names its actor itself."""
+    from dpr.policies.model_file import SWARM_POLICY
+    from dpr.policies.sb3 import FINETUNE_ALGOS
 
     return {"policy": SWARM_POLICY, **given} if algo in FINETUNE_ALGOS else dict(given)
 

@@ -422,7 +422,7 @@ def policy_env_kwargs(args, env_ids: list[str], parser: argparse.ArgumentParser)
     """The env kwargs that run ``args.policy`` on ``env_ids`` (``dpr evaluate``, ``dpr collect``): for a scripted
     policy the flags (--n-robots, --robot-model, --env-kwarg; the env's swarm by default); for a ``.zip`` model its
     own kwargs, where a flag given explicitly must agree with them (a parser error naming the flag)."""
-    from dpr.policies.sb3 import is_model_path, model_env_kwargs
+    from dpr.policies.model_file import is_model_path, model_env_kwargs
 
     given = {"n_robots": args.n_robots, "robot_model": args.robot_model}
     flags = {"n_robots": "--n-robots", "robot_model": "--robot-model"}
@@ -459,8 +459,8 @@ def markov_env_kwargs(args, env_kwargs: dict, parser: argparse.ArgumentParser, c
     """``env_kwargs`` for a Markov wave among --policy and --label-policy (`dpr collect`, `dpr evaluate`): it reads
     the previous action from the observation, so obs_last_action=True is set (and said) where no flag or model set
     it; a parser error naming the flag where obs_last_action is off."""
+    from dpr.policies.model_file import is_model_path
     from dpr.policies.registry import WAVE_MARKOV
-    from dpr.policies.sb3 import is_model_path
 
     markov = [
         flag

@@ -115,7 +115,7 @@ def _collect_spec(args, parser):
     """The :class:`~dpr.datasets.collect.CollectSpec` the flags ask for, checked, and an env made from it (a bad
     --env-kwarg name or value fails here, before anything is written); a problem is a usage error naming flags."""
     from dpr.datasets.collect import CollectSpec
-    from dpr.policies.sb3 import is_model_path
+    from dpr.policies.model_file import is_model_path
 
     # a model records on the env it was trained on: its own kwargs, which the flags may only repeat (or, for a
     # SwarmPolicy model, give another --n-robots)

@@ -29,7 +29,7 @@ from dpr.limits import MAX_TEMPERATURE
 from dpr.sim.models import ROBOT_MODELS
 
 # --from names the model file a fine-tuning run starts from: TrainConfig.init_from, and the model file that
-# dpr.policies.sb3.read_model_info reads ("policy" by default).
+# dpr.policies.model_file.read_model_info reads ("policy" by default).
 BATCHED_ENVS = 256  # dpr train --engine batched: envs stepped in one call, by default
 FINETUNE_FLAGS = {"init_from": "--from", "policy": "--from", "anchor_datasets": "--anchor"}
 
@@ -111,7 +111,7 @@ def _log_training_to_rerun(result, env_id: str, path: str, seed: int, n_robots: 
 
     from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
-    from dpr.policies.sb3 import read_model_info
+    from dpr.policies.model_file import read_model_info
     from dpr.viz.episodes import ViewRollout, rollout_episode
     from dpr.viz.rerun_log import save_rrd
 
@@ -155,7 +155,7 @@ def _training_done(result, args, n_robots: int | None = None) -> int:
 # -- train -------------------------------------------------------------------------------------------------------
 def train_arguments(parser: argparse.ArgumentParser) -> None:
     from dpr.policies.hyperparams import BATCHED_PRESET, DEFAULT_PRESET, PAPER_PRESET
-    from dpr.policies.sb3 import ALGOS
+    from dpr.policies.model_file import ALGOS
     from dpr.rl.train import LEARNERS, TrainConfig
 
     config = defaults(TrainConfig)
@@ -369,7 +369,8 @@ def cmd_finetune(args, parser) -> int:
     from dpr.envs import episode_steps
     from dpr.envs.particle_env import split_swarm_kwargs
     from dpr.policies.hyperparams import FINETUNE_PRESET
-    from dpr.policies.sb3 import loaded_architecture, model_env_kwargs, read_model_info, save_slim_copy
+    from dpr.policies.model_file import model_env_kwargs, read_model_info
+    from dpr.policies.sb3 import loaded_architecture, save_slim_copy
     from dpr.rl.recipe import default_critic_warmup, finetune_defaults
     from dpr.rl.train import AVERAGED_MODEL, CHECKPOINTS, TrainConfig, averaged_checkpoints, checkpoint_spacing, train
 

@@ -90,7 +90,7 @@ class CollectSpec:
             self.env_kwargs, "a dataset records env kwargs that every engine and learner must make its env with"
         )
         if self.policy.endswith(".zip"):  # a model records on the env it was trained on, with the same kwargs
-            from dpr.policies.sb3 import model_env_kwargs
+            from dpr.policies.model_file import model_env_kwargs
 
             model_env_kwargs(
                 self.policy,

@@ -49,7 +49,8 @@ from dpr.atomic import file_sha256
 from dpr.bounded_io import YamlRefused, load_yaml
 from dpr.checks import ParameterError
 from dpr.envs import ENV_IDS, TASKS
-from dpr.policies.sb3 import ModelInfo, load_model
+from dpr.policies.model_file import ModelInfo
+from dpr.policies.sb3 import load_model
 
 CARD_FORMAT = 1
 ENTRY_KEYS = ("task", "method", "file", "made_by")

@@ -37,8 +37,8 @@ from dpr.evaluation.statistics import (
     scores_of_runs,
 )
 from dpr.metrics import summarize
+from dpr.policies.model_file import is_model_path
 from dpr.policies.registry import WAVE
-from dpr.policies.sb3 import is_model_path
 
 TASK_ORDER = ("Navigation", "Gate", "Unresponsive", "Manipulation")
 WAVE_POLICY = WAVE  # the baseline every row is a percentage of

@@ -17,8 +17,9 @@ from dpr.envs import MAX_EPISODE_STEPS, TASKS, episode_steps
 from dpr.envs.particle_env import action_repeat
 from dpr.interrupts import first_completed
 from dpr.metrics import EpisodeMetrics, summarize
+from dpr.policies.model_file import is_model_path, model_env_kwargs
 from dpr.policies.registry import check_policy_name, make_policy
-from dpr.policies.sb3 import is_model_path, load_model, model_env_kwargs
+from dpr.policies.sb3 import load_model
 from dpr.rollout import roll_out
 
 METRICS = ("projected_displacement", "net_displacement", "total_distance", "success")

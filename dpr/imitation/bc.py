@@ -17,7 +17,7 @@ Validation holds out whole episodes (frames of one episode are strongly correlat
 overstate generalisation). Training stops early when the validation log-likelihood has not improved for
 ``patience`` epochs, and the best-validation weights are restored before saving.
 
-A run writes into a new folder: ``model.zip`` (with the env id and kwargs inside, see :mod:`dpr.policies.sb3`),
+A run writes into a new folder: ``model.zip`` (with the env id and kwargs inside, see :mod:`dpr.policies.model_file`),
 ``bc_log.json`` (per-epoch metrics) and ``config.yaml`` (everything the run resolved).
 
 DQN (``algo="dqn"``) learns over Discrete(2^N) actions: each recorded MultiBinary action becomes the integer
@@ -53,13 +53,8 @@ from dpr.imitation.config import CloneConfig, check_env_id
 from dpr.imitation.loss import batch_stats, check_features
 from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.hyperparams import Hyperparams, load_hyperparams
-from dpr.policies.sb3 import (
-    DQN,
-    ModelInfo,
-    model_architecture,
-    trained_parameters,
-    write_model_info,
-)
+from dpr.policies.model_file import DQN, ModelInfo, model_architecture, write_model_info
+from dpr.policies.sb3 import trained_parameters
 
 __all__ = ["BCResult", "behaviour_clone", "dataset_env"]
 

@@ -58,8 +58,9 @@ from dpr.imitation.config import WAVE_LENGTH, PerRobotCloneConfig, check_env_id
 from dpr.imitation.loss import batch_stats, check_features
 from dpr.policies.decentralised import MODEL_DEFAULTS, wave_env_kwargs
 from dpr.policies.hyperparams import Hyperparams, load_hyperparams
+from dpr.policies.model_file import ModelInfo, write_model_info
 from dpr.policies.per_robot_spec import RobotModelSpec
-from dpr.policies.sb3 import ModelInfo, trained_parameters, write_model_info
+from dpr.policies.sb3 import trained_parameters
 from dpr.sim.models import swarm_class
 
 __all__ = [

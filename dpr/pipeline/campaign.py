@@ -224,7 +224,7 @@ def run_pipeline(
     ``reuse``: run folders whose stored stages are taken when they match (read, never written). ``shipped`` (a
     model card's entries) are evaluated on the test seeds too, beside the wave, and reported as ``shipped
     <method>``. The same settings give the same report whatever the backend and the number of workers."""
-    from dpr.policies.sb3 import model_env_kwargs
+    from dpr.policies.model_file import model_env_kwargs
 
     out = Path(out)
     if out.exists() and not out.is_dir():

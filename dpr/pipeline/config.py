@@ -31,8 +31,9 @@ from dpr.limits import (
 )
 from dpr.policies.hyperparams import DEFAULT_PRESET as DEFAULT_ENTRY
 from dpr.policies.hyperparams import FINETUNE_PRESET, load_hyperparams
+from dpr.policies.model_file import ALGOS, DQN, SWARM_POLICY
 from dpr.policies.registry import WAVE, WAVE_MARKOV, wave_name
-from dpr.policies.sb3 import ALGOS, DEFAULT_ALGO, DQN, FINETUNE_ALGOS, SWARM_POLICY
+from dpr.policies.sb3 import DEFAULT_ALGO, FINETUNE_ALGOS
 from dpr.policies.wave import BIN_WIDTH, MODEL_DEFAULTS
 from dpr.rl.recipe import FINETUNE_AT_REPEAT
 

@@ -205,8 +205,8 @@ class BatchedPerRobotModelPolicy:
     def load(cls, path: str, venv) -> BatchedPerRobotModelPolicy:
         """The per-robot model at ``path`` for the batched vector env ``venv``: a ValueError naming what differs
         where the model was not trained for ``venv``'s task and robot model."""
+        from dpr.policies.model_file import read_model_info
         from dpr.policies.per_robot_model import RobotModelPolicy, check_per_robot_env
-        from dpr.policies.sb3 import read_model_info
 
         check_per_robot_env(path, read_model_info(path), venv.template)
         return cls(RobotModelPolicy.load(path, single_thread=False), venv)
@@ -237,8 +237,9 @@ def make_batched_policy(name: str, venv, seed: int = 0):
     """The policy called ``name`` (:func:`dpr.policies.registry.make_policy`'s names) for the batched vector env
     ``venv``: the waves and ``random`` in batch, a centralised model file trained for ``venv``'s spaces (on either
     engine), or a per-robot model file trained for ``venv``'s robot model (any N)."""
+    from dpr.policies.model_file import is_model_path, read_model_info
     from dpr.policies.registry import DECENTRALISED_WAVE, RANDOM, WAVE, WAVE_MARKOV, parse_scripted_name
-    from dpr.policies.sb3 import is_model_path, load_model, read_model_info
+    from dpr.policies.sb3 import load_model
 
     env = venv.template
     if is_model_path(name):

@@ -35,7 +35,8 @@ from dpr.limits import (
     MAX_LAYERS,
     MAX_TIMESTEPS,
 )
-from dpr.policies.sb3 import ALGOS, SWARM_POLICY, algo_class
+from dpr.policies.model_file import ALGOS, SWARM_POLICY
+from dpr.policies.sb3 import algo_class
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[1] / "rl" / "hyperparams"
 DEFAULT_PRESET = "default"

@@ -2,11 +2,11 @@
 
 SB3 writes a model's settings into the zip's ``data`` member as JSON, but pickles (cloudpickle, base64) the entries
 JSON cannot hold: the policy class, the spaces, schedules, the last rollout's observations and episode buffers, and
-``policy_kwargs`` that name classes. Beside each pickle it writes a plain description (a class's module and
-docstring, a space's shape and dtype, a schedule's values). :func:`model_objects` builds every such entry from those
-descriptions and the model's own metadata (:class:`dpr.policies.sb3.ModelInfo`), and refuses a file that holds any
-other pickled entry; :func:`dpr.policies.sb3.load_model` hands them to SB3 as ``custom_objects``, which SB3 then
-uses instead of unpickling. The weights are read by torch with ``weights_only=True``.
+``policy_kwargs`` that name classes. Beside each pickle it writes a plain description (a class's module and docstring,
+a space's shape and dtype, a schedule's values). :func:`model_objects` builds every such entry from those descriptions
+and the model's own metadata (:class:`dpr.policies.model_file.ModelInfo`), and refuses a file that holds any other
+pickled entry; :func:`dpr.policies.sb3.load_model` hands them to SB3 as ``custom_objects``, which SB3 then uses
+instead of unpickling. The weights are read by torch with ``weights_only=True``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Per-robot models: one SB3 model whose observation is one robot's local observation and whose action is that
 robot's ``Discrete(2)`` (1 = expand), the same weights for every robot and every swarm size.
 
-A per-robot model file is an SB3 zip like any other (:mod:`dpr.policies.sb3`) whose metadata also holds a
+A per-robot model file is an SB3 zip like any other (:mod:`dpr.policies.model_file`) whose metadata also holds a
 :class:`RobotModelSpec`: the local-observation layout it reads (neighbour slots, clock period, dead flag, object),
 the robot model and wave hold its clock was set for, and the swarm sizes it was trained on. It runs
 
@@ -27,8 +27,9 @@ import numpy as np
 from dpr.checks import ParameterError
 from dpr.envs.local_obs import LocalObservation
 from dpr.policies.decentralised import PerRobotPolicyAdapter
+from dpr.policies.model_file import POLICY_PARAMETER, read_model_info
 from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env, is_parallel_env
-from dpr.policies.sb3 import POLICY_PARAMETER, load_model, read_model_info, single_thread_torch
+from dpr.policies.sb3 import load_model, single_thread_torch
 
 
 class RobotModelPolicy:

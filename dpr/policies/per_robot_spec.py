@@ -1,8 +1,8 @@
 """What a per-robot model reads and where it can run: :class:`RobotModelSpec` (stored in the model file's metadata as
-``per_robot``, see :mod:`dpr.policies.sb3`) and :func:`check_per_robot_env`, which refuses in one line naming what
-differs an env the model was not trained for: another task, robot model, clock period or neighbour count, an object
-or dead flags the model does not read (or reads and the env lacks), pixel observations, or a PettingZoo env without
-local observations. Loading and running the models is :mod:`dpr.policies.per_robot_model`.
+``per_robot``, see :mod:`dpr.policies.model_file`) and :func:`check_per_robot_env`, which refuses in one line naming
+what differs an env the model was not trained for: another task, robot model, clock period or neighbour count, an
+object or dead flags the model does not read (or reads and the env lacks), pixel observations, or a PettingZoo env
+without local observations. Loading and running the models is :mod:`dpr.policies.per_robot_model`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dpr.envs.local_obs import LocalObservation
 from dpr.envs.particle_env import ParticleSwarmEnv
 from dpr.sim.models import ROBOT_MODELS, swarm_class
 
-# The parameter a model file is named by in the registry's error messages (dpr.policies.sb3.POLICY_PARAMETER).
+# The parameter a model file is named by in the registry's error messages (dpr.policies.model_file.POLICY_PARAMETER).
 POLICY_PARAMETER = "policy"
 # The layout fields a model and an env must agree on, as the error messages name them.
 LAYOUT_FIELDS = ("max_neighbours", "clock_period", "dead_flag", "has_object", "distance_period")
@@ -82,7 +82,7 @@ class RobotModelSpec:
 
     @classmethod
     def from_info(cls, info, path: str | Path, parameter: str = POLICY_PARAMETER) -> RobotModelSpec:
-        """The spec in a model file's metadata ``info`` (a :class:`dpr.policies.sb3.ModelInfo`); a
+        """The spec in a model file's metadata ``info`` (a :class:`dpr.policies.model_file.ModelInfo`); a
         :class:`ParameterError` about ``parameter`` when the file holds a centralised model or a malformed spec."""
         if info.per_robot is None:
             n = info.env_kwargs.get("n_robots")

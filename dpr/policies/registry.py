@@ -119,7 +119,7 @@ def parse_scripted_name(name: str) -> tuple[str, dict[str, float]]:
 def check_policy_name(name: str) -> str:
     """``name`` if it names a policy (a model file must exist and carry its env metadata), else a
     ValueError that lists the choices."""
-    from dpr.policies.sb3 import is_model_path, read_model_info
+    from dpr.policies.model_file import is_model_path, read_model_info
 
     if is_model_path(name):
         read_model_info(name)
@@ -170,7 +170,8 @@ def make_policy(name: str, env, transfer: bool = False):
     model file trained on ``env``'s id and spaces (with ``transfer``, on any task with ``env``'s spaces); a per-robot
     model file (:mod:`dpr.policies.per_robot_model`) runs at any swarm size."""
     check_policy_name(name)
-    from dpr.policies.sb3 import is_model_path, load_model_policy, read_model_info
+    from dpr.policies.model_file import is_model_path, read_model_info
+    from dpr.policies.sb3 import load_model_policy
 
     if is_model_path(name):
         if read_model_info(name).per_robot is not None:  # one robot's model: every robot of any N runs it

@@ -38,13 +38,11 @@ from torch import nn
 
 from dpr.envs.particle_env import LANDMARK_FEATURES, LENGTH_SCALE, OBJECT_FEATURES, ROBOT_FEATURES
 from dpr.policies.features import GoalFrame
+from dpr.policies.model_file import SWARM_POLICY  # its name in a hyperparameter entry's `policy`
 from dpr.policies.wave import BIN_WIDTH
 
 __all__ = ["SwarmActorCriticPolicy"]
 
-# Its name in a hyperparameter entry's `policy` (dpr.policies.sb3.SWARM_POLICY, which builds it; not imported
-# here, which would close an import circle).
-POLICY_NAME = "SwarmPolicy"
 CRITICS = ("mlp", "swarm")  # SB3's MLP on the whole state; a Deep Sets critic (module docstring)
 ROBOT_INPUTS = 7  # along, across, velocity along and across, angular velocity, expansion, last action
 # Positions and velocities in units of the wave's bin width (positions are observed in units of 1000).
@@ -67,7 +65,7 @@ class SwarmLayout:
             if landmarks:
                 parts += f" and {landmarks} landmarks"
             raise ValueError(
-                f"{POLICY_NAME}: a state observation of {n_robots} robots {parts} has "
+                f"{SWARM_POLICY}: a state observation of {n_robots} robots {parts} has "
                 f"{self.memory_at} or {self.memory_at + self.n_robots + 1} values, got {size}"
             )
         self.has_memory = rest > 0
@@ -214,11 +212,11 @@ class SwarmActorCriticPolicy(ActorCriticPolicy):
         **kwargs,
     ):
         if not isinstance(action_space, gym.spaces.MultiBinary) or len(action_space.shape) != 1:
-            raise ValueError(f"{POLICY_NAME} needs MultiBinary(N) actions, got {action_space}")
+            raise ValueError(f"{SWARM_POLICY} needs MultiBinary(N) actions, got {action_space}")
         if not isinstance(observation_space, gym.spaces.Box) or len(observation_space.shape) != 1:
-            raise ValueError(f"{POLICY_NAME} needs the 1-D state observation, got {observation_space}")
+            raise ValueError(f"{SWARM_POLICY} needs the 1-D state observation, got {observation_space}")
         if critic not in CRITICS:
-            raise ValueError(f"{POLICY_NAME}: critic must be one of {CRITICS}, got {critic!r}")
+            raise ValueError(f"{SWARM_POLICY}: critic must be one of {CRITICS}, got {critic!r}")
         self.layout = SwarmLayout(observation_space.shape[0], action_space.n, has_object, landmarks)
         self.robot_net = list(robot_net or [64, 64])
         self.critic = critic

@@ -31,7 +31,8 @@ from torch import nn
 from dpr.checks import ParameterError, check_int
 from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.hyperparams import Hyperparams
-from dpr.policies.sb3 import PPO, build_model
+from dpr.policies.model_file import PPO
+from dpr.policies.sb3 import build_model
 
 # what each update reports, the means of minibatch_loss's terms over its mini-batches
 TERMS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")

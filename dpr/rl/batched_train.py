@@ -30,7 +30,8 @@ from dpr import runs
 from dpr.checks import ParameterError
 from dpr.envs.batched import refuse_batched_only_kwargs
 from dpr.policies.distributions import unchecked_distributions
-from dpr.policies.sb3 import ModelInfo, build_model, model_architecture, save_model
+from dpr.policies.model_file import ModelInfo, model_architecture
+from dpr.policies.sb3 import build_model, save_model
 from dpr.rl import resume as resume_state
 from dpr.rl.batched_ppo import build_learner, learn
 from dpr.rl.batched_resume import resume_batched, save_batched_snapshot, snapshot_file

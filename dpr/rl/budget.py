@@ -34,7 +34,8 @@ from dpr.limits import (
     env_bytes,
 )
 from dpr.policies.hyperparams import Hyperparams
-from dpr.policies.sb3 import PPO, algo_class
+from dpr.policies.model_file import PPO
+from dpr.policies.sb3 import algo_class
 
 # The bounds of a training run's counts (dpr.rl.train.TrainConfig): name -> (minimum, maximum).
 TRAIN_COUNT_BOUNDS = {

@@ -51,16 +51,9 @@ from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.limits import MAX_RECORD_BYTES
 from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.hyperparams import FINETUNE_PRESET, Hyperparams, load_hyperparams
+from dpr.policies.model_file import ModelInfo, read_model_info
 from dpr.policies.per_robot_spec import RobotModelSpec, check_per_robot_env
-from dpr.policies.sb3 import (
-    FINETUNE_ALGOS,
-    INIT_PARAMETER,
-    ModelInfo,
-    build_model,
-    load_initial_policy,
-    read_model_info,
-    save_model,
-)
+from dpr.policies.sb3 import FINETUNE_ALGOS, INIT_PARAMETER, build_model, load_initial_policy, save_model
 from dpr.rl import resume as resume_state
 from dpr.rl.progress import StepUnit, progress_bar, tensorboard_available
 from dpr.rl.recipe import default_critic_warmup

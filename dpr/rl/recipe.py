@@ -2,7 +2,7 @@
 share, so that a fine-tuning run by hand is the pipeline's without restating it.
 
 - The network: a fine-tuning run loads the clone's weights, so it must build the network the clone was built with.
-  A model file records it (:attr:`dpr.policies.sb3.ModelInfo.architecture`, e.g. ``SwarmPolicy``, the pipeline's
+  A model file records it (:attr:`dpr.policies.model_file.ModelInfo.architecture`, e.g. ``SwarmPolicy``, the pipeline's
   actor and ``dpr bc``'s default), and :func:`finetune_defaults` builds it again.
 - The discount: the yaml's ``gamma`` is per *decision*. A model deciding every ``action_repeat`` = K physics steps
   discounts :data:`PHYSICS_DISCOUNT` per physics step instead, ``gamma = 0.99**K`` per decision
@@ -18,10 +18,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from dpr.policies.sb3 import PPO
+from dpr.policies.model_file import PPO
 
 if TYPE_CHECKING:
-    from dpr.policies.sb3 import ModelInfo
+    from dpr.policies.model_file import ModelInfo
 
 # fine-tuning when deciding every 10 physics steps: shorter rollouts and more epochs than the yaml's entry
 FINETUNE_AT_REPEAT = {"n_steps": 512, "batch_size": 128, "n_epochs": 10}

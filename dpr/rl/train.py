@@ -32,12 +32,10 @@ from dpr.limits import MAX_RECORD_BYTES, MAX_TEMPERATURE
 from dpr.policies.distributions import unchecked_distributions
 from dpr.policies.exploration import soften_actions
 from dpr.policies.hyperparams import DEFAULT_PRESET, PRESETS, Hyperparams, load_hyperparams
+from dpr.policies.model_file import ALGOS, PPO, ModelInfo, model_architecture, write_model_info
 from dpr.policies.sb3 import (
-    ALGOS,
     FINETUNE_ALGOS,
     INIT_PARAMETER,
-    PPO,
-    ModelInfo,
     actor_parameters,
     build_model,
     check_hyperparameters,
@@ -45,9 +43,7 @@ from dpr.policies.sb3 import (
     load_initial_policy,
     load_model,
     make_vec_env,
-    model_architecture,
     save_model,
-    write_model_info,
 )
 from dpr.rl import resume as resume_state
 from dpr.rl.budget import TRAIN_COUNT_BOUNDS, check_training_memory, fit_budget

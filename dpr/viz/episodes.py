@@ -379,7 +379,7 @@ class ViewRollout:
         """The ``gym.make`` kwargs of the rollout: a model runs with the env kwargs it was trained with."""
         kwargs = {"n_robots": self.n_robots, "robot_model": self.robot_model, **self.env_kwargs}
         if self.policy.endswith(SB3_SUFFIX):
-            from dpr.policies.sb3 import model_env_kwargs
+            from dpr.policies.model_file import model_env_kwargs
 
             try:
                 kwargs = model_env_kwargs(self.policy, self.env_id, kwargs, transfer=self.transfer)
