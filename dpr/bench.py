@@ -185,7 +185,7 @@ def bench_batched(
     return {
         "engine": "batched",
         "device": str(envs.device),
-        "compiled": compile and not envs.world.use_cells,
+        "compiled": envs.world.compiled,
         "num_envs": num_envs,
         "n_robots": n_robots,
         "env_steps_per_s": rate,

@@ -71,6 +71,7 @@ def test_train_refuses_what_the_batched_engine_cannot_do():
 def test_the_batched_bench_measures_a_rate():
     row = bench_batched(4, 4, seconds=0.0)
     assert row["env_steps_per_s"] > 0 and row["n_robots"] == 4 and row["peak_memory_mb"] > 0
+    assert row["compiled"] is False  # what the world ran, not only what was asked
 
 
 def test_the_batched_bench_sizes_rows_hold_the_robots_asked_for():
