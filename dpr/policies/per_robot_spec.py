@@ -15,10 +15,9 @@ from dpr.checks import ParameterError, check_choice, check_int
 from dpr.envs import ENV_IDS
 from dpr.envs.local_obs import LocalObservation
 from dpr.envs.particle_env import ParticleSwarmEnv
+from dpr.policies.model_file import POLICY_PARAMETER
 from dpr.sim.models import ROBOT_MODELS, swarm_class
 
-# The parameter a model file is named by in the registry's error messages (dpr.policies.model_file.POLICY_PARAMETER).
-POLICY_PARAMETER = "policy"
 # The layout fields a model and an env must agree on, as the error messages name them.
 LAYOUT_FIELDS = ("max_neighbours", "clock_period", "dead_flag", "has_object", "distance_period")
 
