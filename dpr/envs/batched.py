@@ -175,7 +175,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
         # With a compiled world the env's own work around each physics step is compiled too: eager, its few dozen
         # small ops cost about a tenth of a step at thousands of envs
         self._observe = compiled_if(type(self)._observation, self.world.compiled)
-        self._track = compiled_if(type(self)._physics_step_reward, self.world.compiled)
+        self._step_reward = compiled_if(type(self)._physics_step_reward, self.world.compiled)
         self._allocate()
         self._generators = [seeding.np_random()[0] for _ in range(self.num_envs)]
         self._autoreset = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
@@ -354,7 +354,7 @@ class BatchedSwarmVectorEnv(VectorEnv):
             blown |= live & ~self.world.is_sane()
             live &= ~blown
             self.physics_steps += live.long()
-            reward += torch.where(live, self._track(self, live), 0.0)
+            reward += torch.where(live, self._step_reward(self, live), 0.0)
             if isinstance(self.template, GateEnv):
                 touching = self.world.robots_touch_walls() & (self.contact_step < 0) & live
                 self.contact_step = torch.where(touching, self.physics_steps, self.contact_step)
