@@ -28,7 +28,7 @@ REFERENCE_2021 = {9: 130.0, 25: 41.0, 49: 18.6, 100: 7.3}
 class _Bench:
     """One configuration's env, its random actions, and the timing hooks (see the module docstring)."""
 
-    def __init__(self, robot_model: str, n_robots: int, steps: int, repeats: int, seed: int = 0):
+    def __init__(self, robot_model: str, n_robots: int, steps: int, seed: int = 0):
         import dpr  # noqa: F401  (registers the ids)
 
         self.robot_model, self.n_robots, self.steps = robot_model, n_robots, steps
@@ -39,23 +39,39 @@ class _Bench:
         self.physics_time = 0.0
         self.plain_step_physics = self.world.step_physics
         self.world.step_physics = self._timed_step_physics
-        self.actions = [self.env.action_space.sample() for _ in range(steps * (repeats + 1))]
         self.env_rates, self.physics_rates, self.replay_rates = [], [], []
-        for action in self.actions[:steps]:  # warm-up
-            self.env.step(action)
+        started = time.perf_counter()
+        self._steps(self._actions())  # warm-up
+        self.warm_up_rate = steps / (time.perf_counter() - started)
+
+    @classmethod
+    def sized(cls, robot_model: str, n_robots: int, seconds: float, seed: int = 0) -> _Bench:
+        """A bench whose blocks take about ``seconds`` each (at least 20 steps), sized by a 20-step warm-up."""
+        bench = cls(robot_model, n_robots, 20, seed)
+        bench.steps = max(20, round(bench.warm_up_rate * seconds))
+        return bench
+
+    def _actions(self) -> list:
+        return [self.env.action_space.sample() for _ in range(self.steps)]
+
+    def _steps(self, actions: list) -> None:
+        for action in actions:
+            _, _, terminated, truncated, _ = self.env.step(action)
+            if terminated or truncated:  # as a learner would: part of what an env step costs
+                self.env.reset()
 
     def _timed_step_physics(self) -> None:
         t0 = time.perf_counter()
         self.plain_step_physics()
         self.physics_time += time.perf_counter() - t0
 
-    def block(self, r: int) -> None:
-        """Time timed block ``r`` (env steps, the physics inside them, then physics-only replay)."""
-        actions = self.actions[(r + 1) * self.steps : (r + 2) * self.steps]
+    def block(self) -> None:
+        """One timed block: env steps, the physics inside them, then physics-only replay. Its actions are drawn
+        before the clock starts."""
+        actions = self._actions()
         self.physics_time = 0.0
         t0 = time.perf_counter()
-        for action in actions:
-            self.env.step(action)
+        self._steps(actions)
         self.env_rates.append(self.steps / (time.perf_counter() - t0))
         self.physics_rates.append(self.steps / self.physics_time)
         t0 = time.perf_counter()
@@ -79,9 +95,9 @@ class _Bench:
 
 def bench_env(robot_model: str, n_robots: int, steps: int = 200, repeats: int = 5, seed: int = 0) -> dict:
     """One configuration on its own."""
-    bench = _Bench(robot_model, n_robots, steps, repeats, seed)
-    for r in range(repeats):
-        bench.block(r)
+    bench = _Bench(robot_model, n_robots, steps, seed)
+    for _ in range(repeats):
+        bench.block()
     bench.env.close()
     return bench.row()
 
@@ -97,10 +113,10 @@ def run_benchmarks(
         for n in sizes:
             # fewer steps for the slow big paddle swarms keep the whole run to a few minutes
             k = max(20, int(steps * 9 / n)) if model == "paddle" else steps * 5
-            benches.append(_Bench(model, n, k, repeats))
-    for r in range(repeats):
+            benches.append(_Bench(model, n, k))
+    for _ in range(repeats):
         for bench in benches:
-            bench.block(r)
+            bench.block()
     rows = []
     for bench in benches:
         bench.env.close()
@@ -141,79 +157,123 @@ def format_table(rows: list[dict]) -> str:
 BATCHED_ENVS = (1, 64, 1024, 4096, 16384)  # K at N=9
 BATCHED_SIZES = (100, 1000, 10000)  # N, with K*N near BATCHED_ROBOTS robots in all
 BATCHED_ROBOTS = 10_000
+PYMUNK_LARGEST = 1000  # the largest N timed on the pymunk disk env beside the batched rows
+
+
+class _BatchedBench:
+    """``num_envs`` Navigation envs of N robots on the batched engine, stepped through ``step_tensors`` (physics,
+    observation, reward, same-step resets) with random actions drawn on the device, after one warm-up step (with
+    ``compile``, the compiling)."""
+
+    def __init__(self, num_envs: int, n_robots: int, device: str = "cpu", seed: int = 0, compile: bool = False):
+        import torch
+
+        self.envs = gym.make_vec(
+            "dpr/Navigation-v0",
+            num_envs=num_envs,
+            vectorization_mode="vector_entry_point",
+            robot_model="disk",
+            n_robots=n_robots,
+            device=device,
+            compile=compile,
+        ).unwrapped
+        if self.envs.device.type == "cuda":  # this row's peak, not an earlier row's
+            torch.cuda.reset_peak_memory_stats(self.envs.device)
+        self.envs.reset_tensors(seed)
+        self.generator = torch.Generator(device=self.envs.device).manual_seed(seed)
+        self.num_envs, self.n_robots, self.rates = num_envs, n_robots, []
+        self._step()
+
+    def _step(self) -> None:
+        import torch
+
+        shape, device = (self.num_envs, self.n_robots), self.envs.device
+        self.envs.step_tensors(torch.randint(0, 2, shape, generator=self.generator, device=device))
+
+    def block(self, seconds: float) -> None:
+        """One timed block of at least two steps and ``seconds``."""
+        import torch
+
+        count, started = 0, time.perf_counter()
+        while count < 2 or time.perf_counter() - started < seconds:
+            self._step()
+            count += 1
+        if self.envs.device.type == "cuda":
+            torch.cuda.synchronize(self.envs.device)
+        self.rates.append(count * self.num_envs / (time.perf_counter() - started))
+
+    def close(self) -> dict:
+        """The row: the median block's env steps/s, and the peak memory of the device while this bench ran (CUDA), or
+        of the process so far."""
+        import resource
+
+        import torch
+
+        envs = self.envs
+        if envs.device.type == "cuda":
+            peak = torch.cuda.max_memory_allocated(envs.device)
+        else:
+            peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the process's, in bytes (Linux: KiB)
+        envs.close()
+        rate = float(np.median(self.rates))
+        return {
+            "engine": "batched",
+            "device": str(envs.device),
+            "compiled": envs.world.compiled,
+            "num_envs": self.num_envs,
+            "n_robots": self.n_robots,
+            "env_steps_per_s": rate,
+            "us_per_robot_step": 1e6 / (rate * self.n_robots),
+            "peak_memory_mb": peak / 2**20,
+        }
 
 
 def bench_batched(
     num_envs: int, n_robots: int, seconds: float = 2.0, device: str = "cpu", seed: int = 0, compile: bool = False
 ) -> dict:
-    """Env steps per second of ``num_envs`` Navigation envs of N robots on the batched engine
-    (``step_tensors``: physics, observation, reward, same-step resets), random actions drawn on the device, timed
-    for at least ``seconds`` after one warm-up step (with ``compile``, after the compiling); and the peak memory of the
-    device while this row ran (CUDA), or of the process so far."""
-    import resource
-
-    import torch
-
-    envs = gym.make_vec(
-        "dpr/Navigation-v0",
-        num_envs=num_envs,
-        vectorization_mode="vector_entry_point",
-        robot_model="disk",
-        n_robots=n_robots,
-        device=device,
-        compile=compile,
-    ).unwrapped
-    if envs.device.type == "cuda":  # this row's peak, not an earlier row's
-        torch.cuda.reset_peak_memory_stats(envs.device)
-    envs.reset_tensors(seed)
-    generator = torch.Generator(device=envs.device).manual_seed(seed)
-    shape = (num_envs, n_robots)
-    step = lambda: envs.step_tensors(torch.randint(0, 2, shape, generator=generator, device=envs.device))  # noqa: E731
-    step()
-    count, started = 0, time.perf_counter()
-    while count < 2 or time.perf_counter() - started < seconds:
-        step()
-        count += 1
-    if envs.device.type == "cuda":
-        torch.cuda.synchronize(envs.device)
-    rate = count * num_envs / (time.perf_counter() - started)
-    if envs.device.type == "cuda":
-        peak = torch.cuda.max_memory_allocated(envs.device)
-    else:
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the process's, in bytes (Linux: KiB)
-    envs.close()
-    return {
-        "engine": "batched",
-        "device": str(envs.device),
-        "compiled": envs.world.compiled,
-        "num_envs": num_envs,
-        "n_robots": n_robots,
-        "env_steps_per_s": rate,
-        "us_per_robot_step": 1e6 / (rate * n_robots),
-        "peak_memory_mb": peak / 2**20,
-    }
+    """Env steps per second of ``num_envs`` Navigation envs of N robots on the batched engine, timed for at least
+    ``seconds`` (:class:`_BatchedBench`), and its peak memory."""
+    bench = _BatchedBench(num_envs, n_robots, device, seed, compile)
+    bench.block(seconds)
+    return bench.close()
 
 
 def run_batched_benchmarks(
     ks=BATCHED_ENVS,
     sizes=BATCHED_SIZES,
-    seconds: float = 2.0,
+    seconds: float = 1.0,
+    repeats: int = 3,
     device="cpu",
     progress=None,
     compile: bool = False,
     robots: int = BATCHED_ROBOTS,
 ):
     """The batched engine at N=9 for every K in ``ks`` and at every N in ``sizes`` (K*N near ``robots``), each
-    beside the pymunk disk env at the same N (random actions, :func:`bench_env`; not above N=1000, whose steps take
-    seconds), in one run."""
-    pymunk = {n: bench_env("disk", n, steps=max(20, 2000 // n), repeats=3) for n in (9, *sizes) if n <= 1000}
+    beside the pymunk disk env at the same N (random actions, resets at episode ends; not above
+    ``PYMUNK_LARGEST``, whose steps take seconds), in one run.
+
+    Each row is timed in ``repeats`` blocks of at least ``seconds``, each right after a block of the pymunk env of
+    about the same length, with one more pymunk block after the last: both sides of a row's ratio see the same
+    machine, and its figures are the medians of its own blocks."""
+    cases = [(k, 9) for k in ks] + [(max(1, robots // n), n) for n in sizes]
+    pymunk = {n: _Bench.sized("disk", n, seconds) for n in sorted({n for _, n in cases}) if n <= PYMUNK_LARGEST}
     rows = []
-    for k, n in [(k, 9) for k in ks] + [(max(1, robots // n), n) for n in sizes]:
-        row = bench_batched(k, n, seconds, device, compile=compile)
-        row["pymunk_env_steps_per_s"] = pymunk[n]["env_steps_per_s"] if n in pymunk else None
+    for k, n in cases:
+        reference, batched = pymunk.get(n), _BatchedBench(k, n, device, compile=compile)
+        first = len(reference.env_rates) if reference else 0
+        for _ in range(repeats):
+            if reference:
+                reference.block()
+            batched.block(seconds)
+        if reference:
+            reference.block()
+        row = batched.close()
+        row["pymunk_env_steps_per_s"] = float(np.median(reference.env_rates[first:])) if reference else None
         rows.append(row)
         if progress is not None:
             progress(row)
+    for reference in pymunk.values():
+        reference.env.close()
     return rows
 
 

@@ -3,12 +3,15 @@ both engines."""
 
 import json
 
+import gymnasium as gym
 import pytest
 import torch
 
 import dpr  # noqa: F401
+from dpr import bench
 from dpr.bench import bench_batched, run_batched_benchmarks
 from dpr.checks import ParameterError
+from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.cli import main
 from dpr.evaluation.batched import evaluate_batched
 from dpr.evaluation.scoring import evaluate, evaluation_payload
@@ -78,6 +81,25 @@ def test_the_batched_bench_sizes_rows_hold_the_robots_asked_for():
     rows = run_batched_benchmarks(ks=(), sizes=(40,), seconds=0.0, robots=120)
     assert [(row["num_envs"], row["n_robots"]) for row in rows] == [(3, 40)]
     assert rows[0]["pymunk_env_steps_per_s"] > 0
+
+
+def test_each_batched_row_is_timed_between_blocks_of_the_pymunk_env(monkeypatch):
+    timed = []
+    for side, bench_class in (("pymunk", bench._Bench), ("batched", bench._BatchedBench)):
+        block = bench_class.block
+        monkeypatch.setattr(bench_class, "block", lambda self, *a, _b=block, _s=side: timed.append(_s) or _b(self, *a))
+    rows = run_batched_benchmarks(ks=(2,), sizes=(), seconds=0.0, repeats=2)
+    assert timed == ["pymunk", "batched", "pymunk", "batched", "pymunk"]
+    assert rows[0]["pymunk_env_steps_per_s"] > 0
+
+
+def test_the_pymunk_bench_resets_its_env_at_episode_ends():
+    timed = bench._Bench("disk", 9, steps=1300)  # the warm-up and one block run past the 2,500-step episode
+    timed.block()
+    limit = timed.env
+    while not isinstance(limit, gym.wrappers.TimeLimit):
+        limit = limit.env
+    assert limit._elapsed_steps == 2 * 1300 - MAX_EPISODE_STEPS  # stepped on from a reset, not past the end
 
 
 def test_cuda_without_cuda_is_refused_by_name():

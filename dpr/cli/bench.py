@@ -25,8 +25,13 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=ROBOT_MODELS, default=list(bench["models"]))
     parser.add_argument("--sizes", nargs="+", type=positive_int, default=list(bench["sizes"]))
     default_argument(parser, "--steps", bench["steps"], "env steps per timed block at N=9")
-    default_argument(parser, "--repeats", bench["repeats"], "timed blocks; medians are reported")
     batched = defaults(run_batched_benchmarks)
+    parser.add_argument(
+        "--repeats",
+        type=positive_int,
+        help=f"timed blocks; medians are reported (default {bench['repeats']}; batched: {batched['repeats']} a row, "
+        "each after a block of the pymunk disk env)",
+    )
     parser.add_argument(
         "--engine",
         choices=("pymunk", "batched"),
@@ -69,7 +74,7 @@ def _pymunk_rows(args) -> tuple[list[dict], str]:
         models=args.models,
         sizes=args.sizes,
         steps=args.steps,
-        repeats=args.repeats,
+        repeats=args.repeats or defaults(run_benchmarks)["repeats"],
         progress=lambda r: print(
             f"{r['robot_model']:>6} N={r['n_robots']:<4} env {r['env_steps_per_s']:8.0f}/s  "
             f"physics {r['physics_steps_per_s']:8.0f}/s  ({r['env_over_physics']:.0%})",
@@ -88,6 +93,7 @@ def _batched_rows(args) -> tuple[list[dict], str]:
         device=args.device,
         compile=args.compile,
         robots=args.batched_robots,
+        **({"repeats": args.repeats} if args.repeats else {}),
         progress=lambda r: print(
             f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
             file=sys.stderr,
