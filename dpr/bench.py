@@ -194,6 +194,8 @@ class _BatchedBench:
         """One timed block of at least two steps and ``seconds``."""
         import torch
 
+        if self.envs.device.type == "cuda":  # nothing queued before the clock starts
+            torch.cuda.synchronize(self.envs.device)
         count, started = 0, time.perf_counter()
         while count < 2 or time.perf_counter() - started < seconds:
             self._step()
