@@ -35,10 +35,8 @@ class _Bench:
         self.env = gym.make("dpr/Navigation-v0", n_robots=n_robots, robot_model=robot_model)
         self.env.reset(seed=seed)
         self.env.action_space.seed(seed)
-        self.world = self.env.unwrapped.world
         self.physics_time = 0.0
-        self.plain_step_physics = self.world.step_physics
-        self.world.step_physics = self._timed_step_physics
+        self._time_the_physics()
         self.env_rates, self.physics_rates, self.replay_rates = [], [], []
         started = time.perf_counter()
         self._steps(self._actions())  # warm-up
@@ -51,6 +49,12 @@ class _Bench:
         bench.steps = max(20, round(bench.warm_up_rate * seconds))
         return bench
 
+    def _time_the_physics(self) -> None:
+        """Hook the timer into the env's world (a reset builds a new one)."""
+        self.world = self.env.unwrapped.world
+        self.plain_step_physics = self.world.step_physics
+        self.world.step_physics = self._timed_step_physics
+
     def _actions(self) -> list:
         return [self.env.action_space.sample() for _ in range(self.steps)]
 
@@ -59,6 +63,7 @@ class _Bench:
             _, _, terminated, truncated, _ = self.env.step(action)
             if terminated or truncated:  # as a learner would: part of what an env step costs
                 self.env.reset()
+                self._time_the_physics()
 
     def _timed_step_physics(self) -> None:
         t0 = time.perf_counter()
@@ -257,7 +262,11 @@ def run_batched_benchmarks(
     Each row is timed in ``repeats`` blocks of at least ``seconds``, each right after a block of the pymunk env of
     about the same length, with one more pymunk block after the last: both sides of a row's ratio see the same
     machine, and its figures are the medians of its own blocks."""
+    from dpr.sim.batched import checked_size
+
     cases = [(k, 9) for k in ks] + [(max(1, robots // n), n) for n in sizes]
+    for k, n in cases:  # every row's device and memory, before any work
+        checked_size(k, n, device)
     pymunk = {n: _Bench.sized("disk", n, seconds) for n in sorted({n for _, n in cases}) if n <= PYMUNK_LARGEST}
     rows = []
     for k, n in cases:

@@ -93,6 +93,22 @@ def test_each_batched_row_is_timed_between_blocks_of_the_pymunk_env(monkeypatch)
     assert rows[0]["pymunk_env_steps_per_s"] > 0
 
 
+@pytest.mark.parametrize(
+    "flags, named",
+    [
+        (["--device", "cuda", "--ks", "4", "--batched-sizes"], "--device"),
+        (["--ks", "4", "--batched-sizes", "1000", "--batched-robots", "100000000000"], "--ks or --batched-robots"),
+    ],
+)
+def test_the_batched_bench_refuses_what_the_machine_lacks_before_any_work(monkeypatch, capsys, flags, named):
+    if "cuda" in flags and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: the refusal is for machines without it")
+    monkeypatch.setattr(bench._Bench, "__init__", lambda *a, **k: pytest.fail("the pymunk side started"))
+    with pytest.raises(SystemExit) as exit:
+        main(["bench", "--engine", "batched", *flags])
+    assert exit.value.code == 2 and f"error: {named}:" in capsys.readouterr().err
+
+
 def test_the_pymunk_bench_resets_its_env_at_episode_ends():
     timed = bench._Bench("disk", 9, steps=1300)  # the warm-up and one block run past the 2,500-step episode
     timed.block()
@@ -100,6 +116,9 @@ def test_the_pymunk_bench_resets_its_env_at_episode_ends():
     while not isinstance(limit, gym.wrappers.TimeLimit):
         limit = limit.env
     assert limit._elapsed_steps == 2 * 1300 - MAX_EPISODE_STEPS  # stepped on from a reset, not past the end
+    timed.block()  # every step on the world the reset built: its physics are timed too
+    row = timed.row()
+    assert 0 < row["env_over_physics"] < 1
 
 
 def test_cuda_without_cuda_is_refused_by_name():

@@ -11,6 +11,7 @@ from dpr.cli.common import (
     compile_argument,
     default_argument,
     defaults,
+    flag_message,
     json_argument,
     positive_int,
     write_json,
@@ -60,7 +61,10 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
 
 def cmd_bench(args, parser) -> int:
     check_output(args.json, parser, "--json")
-    rows, table = _batched_rows(args) if args.engine == "batched" else _pymunk_rows(args)
+    try:
+        rows, table = _batched_rows(args) if args.engine == "batched" else _pymunk_rows(args)
+    except ValueError as error:  # a row the machine cannot hold, or a device it lacks: said before any work
+        parser.error(flag_message(error, {"num_envs": "--ks or --batched-robots"}))
     print(table)
     if args.json:
         write_json(args.json, rows)

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import torch
 
 from dpr.checks import ParameterError, check_int, check_number
-from dpr.limits import physical_memory
+from dpr.limits import check_memory, physical_memory
 from dpr.sim import constants as C
 from dpr.sim.batched.neighbours import cell_pairs
 from dpr.sim.batched.pairs import DensePairs, SparsePairs
@@ -123,6 +123,16 @@ def _available_memory(device: torch.device) -> int:
     return physical_memory()
 
 
+def checked_size(num_envs: int, n_robots: int, device: str | torch.device = "cpu") -> torch.device:
+    """The torch device of a world of ``num_envs`` swarms of ``n_robots``, once this machine has that device and its
+    memory holds the world's estimate (:func:`estimated_memory`): ParameterErrors naming ``device`` or ``num_envs``
+    otherwise, before anything is built."""
+    checked = _checked_device(device)
+    what = f"{num_envs} swarms of {n_robots} robots on {checked}"
+    check_memory("num_envs", what, estimated_memory(num_envs, n_robots), _available_memory(checked))
+    return checked
+
+
 def estimated_memory(num_envs: int, n_robots: int) -> int:
     """Bytes a :class:`BatchedDiskWorld` of ``num_envs`` swarms of ``n_robots`` needs while stepping (estimate)."""
     bodies = n_robots + 1
@@ -184,19 +194,12 @@ class BatchedDiskWorld:
         self.n_walls = check_int("n_walls", n_walls, minimum=0)
         if not isinstance(solver, SolverSettings):
             raise ParameterError("solver", f"expected SolverSettings, got {type(solver).__name__}")
-        self.device = _checked_device(device)
+        self.device = checked_size(k, n, device)
         if object_radius is not None:
             object_radius = check_number("object_radius", object_radius, above=0.0)
         self.object_radius = object_radius
         self.object_mass = check_number("object_mass", object_mass, above=0.0)
         self.wall_give = check_number("wall_give", wall_give, 0.0, MAX_WALL_GIVE)
-        needed, available = estimated_memory(k, n), _available_memory(self.device)
-        if needed > available:
-            raise ParameterError(
-                "num_envs",
-                f"{k} swarms of {n} robots need about {needed / 2**30:.1f} GiB while stepping; "
-                f"{self.device} has {available / 2**30:.1f} GiB: use fewer swarms or robots",
-            )
         self.n_bodies = n + (object_radius is not None)
         self.use_cells = n > ALL_PAIRS_LIMIT
         self.compiled = compiled = solver.compile and not self.use_cells
