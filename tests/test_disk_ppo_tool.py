@@ -162,3 +162,19 @@ def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):
     assert pretrain_steps("navigation", pretrain_steps=None) == 600_000
     assert pretrain_steps("gate", pretrain_steps=10) == 10
     assert pretrain_steps("gate", pretrain_steps=0) == 0  # given, so passed on (dpr train judges it), not replaced
+
+
+def test_gate_fine_tunes_three_times_as_long_unless_the_steps_are_given(tmp_path):
+    tool = load_tool("disk_ppo")
+    commands = []
+    tool.dpr = lambda *arguments: commands.append(arguments)
+
+    def finetune_steps(task, **given):
+        commands.clear()
+        tool.run(task, 0, run_args(out=tmp_path / task / str(given), **given))
+        finetune = next(command for command in commands if command[0] == "finetune")
+        return int(finetune[finetune.index("--timesteps") + 1])
+
+    assert finetune_steps("gate", finetune_steps=None) == 300_000
+    assert finetune_steps("navigation", finetune_steps=None) == 100_000
+    assert finetune_steps("gate", finetune_steps=10) == 10

@@ -60,6 +60,8 @@ PRETRAIN_STEPS, TASK_PRETRAIN_STEPS = 600_000, {"gate": 1_200_000}
 # Gate's disk swarms squeeze through the opening less than the paddle swarms do; pretrained with it 200 wide (150 in
 # the task), Gate's actors run nearer the paddle wave (research log, disk-pretraining)
 TASK_PRETRAIN_ENV_KWARGS = {"gate": ["gate_width=200"]}
+# Gate's fine-tunes gain on every run from 100,000 to 300,000 paddle steps (research log, disk-pretraining)
+FINETUNE_STEPS, TASK_FINETUNE_STEPS = 100_000, {"gate": 300_000}
 FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
 
 
@@ -111,13 +113,13 @@ def run(task: str, seed: int, args) -> None:
             *repeated("--hyperparam", args.pretrain_hyperparam),
             "--out", str(pretrain), *resume)  # fmt: skip
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
-    if args.finetune_steps == 0:
+    if finetune_steps(task, args) == 0:
         return
     finetune = folder / "finetune"
     if not finished(finetune, batched=False):
         hyper = repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
         dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
-            "--timesteps", str(args.finetune_steps), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
+            "--timesteps", str(finetune_steps(task, args)), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
             "--exploration-temperature", str(args.finetune_temperature),
             *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
             *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
@@ -139,6 +141,11 @@ def repeated(flag: str, values: list[str]) -> list[str]:
 def pretrain_steps(task: str, args) -> int:
     """``--pretrain-steps`` where given, else the task's own."""
     return TASK_PRETRAIN_STEPS.get(task, PRETRAIN_STEPS) if args.pretrain_steps is None else args.pretrain_steps
+
+
+def finetune_steps(task: str, args) -> int:
+    """``--finetune-steps`` where given, else the task's own."""
+    return TASK_FINETUNE_STEPS.get(task, FINETUNE_STEPS) if args.finetune_steps is None else args.finetune_steps
 
 
 def model_file(task: str, stage: str) -> str:
@@ -227,7 +234,11 @@ def main() -> int:
     )
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--compile", action="store_true", help="torch.compile the batched physics")
-    parser.add_argument("--finetune-steps", type=int, default=100_000, help="env steps on paddle (0: none)")
+    parser.add_argument(
+        "--finetune-steps",
+        type=int,
+        help=f"env steps on paddle (0: none; default: {FINETUNE_STEPS:,}; Gate {TASK_FINETUNE_STEPS['gate']:,})",
+    )
     parser.add_argument(
         "--finetune-hyperparam",
         action="append",
