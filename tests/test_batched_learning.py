@@ -11,8 +11,8 @@ import dpr  # noqa: F401
 from dpr import bench
 from dpr.bench import bench_batched, run_batched_benchmarks
 from dpr.checks import ParameterError
-from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.cli import main
+from dpr.envs.particle_env import MAX_EPISODE_STEPS
 from dpr.evaluation.batched import evaluate_batched
 from dpr.evaluation.scoring import evaluate, evaluation_payload
 from dpr.rl.batched_train import train_batched

@@ -147,16 +147,19 @@ def test_pretraining_on_a_variant_of_the_task_changes_its_experience_only(tmp_pa
     assert kwargs == ["gate_width=200", "gate_width=250"]  # the task's, then the one given, which wins
 
 
-def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):
+def stage_timesteps(tmp_path, stage: str, task: str, **given) -> int:
+    """The ``--timesteps`` that the tool's run of ``task`` gives its ``stage`` (``train`` or ``finetune``)."""
     tool = load_tool("disk_ppo")
     commands = []
     tool.dpr = lambda *arguments: commands.append(arguments)
+    tool.run(task, 0, run_args(out=tmp_path / stage / task / str(given), **given))
+    command = next(command for command in commands if command[0] == stage)
+    return int(command[command.index("--timesteps") + 1])
 
+
+def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):
     def pretrain_steps(task, **given):
-        commands.clear()
-        tool.run(task, 0, run_args(out=tmp_path / task / str(given), finetune_steps=0, **given))
-        train = commands[0]
-        return int(train[train.index("--timesteps") + 1])
+        return stage_timesteps(tmp_path, "train", task, finetune_steps=0, **given)
 
     assert pretrain_steps("gate", pretrain_steps=None) == 1_200_000
     assert pretrain_steps("navigation", pretrain_steps=None) == 600_000
@@ -165,15 +168,8 @@ def test_gate_pretrains_twice_as_long_unless_the_steps_are_given(tmp_path):
 
 
 def test_gate_fine_tunes_three_times_as_long_unless_the_steps_are_given(tmp_path):
-    tool = load_tool("disk_ppo")
-    commands = []
-    tool.dpr = lambda *arguments: commands.append(arguments)
-
     def finetune_steps(task, **given):
-        commands.clear()
-        tool.run(task, 0, run_args(out=tmp_path / task / str(given), **given))
-        finetune = next(command for command in commands if command[0] == "finetune")
-        return int(finetune[finetune.index("--timesteps") + 1])
+        return stage_timesteps(tmp_path, "finetune", task, **given)
 
     assert finetune_steps("gate", finetune_steps=None) == 300_000
     assert finetune_steps("navigation", finetune_steps=None) == 100_000
