@@ -104,9 +104,9 @@ def test_the_batched_bench_refuses_what_the_machine_lacks_before_any_work(monkey
     if "cuda" in flags and torch.cuda.is_available():
         pytest.skip("this machine has CUDA: the refusal is for machines without it")
     monkeypatch.setattr(bench._Bench, "__init__", lambda *a, **k: pytest.fail("the pymunk side started"))
-    with pytest.raises(SystemExit) as exit:
+    with pytest.raises(SystemExit) as stopped:
         main(["bench", "--engine", "batched", *flags])
-    assert exit.value.code == 2 and f"error: {named}:" in capsys.readouterr().err
+    assert stopped.value.code == 2 and f"error: {named}:" in capsys.readouterr().err
 
 
 def test_the_pymunk_bench_resets_its_env_at_episode_ends():
