@@ -71,6 +71,11 @@ def cmd_bench(args, parser) -> int:
     return 0
 
 
+def _given_repeats(args) -> dict:
+    """--repeats where given; else each engine's bench keeps its own default."""
+    return {} if args.repeats is None else {"repeats": args.repeats}
+
+
 def _pymunk_rows(args) -> tuple[list[dict], str]:
     from dpr.bench import format_table, run_benchmarks
 
@@ -78,7 +83,7 @@ def _pymunk_rows(args) -> tuple[list[dict], str]:
         models=args.models,
         sizes=args.sizes,
         steps=args.steps,
-        repeats=args.repeats or defaults(run_benchmarks)["repeats"],
+        **_given_repeats(args),
         progress=lambda r: print(
             f"{r['robot_model']:>6} N={r['n_robots']:<4} env {r['env_steps_per_s']:8.0f}/s  "
             f"physics {r['physics_steps_per_s']:8.0f}/s  ({r['env_over_physics']:.0%})",
@@ -97,7 +102,7 @@ def _batched_rows(args) -> tuple[list[dict], str]:
         device=args.device,
         compile=args.compile,
         robots=args.batched_robots,
-        **({"repeats": args.repeats} if args.repeats else {}),
+        **_given_repeats(args),
         progress=lambda r: print(
             f"batched N={r['n_robots']:<5} K={r['num_envs']:<6} {r['env_steps_per_s']:10.0f} env steps/s",
             file=sys.stderr,
