@@ -71,6 +71,32 @@ def test_train_refuses_what_the_batched_engine_cannot_do():
         train(TrainConfig("ppo", "dpr/Navigation-v0", robot_model="disk", engine="batched"))
 
 
+def test_train_checks_the_batched_device_and_memory_before_any_work(monkeypatch, tmp_path, capsys):
+    argv = [
+        "train",
+        "--algo",
+        "ppo",
+        "--env",
+        "dpr/Navigation-v0",
+        "--robot-model",
+        "disk",
+        "--engine",
+        "batched",
+        "--timesteps",
+        "64",
+    ]
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(SystemExit) as usage_error:
+        main([*argv, "--device", "cuda", "--out", str(tmp_path / "cuda")])
+    assert usage_error.value.code == 2 and "device" in capsys.readouterr().err
+    monkeypatch.setattr("dpr.sim.batched.world.physical_memory", lambda: 1024)
+    with pytest.raises(SystemExit) as usage_error:
+        main([*argv, "--n-envs", "64", "--out", str(tmp_path / "big")])
+    assert usage_error.value.code == 2
+    assert "n-envs" in (err := capsys.readouterr().err) and "64 swarms of 9 robots on cpu need about" in err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
 def test_the_batched_bench_measures_a_rate():
     row = bench_batched(4, 4, seconds=0.0)
     assert row["env_steps_per_s"] > 0 and row["n_robots"] == 4 and row["peak_memory_mb"] > 0

@@ -51,17 +51,16 @@ TRAIN_COUNT_BOUNDS = {
 
 def check_training_memory(n_envs: int, n_robots: int, robot_model: str, engine: str, device: str) -> None:
     """A ParameterError about n_envs, saying the estimate, when the envs of a training run cannot fit this machine's
-    memory: on the pymunk engine each of several envs is a process of its own; on the batched engine on the CPU its
-    world's tensors (on a GPU, the batched world compares with the GPU's memory itself)."""
+    memory (on the pymunk engine each of several envs is a process of its own; on the batched engine its world's
+    tensors, against the device's memory), or about device when this machine lacks it."""
     if engine == "pymunk":
         per_env = env_bytes(n_robots, robot_model) + (WORKER_BYTES if n_envs > 1 else 0)
         what = f"{n_envs} envs of {n_robots} robots" + (" (a process each)" if n_envs > 1 else "")
         check_memory("n_envs", what, n_envs * per_env)
-    elif str(device).startswith("cpu"):
-        from dpr.sim.batched.world import estimated_memory
+    else:
+        from dpr.sim.batched import checked_size
 
-        what = f"{n_envs} swarms of {n_robots} robots on the batched engine"
-        check_memory("n_envs", what, estimated_memory(n_envs, n_robots))
+        checked_size(n_envs, n_robots, device, name="n_envs")
 
 
 ON_POLICY = ("ppo", "a2c")

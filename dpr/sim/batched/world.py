@@ -123,13 +123,15 @@ def _available_memory(device: torch.device) -> int:
     return physical_memory()
 
 
-def checked_size(num_envs: int, n_robots: int, device: str | torch.device = "cpu") -> torch.device:
+def checked_size(
+    num_envs: int, n_robots: int, device: str | torch.device = "cpu", name: str = "num_envs"
+) -> torch.device:
     """The torch device of a world of ``num_envs`` swarms of ``n_robots``, once this machine has that device and its
-    memory holds the world's estimate (:func:`estimated_memory`): ParameterErrors naming ``device`` or ``num_envs``
-    otherwise, before anything is built."""
+    memory holds the world's estimate (:func:`estimated_memory`): ParameterErrors naming ``device`` or ``name`` (the
+    caller's word for the count) otherwise, before anything is built."""
     checked = _checked_device(device)
     what = f"{num_envs} swarms of {n_robots} robots on {checked}"
-    check_memory("num_envs", what, estimated_memory(num_envs, n_robots), _available_memory(checked))
+    check_memory(name, what, estimated_memory(num_envs, n_robots), _available_memory(checked))
     return checked
 
 
