@@ -245,6 +245,17 @@ def bench_batched(
     return bench.close()
 
 
+def batched_cases(ks, sizes, robots: int = BATCHED_ROBOTS, device="cpu") -> list[tuple[int, int]]:
+    """The (K, N) of every row of :func:`run_batched_benchmarks`: N=9 at each K in ``ks``, then each N in ``sizes`` at
+    K*N near ``robots``; a ParameterError (naming ``device`` or ``num_envs``) for a row this machine cannot hold."""
+    from dpr.sim.batched import checked_size
+
+    cases = [(k, 9) for k in ks] + [(max(1, robots // n), n) for n in sizes]
+    for k, n in cases:
+        checked_size(k, n, device)
+    return cases
+
+
 def run_batched_benchmarks(
     ks=BATCHED_ENVS,
     sizes=BATCHED_SIZES,
@@ -262,11 +273,7 @@ def run_batched_benchmarks(
     Each row is timed in ``repeats`` blocks of at least ``seconds``, each right after a block of the pymunk env of
     about the same length, with one more pymunk block after the last: both sides of a row's ratio see the same
     machine, and its figures are the medians of its own blocks."""
-    from dpr.sim.batched import checked_size
-
-    cases = [(k, 9) for k in ks] + [(max(1, robots // n), n) for n in sizes]
-    for k, n in cases:  # every row's device and memory, before any work
-        checked_size(k, n, device)
+    cases = batched_cases(ks, sizes, robots, device)
     pymunk = {n: _Bench.sized("disk", n, seconds) for n in sorted({n for _, n in cases}) if n <= PYMUNK_LARGEST}
     rows = []
     for k, n in cases:

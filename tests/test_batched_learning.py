@@ -72,19 +72,7 @@ def test_train_refuses_what_the_batched_engine_cannot_do():
 
 
 def test_train_checks_the_batched_device_and_memory_before_any_work(monkeypatch, tmp_path, capsys):
-    argv = [
-        "train",
-        "--algo",
-        "ppo",
-        "--env",
-        "dpr/Navigation-v0",
-        "--robot-model",
-        "disk",
-        "--engine",
-        "batched",
-        "--timesteps",
-        "64",
-    ]
+    argv = "train --algo ppo --env dpr/Navigation-v0 --robot-model disk --engine batched --timesteps 64".split()
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(SystemExit) as usage_error:
         main([*argv, "--device", "cuda", "--out", str(tmp_path / "cuda")])
@@ -127,12 +115,20 @@ def test_each_batched_row_is_timed_between_blocks_of_the_pymunk_env(monkeypatch)
     ],
 )
 def test_the_batched_bench_refuses_what_the_machine_lacks_before_any_work(monkeypatch, capsys, flags, named):
-    if "cuda" in flags and torch.cuda.is_available():
-        pytest.skip("this machine has CUDA: the refusal is for machines without it")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     monkeypatch.setattr(bench._Bench, "__init__", lambda *a, **k: pytest.fail("the pymunk side started"))
     with pytest.raises(SystemExit) as stopped:
         main(["bench", "--engine", "batched", *flags])
     assert stopped.value.code == 2 and f"error: {named}:" in capsys.readouterr().err
+
+
+def test_a_failure_inside_the_batched_bench_is_not_a_usage_error(monkeypatch):
+    def failing(*args, **kwargs):
+        raise ValueError("inside the bench")
+
+    monkeypatch.setattr(bench._BatchedBench, "block", failing)
+    with pytest.raises(ValueError, match="inside the bench"):
+        main(["bench", "--engine", "batched", "--ks", "4", "--batched-sizes"])
 
 
 def test_the_pymunk_bench_resets_its_env_at_episode_ends():

@@ -61,14 +61,24 @@ def bench_arguments(parser: argparse.ArgumentParser) -> None:
 
 def cmd_bench(args, parser) -> int:
     check_output(args.json, parser, "--json")
-    try:
-        rows, table = _batched_rows(args) if args.engine == "batched" else _pymunk_rows(args)
-    except ValueError as error:  # a row the machine cannot hold, or a device it lacks: said before any work
-        parser.error(flag_message(error, {"num_envs": "--ks or --batched-robots"}))
+    if args.engine == "batched":
+        _check_batched_rows(args, parser)
+    rows, table = _batched_rows(args) if args.engine == "batched" else _pymunk_rows(args)
     print(table)
     if args.json:
         write_json(args.json, rows)
     return 0
+
+
+def _check_batched_rows(args, parser) -> None:
+    """A usage error, before any work, for a row the machine cannot hold or a device it lacks."""
+    from dpr.bench import batched_cases
+    from dpr.checks import ParameterError
+
+    try:
+        batched_cases(args.ks, args.batched_sizes, args.batched_robots, args.device)
+    except ParameterError as error:
+        parser.error(flag_message(error, {"num_envs": "--ks or --batched-robots"}))
 
 
 def _given_repeats(args) -> dict:
