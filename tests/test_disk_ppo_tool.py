@@ -28,10 +28,11 @@ def campaign(tmp_path, validation, test, stage="finetune", zero_shot=0.0):
     write_evaluation(tmp_path / "unresponsive" / "wave_test.json", 20.0)
 
 
-def report(tmp_path, capsys, test=True):
+def report(tmp_path, capsys, test=True, rounds=None):
     tool = load_tool("disk_ppo")
     tool.dpr = pytest.fail  # every evaluation is on disk: nothing may run
-    tool.report(argparse.Namespace(tasks=["unresponsive"], out=tmp_path, test=test, pretrained_in=None))
+    given = dict(tasks=["unresponsive"], out=tmp_path, test=test, pretrained_in=None, finetune_rounds=rounds)
+    tool.report(argparse.Namespace(**given))
     return capsys.readouterr().out
 
 
@@ -47,7 +48,7 @@ def test_report_does_not_test_a_campaign_whose_fine_tunes_are_not_all_done(tmp_p
     campaign(tmp_path, validation=[44.0, 41.0], test=[30.0, 22.0])
     write_evaluation(tmp_path / "unresponsive" / "seed-2" / "zero_shot_validation.json", 10.0)
     out = report(tmp_path, capsys)
-    assert "not tested, 2 of its 3 runs are fine-tuned" in out
+    assert "not tested, 2 of its 3 runs reached finetune" in out
     assert "median of" not in out
 
 
@@ -64,6 +65,23 @@ def test_a_run_whose_fine_tune_scored_lower_on_validation_keeps_its_pretrained_a
     assert "median of 3 runs on the test seeds: 150% of the paddle wave" in out  # 30, 40, 26 against 20
 
 
+def test_a_second_round_ships_where_it_scores_highest_on_validation(tmp_path, capsys):
+    campaign(tmp_path, validation=[44.0, 41.0, 42.0], test=[30.0, 22.0, 26.0], zero_shot=30.0)
+    for seed, (val, tst) in enumerate([(45.0, 34.0), (40.0, 99.0), (46.0, 28.0)]):  # seed 1's second round is lower
+        folder = tmp_path / "unresponsive" / f"seed-{seed}"
+        write_evaluation(folder / "finetuned-2_validation.json", val)
+        (folder / "finetune-2").mkdir()
+        (folder / "finetune-2" / "model.zip").write_bytes(b"")
+        write_evaluation(folder / "test_finetune-2.json", tst)
+    (tmp_path / "unresponsive" / "seed-1" / "finetuned-2_validation.json").rename(tmp_path / "seed-1-round-2")
+    assert "not tested, 2 of its 3 runs reached finetune-2" in report(tmp_path, capsys, rounds=2)
+    (tmp_path / "seed-1-round-2").rename(tmp_path / "unresponsive" / "seed-1" / "finetuned-2_validation.json")
+    out = report(tmp_path, capsys, rounds=2)
+    assert "the one to ship: seed-0 (finetune-2)" in out  # 41 < 45 < 46 on validation
+    assert "seed-1 (" in out and "finetune/model.zip): test median 22.0" in out
+    assert "median of 3 runs on the test seeds: 140% of the paddle wave" in out  # 34, 22, 28 against 20
+
+
 def run_args(**given) -> argparse.Namespace:
     """The tool's command line for tiny runs, with ``given`` over its defaults."""
     defaults = dict(
@@ -71,6 +89,7 @@ def run_args(**given) -> argparse.Namespace:
         num_envs=2,
         compile=False,
         finetune_steps=10,
+        finetune_rounds=1,
         finetune_hyperparam=[],
         finetune_temperature=1.0,
         pretrain_env_kwarg=[],
@@ -174,3 +193,20 @@ def test_gate_fine_tunes_three_times_as_long_unless_the_steps_are_given(tmp_path
     assert finetune_steps("gate", finetune_steps=None) == 300_000
     assert finetune_steps("navigation", finetune_steps=None) == 100_000
     assert finetune_steps("gate", finetune_steps=10) == 10
+
+
+def test_gate_fine_tunes_in_two_rounds_the_second_from_the_first_ones_averaged_actor(tmp_path):
+    tool = load_tool("disk_ppo")
+    commands = []
+    tool.dpr = lambda *arguments: commands.append(arguments)
+    tool.run("gate", 0, run_args(out=tmp_path, finetune_rounds=None))
+    _, _, first, first_validation, second, second_validation = commands
+    run = tmp_path / "gate" / "seed-0"
+    assert second[second.index("--from") + 1] == str(run / "finetune" / "averaged_model.zip")
+    assert second[second.index("--out") + 1] == str(run / "finetune-2")
+    assert second_validation[second_validation.index("--policy") + 1] == str(run / "finetune-2" / "averaged_model.zip")
+    assert second_validation[second_validation.index("--json") + 1] == str(run / "finetuned-2_validation.json")
+    assert first_validation[first_validation.index("--json") + 1] == str(run / "finetuned_validation.json")
+    commands.clear()
+    tool.run("navigation", 0, run_args(out=tmp_path, finetune_rounds=None))
+    assert [command[0] for command in commands] == ["train", "evaluate", "finetune", "evaluate"]

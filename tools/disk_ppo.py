@@ -8,11 +8,14 @@ where it stopped when run again):
    on ``--num-envs`` envs in one call);
 2. ``zero-shot``: that actor, unchanged, on the paddle model over the validation seeds;
 3. ``finetune``: ``dpr finetune --from`` it on the paddle model (the disk-pretraining recipe of the research log);
-4. ``validation``: the fine-tuned actor on the validation seeds.
+4. ``validation``: the fine-tuned actor on the validation seeds;
+
+and steps 3 and 4 again for each further fine-tuning round (``--finetune-rounds``; Gate's default 2), each from the
+actor the round before ships, in ``finetune-2``, ``finetune-3``, ...
 
 ``--report`` then prints, per task, each run's validation medians and the median run on them (the one to ship), and
 with ``--test`` scores every run on the test seeds beside the paddle wave and gives the median run's score. A run's
-model is its checkpoint, pretrained or fine-tuned, that scored higher on the validation seeds.
+model is its actor, pretrained or after any fine-tuning round, that scored highest on the validation seeds.
 
     python tools/disk_ppo.py --tasks navigation unresponsive --seeds 0 1 2 --out runs/disk-ppo
     python tools/disk_ppo.py --out runs/disk-ppo --report --test
@@ -62,6 +65,9 @@ PRETRAIN_STEPS, TASK_PRETRAIN_STEPS = 600_000, {"gate": 1_200_000}
 TASK_PRETRAIN_ENV_KWARGS = {"gate": ["gate_width=200"]}
 # Gate's fine-tunes gain on every run from 100,000 to 300,000 paddle steps (research log, disk-pretraining)
 FINETUNE_STEPS, TASK_FINETUNE_STEPS = 100_000, {"gate": 300_000}
+# Gate's actors gain again from a second round of the fine-tune, started from the first one's weights' mean (research
+# log, disk-pretraining)
+FINETUNE_ROUNDS, TASK_FINETUNE_ROUNDS = 1, {"gate": 2}
 FINETUNE_HYPERPARAMS = ["gamma=0.941", "n_steps=512", "batch_size=128", "n_epochs=10", "policy=SwarmPolicy"]
 
 
@@ -115,15 +121,18 @@ def run(task: str, seed: int, args) -> None:
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
     if finetune_steps(task, args) == 0:
         return
-    finetune = folder / "finetune"
-    if not finished(finetune, batched=False):
-        hyper = repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
-        dpr("finetune", "--from", str(pretrain / "model.zip"), "--env", env_id, "--robot-model", "paddle",
-            "--timesteps", str(finetune_steps(task, args)), "--critic-warmup", "1666", "--seed", str(seed), *hyper,
-            "--exploration-temperature", str(args.finetune_temperature),
-            *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
-            *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
-    evaluate(finetune / model_file(task, "finetune"), env_id, VALIDATION, folder / "finetuned_validation.json")
+    start = pretrain / "model.zip"
+    for stage in finetune_stages(task, args):
+        finetune = folder / stage
+        if not finished(finetune, batched=False):
+            hyper = repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
+            dpr("finetune", "--from", str(start), "--env", env_id, "--robot-model", "paddle",
+                "--timesteps", str(finetune_steps(task, args)), "--critic-warmup", "1666", "--seed", str(seed),
+                *hyper, "--exploration-temperature", str(args.finetune_temperature),
+                *TASK_ENV_KWARGS.get(task, []), *TASK_FINETUNE_ARGS.get(task, []), "--out", str(finetune),
+                *(["--resume"] if stopped(finetune, batched=False) else []))  # fmt: skip
+        start = finetune / model_file(task, stage)
+        evaluate(start, env_id, VALIDATION, folder / validation_file(stage))
 
 
 def pretrain_env_kwargs(task: str, args) -> list[str]:
@@ -148,8 +157,26 @@ def finetune_steps(task: str, args) -> int:
     return TASK_FINETUNE_STEPS.get(task, FINETUNE_STEPS) if args.finetune_steps is None else args.finetune_steps
 
 
+def finetune_stages(task: str, args) -> list[str]:
+    """The run's fine-tuning rounds' folders: ``finetune``, then ``finetune-2``, ... (``--finetune-rounds`` where
+    given, else the task's own)."""
+    rounds = TASK_FINETUNE_ROUNDS.get(task, FINETUNE_ROUNDS) if args.finetune_rounds is None else args.finetune_rounds
+    return ["finetune"] + [f"finetune-{r}" for r in range(2, rounds + 1)]
+
+
+def validation_file(stage: str) -> str:
+    """Where a stage's validation medians are: ``zero_shot_validation.json`` for the pretrained actor,
+    ``finetuned_validation.json`` for the first fine-tune, ``finetuned-2_validation.json`` for the second, ..."""
+    return (
+        "zero_shot_validation.json"
+        if stage == "pretrain"
+        else f"{stage.replace('finetune', 'finetuned')}_validation.json"
+    )
+
+
 def model_file(task: str, stage: str) -> str:
-    return FINETUNED_MODEL.get(task, "model.zip") if stage == "finetune" else "model.zip"
+    """The file a stage ships: the pretraining's model, or the task's fine-tuned file (:data:`FINETUNED_MODEL`)."""
+    return "model.zip" if stage == "pretrain" else FINETUNED_MODEL.get(task, "model.zip")
 
 
 def median_displacement(path: Path) -> float | None:
@@ -163,28 +190,30 @@ def median_displacement(path: Path) -> float | None:
 def report(args) -> None:
     for task in args.tasks:
         env_id, runs = ENVS[task], sorted((args.out / task).glob("seed-*"))
-        scores, tuned_runs = {}, set()
+        stages = ["pretrain", *finetune_stages(task, args)]
+        scores, done = {}, {}
         for folder in runs:
-            zero = median_displacement(folder / "zero_shot_validation.json")
-            tuned = median_displacement(folder / "finetuned_validation.json")
-            print(f"{task} {folder.name}: zero-shot {zero}, fine-tuned {tuned} (validation medians)")
-            if zero is None:
+            medians = {stage: median_displacement(folder / validation_file(stage)) for stage in stages}
+            print(f"{task} {folder.name}: {', '.join(f'{s} {m}' for s, m in medians.items())} (validation medians)")
+            if medians["pretrain"] is None:
                 continue
-            if tuned is not None:
-                tuned_runs.add(folder)
-            # each run's model is its checkpoint that scored higher on the validation seeds
-            scores[folder] = (tuned, "finetune") if tuned is not None and tuned >= zero else (zero, "pretrain")
+            done[folder] = [stage for stage in stages if medians[stage] is not None]
+            # each run's model is its actor that scored highest on the validation seeds (on a tie, the later one)
+            best = max(reversed(done[folder]), key=lambda stage: medians[stage])
+            scores[folder] = (medians[best], best)
         if not scores:
             continue
         ordered = sorted(scores, key=lambda f: scores[f][0])
         chosen = ordered[len(ordered) // 2]
         print(f"{task}: the median run on validation seeds, the one to ship: {chosen.name} ({scores[chosen][1]})")
-        if args.test and tuned_runs and len(tuned_runs) < len(scores):
-            print(f"{task}: not tested, {len(tuned_runs)} of its {len(scores)} runs are fine-tuned")
+        furthest = max(done.values(), key=len)[-1]
+        reached = sum(stages_done[-1] == furthest for stages_done in done.values())
+        if args.test and reached < len(scores):
+            print(f"{task}: not tested, {reached} of its {len(scores)} runs reached {furthest}")
         elif args.test:
             models = {}
             for folder, (_, stage) in scores.items():
-                stage_folder = folder / "finetune" if stage == "finetune" else pretrain_folder(args, folder)
+                stage_folder = pretrain_folder(args, folder) if stage == "pretrain" else folder / stage
                 models[folder] = stage_folder / model_file(task, stage)
             score_every_run_on_test_seeds(task, env_id, models, args.out)
 
@@ -238,6 +267,12 @@ def main() -> int:
         "--finetune-steps",
         type=int,
         help=f"env steps on paddle (0: none; default: {FINETUNE_STEPS:,}; Gate {TASK_FINETUNE_STEPS['gate']:,})",
+    )
+    parser.add_argument(
+        "--finetune-rounds",
+        type=int,
+        help=f"fine-tuning rounds, each from the last one's actor (default: {FINETUNE_ROUNDS}; Gate "
+        f"{TASK_FINETUNE_ROUNDS['gate']})",
     )
     parser.add_argument(
         "--finetune-hyperparam",
