@@ -210,3 +210,13 @@ def test_gate_fine_tunes_in_two_rounds_the_second_from_the_first_ones_averaged_a
     commands.clear()
     tool.run("navigation", 0, run_args(out=tmp_path, finetune_rounds=None))
     assert [command[0] for command in commands] == ["train", "evaluate", "finetune", "evaluate"]
+
+
+def test_zero_fine_tuning_rounds_is_refused_before_any_work(monkeypatch, tmp_path, capsys):
+    tool = load_tool("disk_ppo")
+    tool.dpr = pytest.fail
+    monkeypatch.setattr("sys.argv", ["disk_ppo.py", "--finetune-rounds", "0", "--out", str(tmp_path / "campaign")])
+    with pytest.raises(SystemExit) as usage_error:
+        tool.main()
+    assert usage_error.value.code == 2 and "--finetune-rounds: expected 1 or more" in capsys.readouterr().err
+    assert not (tmp_path / "campaign").exists()

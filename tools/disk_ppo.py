@@ -293,6 +293,8 @@ def main() -> int:
     parser.add_argument("--report", action="store_true", help="print the runs' validation medians")
     parser.add_argument("--test", action="store_true", help="with --report: score every run on the test seeds")
     args = parser.parse_args()
+    if args.finetune_rounds is not None and args.finetune_rounds < 1:
+        parser.error(f"--finetune-rounds: expected 1 or more, got {args.finetune_rounds} (--finetune-steps 0: none)")
     if args.report:
         report(args)
         return 0
