@@ -121,11 +121,10 @@ def run(task: str, seed: int, args) -> None:
     evaluate(pretrain / "model.zip", env_id, VALIDATION, folder / "zero_shot_validation.json")
     if finetune_steps(task, args) == 0:
         return
-    start = pretrain / "model.zip"
+    start, hyper = pretrain / "model.zip", repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
     for stage in finetune_stages(task, args):
         finetune = folder / stage
         if not finished(finetune, batched=False):
-            hyper = repeated("--hyperparam", FINETUNE_HYPERPARAMS + args.finetune_hyperparam)
             dpr("finetune", "--from", str(start), "--env", env_id, "--robot-model", "paddle",
                 "--timesteps", str(finetune_steps(task, args)), "--critic-warmup", "1666", "--seed", str(seed),
                 *hyper, "--exploration-temperature", str(args.finetune_temperature),
