@@ -4,6 +4,7 @@ Ctrl-C while an episode's files are being written commits that episode whole."""
 
 import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -15,7 +16,8 @@ import pytest
 from helpers import parquet_files
 from test_collect import small_spec
 
-from dpr.datasets.collect import collect
+import dpr.datasets.collect as collect_module
+from dpr.datasets.collect import RolloutWorkers, collect
 from dpr.datasets.lerobot import LeRobotReader, LeRobotWriter
 from dpr.datasets.replay import replay_episode
 
@@ -195,6 +197,43 @@ def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
 
     assert run_cli_collect(out, log) == 0, log.read_text()  # the writer lock was released
     check_complete_dataset(out, CLI_STEPS)
+
+
+# ------------------------------------------------------------------------------ episodes leave a pool as files
+
+PIPE_BUFFER = 65536  # Linux's pipe capacity: a larger message blocks its sender until the other end reads
+
+
+def test_a_pool_worker_hands_its_episode_back_as_a_file(tmp_path):
+    """What crosses the pool's pipe is a path, far smaller than the pipe's buffer, however long the episode: a
+    worker never blocks mid-send holding the pipe's lock, which would hang Pool.terminate() on Ctrl-C."""
+    spec = small_spec(n_robots=9, steps=CLI_STEPS)
+    direct = collect_module.rollout(spec, 5)
+    assert len(pickle.dumps(direct)) > PIPE_BUFFER  # the episode itself would block the sender
+
+    path = collect_module._rollout_to_file((spec, 5, None), tmp_path)
+    assert len(pickle.dumps(path)) < 1024
+    handed = collect_module._take_record(path)
+    assert not path.exists() and list(tmp_path.iterdir()) == []
+    assert handed.seed == 5
+    for name in ("observations", "actions", "rewards", "dones", "environment_states"):
+        np.testing.assert_array_equal(getattr(handed, name), getattr(direct, name), err_msg=name)
+
+
+def test_pooled_collect_records_the_serial_episodes_and_leaves_no_files(tmp_path, monkeypatch):
+    handoffs = tmp_path / "tmp"
+    handoffs.mkdir()
+    monkeypatch.setattr("tempfile.tempdir", str(handoffs))  # where the run's hand-off folder is made
+    spec = small_spec(steps=60)
+    collect(tmp_path / "pooled", spec, episodes=3, workers=RolloutWorkers(2))
+    collect(tmp_path / "serial", spec, episodes=3)
+    assert list(handoffs.iterdir()) == []
+    pooled, serial = LeRobotReader(tmp_path / "pooled"), LeRobotReader(tmp_path / "serial")
+    assert [e["seed"] for e in pooled.episodes] == [e["seed"] for e in serial.episodes] == [0, 1, 2]
+    for index in range(3):
+        a, b = pooled.episode(index), serial.episode(index)
+        for name in ("observation.state", "action", "next.reward"):
+            np.testing.assert_array_equal(a[name], b[name], err_msg=f"episode {index}: {name}")
 
 
 # ----------------------------------------------------------------------------------------- Ctrl-C while saving

@@ -18,8 +18,12 @@ before it lacks it, and episodes are not added to it (one dataset, one layout), 
 
 from __future__ import annotations
 
+import functools
 import multiprocessing as mp
+import os
+import pickle
 import signal
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -257,6 +261,29 @@ def _rollout_job(job: tuple[CollectSpec, int, Path | None]) -> EpisodeRecord:
     return rollout(*job)
 
 
+def _rollout_to_file(job: tuple[CollectSpec, int, Path | None], handoff: Path) -> Path:
+    """A pool worker's rollout, left as a file in ``handoff``; only its path goes back through the pool.
+
+    An episode runs to megabytes. Sent through the pool's result pipe, a worker blocks mid-send, holding the
+    pipe's write lock, until the main process reads it; ``Pool.terminate()`` on Ctrl-C then waits for that lock
+    forever once the pool has stopped reading. A path is a few hundred bytes and never blocks."""
+    record = _rollout_job(job)
+    path = handoff / f"seed-{job[1]}.pkl"
+    partial = path.with_suffix(".partial")
+    with open(partial, "wb") as handle:
+        pickle.dump(record, handle, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(partial, path)
+    return path
+
+
+def _take_record(path: Path) -> EpisodeRecord:
+    """The record a worker of this run left at ``path`` (a private temporary folder), removed once read."""
+    with open(path, "rb") as handle:
+        record = pickle.load(handle)
+    path.unlink()
+    return record
+
+
 BACKENDS = ("processes", "ray")
 
 
@@ -340,15 +367,17 @@ def _results(jobs: list, workers: RolloutWorkers) -> Iterator[EpisodeRecord]:
         return
     # spawn, not fork: pymunk spaces and pygame must not be shared with a forked parent
     context = mp.get_context("spawn")
-    pool = context.Pool(min(workers.count, len(jobs)), initializer=_ignore_sigint)
-    try:
-        results = pool.imap(_rollout_job, jobs)  # in job (seed) order, whatever order they finish in
-        for _ in jobs:
-            yield wait_deferring_sigint(results.next)
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
+    with tempfile.TemporaryDirectory(prefix="dpr-collect-") as handoff:
+        pool = context.Pool(min(workers.count, len(jobs)), initializer=_ignore_sigint)
+        try:
+            # in job (seed) order, whatever order they finish in
+            paths = pool.imap(functools.partial(_rollout_to_file, handoff=Path(handoff)), jobs)
+            for _ in jobs:
+                yield _take_record(wait_deferring_sigint(paths.next))
+            pool.close()
+        finally:
+            pool.terminate()
+            pool.join()
 
 
 def collect(
