@@ -1,12 +1,16 @@
 """A Ctrl-C that a callback from C code swallowed still stops the work at the next step; a Ctrl-C that arrives while
-a result is awaited is raised after the wait, never inside a lock's wait."""
+a result is awaited is raised after the wait, never inside a lock's wait; `dpr evaluate` in worker processes stops at
+once (collection: test_collect_interrupts.py)."""
 
 from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import gymnasium as gym
 import pytest
@@ -15,6 +19,8 @@ import dpr  # noqa: F401
 from dpr import interrupts
 from dpr.policies.registry import make_policy
 from dpr.rollout import roll_out
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -90,3 +96,41 @@ def test_first_completed_returns_the_finished_futures_and_delivers_a_ctrl_c(inst
         with pytest.raises(KeyboardInterrupt):
             interrupts.first_completed([slow])
         assert interrupts.first_completed([slow]) == {slow}  # the future's lock still works
+
+
+def test_cli_evaluate_in_workers_stops_at_once_on_ctrl_c(tmp_path):
+    """A SIGINT sent to `dpr evaluate` alone (a job manager's, or a terminal's that its workers ignore) ends its
+    workers and the run within seconds, not after every queued episode (30 paddle episodes: over a minute), and says
+    so instead of a traceback."""
+    from test_collect_interrupts import group_members
+
+    log = tmp_path / "evaluate.log"
+    argv = ["evaluate", "--policy", "wave", "--env", "dpr/Navigation-v0", "--seeds", "0-29", "--workers", "2"]
+    with open(log, "wb") as handle:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "dpr.cli", *argv],
+            cwd=REPO,
+            stdout=handle,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as typed at a terminal
+        )
+    try:
+        deadline = time.monotonic() + 60
+        while "1/30" not in log.read_text() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # the pool runs: its first episode is scored
+        assert process.poll() is None, log.read_text()
+        os.kill(process.pid, signal.SIGINT)
+        process.wait(timeout=15)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+            pytest.fail(f"dpr evaluate did not exit within 15 s of Ctrl-C:\n{log.read_text()}")
+    output = log.read_text()
+    assert process.returncode == 130, output
+    assert "dpr evaluate: interrupted" in output and "Traceback" not in output
+    deadline = time.monotonic() + 10
+    while group_members(process.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert group_members(process.pid) == [], "worker processes outlived dpr evaluate"

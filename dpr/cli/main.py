@@ -122,4 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         problem = unwritable_destination(value) if isinstance(value, str) else None
         if problem:
             parser.error(f"--{name}: {problem}")
-    return args.func(args, parser)
+    try:
+        return args.func(args, parser)
+    except KeyboardInterrupt:  # commands that keep work on Ctrl-C say so and return 130 themselves
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
+        return 130

@@ -194,13 +194,27 @@ def evaluate(
         with ProcessPoolExecutor(workers) as pool:
             futures = {pool.submit(run_episode, *job): i for i, job in enumerate(jobs)}
             pending = set(futures)
-            while pending:
-                for future in first_completed(pending):
-                    pending.remove(future)
-                    results[futures[future]] = future.result()
-                    if progress:
-                        progress(results[futures[future]])
+            try:
+                while pending:
+                    for future in first_completed(pending):
+                        pending.remove(future)
+                        results[futures[future]] = future.result()
+                        if progress:
+                            progress(results[futures[future]])
+            except BaseException:
+                _stop_now(pool)
+                raise
     return results  # type: ignore[return-value]
+
+
+def _stop_now(pool: ProcessPoolExecutor) -> None:
+    """Cancel the episodes ``pool`` has not started and end its workers now: an evaluation keeps nothing of a run
+    that stopped (Ctrl-C, an episode's error), and leaving the pool would run every queued episode first, minutes
+    after a Ctrl-C. (Python 3.14's ``terminate_workers()``; before it, the pool's own list of its processes.)"""
+    workers = list(pool._processes.values()) if pool._processes else []
+    pool.shutdown(wait=False, cancel_futures=True)
+    for worker in workers:
+        worker.terminate()
 
 
 def summary(results: list[EpisodeResult]) -> dict:
