@@ -58,7 +58,8 @@ def _sigint_as_a_terminal_delivers_it() -> None:
 
 
 def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:
-    """`dpr collect` in a new session (its own process group, workers included), Ctrl-C not ignored."""
+    """`dpr collect` in a new session (its own process group, workers included), Ctrl-C not ignored, its temporary
+    files beside ``out`` (what a killed run leaves stays in the test's folder)."""
     with open(log, "ab") as handle:
         return subprocess.Popen(
             [sys.executable, "-m", "dpr.cli", "collect", *CLI_ARGS, "--out", str(out)],
@@ -66,7 +67,7 @@ def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:
             stdout=handle,
             stderr=subprocess.STDOUT,
             start_new_session=True,
-            env={**os.environ, "SDL_VIDEODRIVER": "dummy"},
+            env={**os.environ, "SDL_VIDEODRIVER": "dummy", "TMPDIR": str(out.parent)},
             preexec_fn=_sigint_as_a_terminal_delivers_it,
         )
 
@@ -185,6 +186,7 @@ def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
     while group_members(process.pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert group_members(process.pid) == [], "worker processes outlived dpr collect"
+    assert list(out.parent.glob("dpr-collect-*")) == [], "the workers' hand-off folder outlived dpr collect"
 
     committed = committed_episodes(out)
     assert 1 <= committed < CLI_EPISODES
