@@ -9,6 +9,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +95,19 @@ def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, log: Pa
         time.sleep(0.01)
 
 
+@contextmanager
+def failed_if_left_running(process: subprocess.Popen, log: Path, message: str) -> Iterator[None]:
+    """A ``process`` still running when the block ends (or fails) is killed with its process group, and the test
+    fails with ``message`` and the process's log."""
+    try:
+        yield
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+            pytest.fail(f"{message}:\n{log.read_text()}")
+
+
 def group_members(pgid: int) -> list[int]:
     """Live (non-zombie) processes in process group ``pgid``, from /proc."""
     members = []
@@ -171,15 +186,10 @@ def test_cli_collect_survives_sigkill_and_resumes(tmp_path):
 def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
     out, log = tmp_path / "ds", tmp_path / "collect.log"
     process = start_cli_collect(out, log)
-    try:
+    with failed_if_left_running(process, log, "dpr collect did not exit within 20 s of Ctrl-C"):
         wait_for_episodes(out, 1, process, log)
         os.killpg(process.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole foreground group
         process.wait(timeout=20)
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-            pytest.fail(f"dpr collect did not exit within 20 s of Ctrl-C:\n{log.read_text()}")
     assert process.returncode == 130, log.read_text()
     assert "interrupted" in log.read_text()
     deadline = time.monotonic() + 10  # the resource tracker leaves once the main process's pipe closes

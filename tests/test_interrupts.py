@@ -102,7 +102,7 @@ def test_cli_evaluate_in_workers_stops_at_once_on_ctrl_c(tmp_path):
     """A SIGINT sent to `dpr evaluate` alone (a job manager's, or a terminal's that its workers ignore) ends its
     workers and the run within seconds, not after every queued episode (30 paddle episodes: over a minute), and says
     so instead of a traceback."""
-    from test_collect_interrupts import group_members
+    from test_collect_interrupts import failed_if_left_running, group_members
 
     log = tmp_path / "evaluate.log"
     argv = ["evaluate", "--policy", "wave", "--env", "dpr/Navigation-v0", "--seeds", "0-29", "--workers", "2"]
@@ -115,18 +115,13 @@ def test_cli_evaluate_in_workers_stops_at_once_on_ctrl_c(tmp_path):
             start_new_session=True,
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as typed at a terminal
         )
-    try:
+    with failed_if_left_running(process, log, "dpr evaluate did not exit within 15 s of Ctrl-C"):
         deadline = time.monotonic() + 60
         while "1/30" not in log.read_text() and process.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)  # the pool runs: its first episode is scored
         assert process.poll() is None, log.read_text()
         os.kill(process.pid, signal.SIGINT)
         process.wait(timeout=15)
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-            pytest.fail(f"dpr evaluate did not exit within 15 s of Ctrl-C:\n{log.read_text()}")
     output = log.read_text()
     assert process.returncode == 130, output
     assert "dpr evaluate: interrupted" in output and "Traceback" not in output
