@@ -1,6 +1,7 @@
 """Collection killed or interrupted: `dpr collect` as a user runs it survives SIGKILL mid-run (at most the episodes
 being recorded are lost, and the same command resumes) and stops cleanly on Ctrl-C with whole episodes committed;
-Ctrl-C while an episode's files are being written commits that episode whole."""
+Ctrl-C while an episode's files are being written commits that episode whole; pool workers hand episodes back as
+files, so that no worker blocks on the pool's pipe when Ctrl-C ends the pool."""
 
 import json
 import os
