@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import functools
 import multiprocessing as mp
-import os
 import pickle
 import signal
 import tempfile
@@ -266,13 +265,12 @@ def _rollout_to_file(job: tuple[CollectSpec, int, Path | None], handoff: Path) -
 
     An episode runs to megabytes. Sent through the pool's result pipe, a worker blocks mid-send, holding the
     pipe's write lock, until the main process reads it; ``Pool.terminate()`` on Ctrl-C then waits for that lock
-    forever once the pool has stopped reading. A path is a few hundred bytes and never blocks."""
+    forever once the pool has stopped reading. A path is a few hundred bytes and never blocks. (It is sent once the
+    file is whole: a worker ended mid-write leaves a file nobody reads, removed with the folder.)"""
     record = _rollout_job(job)
     path = handoff / f"seed-{job[1]}.pkl"
-    partial = path.with_suffix(".partial")
-    with open(partial, "wb") as handle:
+    with open(path, "wb") as handle:
         pickle.dump(record, handle, protocol=pickle.HIGHEST_PROTOCOL)
-    os.replace(partial, path)
     return path
 
 
