@@ -4,10 +4,16 @@ import contextlib
 import hashlib
 import importlib.util
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ENV_IDS = ("dpr/Navigation-v0", "dpr/Gate-v0", "dpr/Gate-v1", "dpr/Unresponsive-v0", "dpr/Manipulation-v0")
 ROBOT_MODELS = ("paddle", "disk")
@@ -311,3 +317,62 @@ def small_batched_config(**overrides):
         hyperparams={"n_steps": 8, "batch_size": 16, "n_epochs": 2},
     )
     return TrainConfig(**{**settings, **overrides})
+
+
+def _sigint_as_a_terminal_delivers_it() -> None:
+    # A shell without job control starts background commands with SIGINT ignored, and children inherit that
+    # (Python then installs no KeyboardInterrupt handler): give the command the disposition it has when typed.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def start_dpr_as_typed(argv: list[str], log: Path, env: dict | None = None) -> subprocess.Popen:
+    """``dpr ARGV`` in a new session (its own process group, workers included), Ctrl-C not ignored, its output
+    appended to ``log``."""
+    with open(log, "ab") as handle:
+        return subprocess.Popen(
+            [sys.executable, "-m", "dpr.cli", *argv],
+            cwd=Path(__file__).resolve().parents[1],
+            stdout=handle,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env=env,
+            preexec_fn=_sigint_as_a_terminal_delivers_it,
+        )
+
+
+@contextlib.contextmanager
+def failed_if_left_running(process: subprocess.Popen, log: Path, message: str) -> Iterator[None]:
+    """A ``process`` still running when the block ends (or fails) is killed with its process group, and the test
+    fails with ``message`` and the process's log."""
+    try:
+        yield
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+            pytest.fail(f"{message}:\n{log.read_text()}")
+
+
+def group_members(pgid: int) -> list[int]:
+    """Live (non-zombie) processes in process group ``pgid``, from /proc."""
+    members = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2 :].split()  # after "pid (comm) ": state, ppid, pgrp, ...
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            members.append(int(entry.name))
+    return members
+
+
+def assert_group_ends(pgid: int, message: str, seconds: float = 10.0) -> None:
+    """Every process of group ``pgid`` gone within ``seconds`` (a pool's resource tracker leaves once the main
+    process's pipe closes)."""
+    deadline = time.monotonic() + seconds
+    while group_members(pgid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert group_members(pgid) == [], message

@@ -8,15 +8,12 @@ import os
 import pickle
 import signal
 import subprocess
-import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import parquet_files
+from helpers import assert_group_ends, failed_if_left_running, parquet_files, start_dpr_as_typed
 from test_collect import small_spec
 
 import dpr.datasets.collect as collect_module
@@ -24,7 +21,6 @@ from dpr.datasets.collect import RolloutWorkers, collect
 from dpr.datasets.lerobot import LeRobotReader, LeRobotWriter
 from dpr.datasets.replay import replay_episode
 
-REPO = Path(__file__).resolve().parents[1]
 NAV = "dpr/Navigation-v0"
 
 # The subprocess runs: long enough (about 0.3 s of work per episode on 2 cores) that a kill after the first
@@ -54,25 +50,11 @@ def committed_episodes(root: Path) -> int:
         return 0
 
 
-def _sigint_as_a_terminal_delivers_it() -> None:
-    # A shell without job control starts background commands with SIGINT ignored, and children inherit that
-    # (Python then installs no KeyboardInterrupt handler): give `dpr collect` the disposition it has when typed.
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def start_cli_collect(out: Path, log: Path) -> subprocess.Popen:
-    """`dpr collect` in a new session (its own process group, workers included), Ctrl-C not ignored, its temporary
-    files beside ``out`` (what a killed run leaves stays in the test's folder)."""
-    with open(log, "ab") as handle:
-        return subprocess.Popen(
-            [sys.executable, "-m", "dpr.cli", "collect", *CLI_ARGS, "--out", str(out)],
-            cwd=REPO,
-            stdout=handle,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-            env={**os.environ, "SDL_VIDEODRIVER": "dummy", "TMPDIR": str(out.parent)},
-            preexec_fn=_sigint_as_a_terminal_delivers_it,
-        )
+    """`dpr collect` as typed at a terminal, its temporary files beside ``out`` (what a killed run leaves stays in
+    the test's folder)."""
+    env = {**os.environ, "SDL_VIDEODRIVER": "dummy", "TMPDIR": str(out.parent)}
+    return start_dpr_as_typed(["collect", *CLI_ARGS, "--out", str(out)], log, env)
 
 
 def run_cli_collect(out: Path, log: Path) -> int:
@@ -94,35 +76,6 @@ def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, log: Pa
             os.killpg(process.pid, signal.SIGKILL)
             pytest.fail(f"no {count} committed episodes within {timeout} s:\n{log.read_text()}")
         time.sleep(0.01)
-
-
-@contextmanager
-def failed_if_left_running(process: subprocess.Popen, log: Path, message: str) -> Iterator[None]:
-    """A ``process`` still running when the block ends (or fails) is killed with its process group, and the test
-    fails with ``message`` and the process's log."""
-    try:
-        yield
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-            pytest.fail(f"{message}:\n{log.read_text()}")
-
-
-def group_members(pgid: int) -> list[int]:
-    """Live (non-zombie) processes in process group ``pgid``, from /proc."""
-    members = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2 :].split()  # after "pid (comm) ": state, ppid, pgrp, ...
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            members.append(int(entry.name))
-    return members
 
 
 def check_complete_dataset(root: Path, steps: int) -> LeRobotReader:
@@ -193,10 +146,7 @@ def test_cli_collect_stops_cleanly_on_ctrl_c(tmp_path):
         process.wait(timeout=20)
     assert process.returncode == 130, log.read_text()
     assert "interrupted" in log.read_text()
-    deadline = time.monotonic() + 10  # the resource tracker leaves once the main process's pipe closes
-    while group_members(process.pid) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert group_members(process.pid) == [], "worker processes outlived dpr collect"
+    assert_group_ends(process.pid, "worker processes outlived dpr collect")
     assert list(out.parent.glob("dpr-collect-*")) == [], "the workers' hand-off folder outlived dpr collect"
 
     committed = committed_episodes(out)

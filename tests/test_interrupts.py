@@ -6,21 +6,17 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import gymnasium as gym
 import pytest
+from helpers import assert_group_ends, failed_if_left_running, start_dpr_as_typed
 
 import dpr  # noqa: F401
 from dpr import interrupts
 from dpr.policies.registry import make_policy
 from dpr.rollout import roll_out
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -102,19 +98,9 @@ def test_cli_evaluate_in_workers_stops_at_once_on_ctrl_c(tmp_path):
     """A SIGINT sent to `dpr evaluate` alone (a job manager's, or a terminal's that its workers ignore) ends its
     workers and the run within seconds, not after every queued episode (30 paddle episodes: over a minute), and says
     so instead of a traceback."""
-    from test_collect_interrupts import failed_if_left_running, group_members
-
     log = tmp_path / "evaluate.log"
     argv = ["evaluate", "--policy", "wave", "--env", "dpr/Navigation-v0", "--seeds", "0-29", "--workers", "2"]
-    with open(log, "wb") as handle:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "dpr.cli", *argv],
-            cwd=REPO,
-            stdout=handle,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as typed at a terminal
-        )
+    process = start_dpr_as_typed(argv, log)
     with failed_if_left_running(process, log, "dpr evaluate did not exit within 15 s of Ctrl-C"):
         deadline = time.monotonic() + 60
         while "1/30" not in log.read_text() and process.poll() is None and time.monotonic() < deadline:
@@ -125,7 +111,4 @@ def test_cli_evaluate_in_workers_stops_at_once_on_ctrl_c(tmp_path):
     output = log.read_text()
     assert process.returncode == 130, output
     assert "dpr evaluate: interrupted" in output and "Traceback" not in output
-    deadline = time.monotonic() + 10
-    while group_members(process.pid) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert group_members(process.pid) == [], "worker processes outlived dpr evaluate"
+    assert_group_ends(process.pid, "worker processes outlived dpr evaluate")
